@@ -1,0 +1,57 @@
+"""The one exception tree of the project.
+
+Every error raised on purpose is an :class:`AtrisError`. Subclasses also inherit the
+matching built-in, so ``except ValueError`` in a caller keeps working, in the way
+python-can's ``CanTimeoutError(CanError, TimeoutError)`` does. Vendor errors are wrapped
+with ``raise ... from exc``.
+"""
+
+from __future__ import annotations
+
+
+class AtrisError(Exception):
+    """Base of every error this project raises on purpose."""
+
+
+class ConfigError(AtrisError, ValueError):
+    """A parameter, launch file, scene file or calibration file is invalid."""
+
+
+class CodeError(AtrisError, ValueError):
+    """A code length, code row or code set that cannot exist or is not allowed."""
+
+
+class DemodulationError(AtrisError, ValueError):
+    """Sub-frames that cannot be demodulated (wrong shape, dtype or bit depth)."""
+
+
+class FrameDecodeError(AtrisError, ValueError):
+    """Bytes from the bus that are not a valid frame of the shipped database."""
+
+
+class CalibrationError(AtrisError, ValueError):
+    """Calibration input that is degenerate, or a calibration file that does not fit."""
+
+
+class DriverError(AtrisError, RuntimeError):
+    """A camera or projector backend failed or is not available."""
+
+
+class DeviceNotFoundError(DriverError, LookupError):
+    """No device of the requested kind is attached."""
+
+
+class CameraLostError(DriverError, ConnectionError):
+    """The camera stopped delivering sub-frames."""
+
+
+class BusError(AtrisError, OSError):
+    """The CAN bus failed (bus-off, send failure, interface not available)."""
+
+
+class NegotiationError(AtrisError, RuntimeError):
+    """Code negotiation cannot reach a safe assignment (plan conflict, no free code)."""
+
+
+class NodeFaultError(AtrisError, RuntimeError):
+    """A fatal error stored by a background thread and re-raised in the main loop."""

@@ -1,0 +1,1 @@
+"""Calibration: camera intrinsics (ChArUco), laser planes (baseline b, angle alpha per line)."""
