@@ -1,0 +1,75 @@
+"""Calibration values the pipeline needs: camera intrinsics and one light plane per line.
+
+Units: pixels for the intrinsics, metres for the baseline, radians for the angles.
+Loading and validating calibration files lives in ``calib/``; this module only holds the
+values and checks that they can be used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from atris_node.errors import CalibrationError
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole camera with optional OpenCV distortion (k1, k2, p1, p2[, k3...]).
+
+    ``focal_px`` is f in pixels (square pixels assumed); ``cx_px``/``cy_px`` the principal
+    point (column, row) in pixels; ``width_px``/``height_px`` the image size it belongs to.
+    """
+
+    width_px: int
+    height_px: int
+    focal_px: float
+    cx_px: float
+    cy_px: float
+    distortion: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.width_px <= 0 or self.height_px <= 0:
+            raise CalibrationError(
+                f"image size must be positive, got {self.width_px}x{self.height_px}")
+        if not (np.isfinite(self.focal_px) and self.focal_px > 0):
+            raise CalibrationError(f"focal_px must be a positive number, got {self.focal_px}")
+        if not all(np.isfinite(v) for v in (self.cx_px, self.cy_px, *self.distortion)):
+            raise CalibrationError("principal point and distortion must be finite numbers")
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """3×3 camera matrix K, float64."""
+        return np.array([[self.focal_px, 0.0, self.cx_px],
+                         [0.0, self.focal_px, self.cy_px],
+                         [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class LaserCalibration:
+    """Baseline b (m, > 0) and the angle alpha_k (rad, in (0, π)) of each projected line.
+
+    Lines are ordered by their singular row ``f·cot(alpha_k)``, top of the image first.
+    """
+
+    baseline_m: float
+    alpha_rad: tuple[float, ...]
+    baseline_sigma_m: float = 0.0
+    alpha_sigma_rad: tuple[float, ...] = field(default_factory=tuple)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.baseline_m) and self.baseline_m > 0):
+            raise CalibrationError(f"baseline_m must be > 0, got {self.baseline_m}")
+        if not self.alpha_rad:
+            raise CalibrationError("at least one line angle alpha_rad is needed")
+        if not all(np.isfinite(a) and 0.0 < a < np.pi for a in self.alpha_rad):
+            raise CalibrationError(f"every alpha_rad must be in (0, π), got {self.alpha_rad}")
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything triangulation needs for one unit."""
+
+    camera: CameraModel
+    laser: LaserCalibration
