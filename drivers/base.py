@@ -10,6 +10,7 @@ import abc
 from collections.abc import Iterator
 from types import TracebackType
 
+from atris_node.calibration import Calibration
 from atris_node.types import SubFrame
 
 
@@ -21,6 +22,8 @@ class Camera(abc.ABC):
     """
 
     _closed: bool = False
+    #: sub-frame rate in Hz (the chip rate); 0.0 when the backend does not know it
+    rate_hz: float = 0.0
 
     @abc.abstractmethod
     def _read(self, timeout_s: float) -> SubFrame:
@@ -29,6 +32,10 @@ class Camera(abc.ABC):
     def read(self, timeout_s: float = 1.0) -> SubFrame:
         """Return the next sub-frame; raises CameraLostError on timeout or loss."""
         return self._read(timeout_s)
+
+    def factory_calibration(self) -> Calibration | None:
+        """Calibration the device itself knows (the simulator's truth), or None."""
+        return None
 
     def set_exposure_us(self, exposure_us: float) -> None:  # noqa: B027 - optional hook
         """Request an exposure time; backends without exposure control ignore it."""

@@ -77,6 +77,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return dispatch("atris", COMMANDS, rest)
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        return 0
     except (AtrisError, OSError) as exc:
         if options.debug:
             raise
