@@ -112,10 +112,14 @@ def _parse_bool(text: str) -> bool:
     raise ValueError("expected true/false, yes/no, on/off or 1/0")
 
 
-def convert(param: Param, value: Any, source: str) -> Any:
-    """Convert ``value`` to ``param.kind`` and check it; raise ConfigError naming the key."""
+def convert(param: Param, value: Any, source: str, from_text: bool = False) -> Any:
+    """Convert ``value`` to ``param.kind`` and check it; raise ConfigError naming the key.
+
+    Text is parsed by the declared type only when ``from_text`` (environment, command
+    line); a TOML value must already have the right type.
+    """
     try:
-        typed = _convert_kind(param.kind, value)
+        typed = _convert_kind(param.kind, value, from_text)
     except (TypeError, ValueError) as exc:
         raise ConfigError(
             f"{source}: {param.key}: expected {param.kind.__name__}, got {value!r} ({exc})"
@@ -126,8 +130,8 @@ def convert(param: Param, value: Any, source: str) -> Any:
     return typed
 
 
-def _convert_kind(kind: type, value: Any) -> Any:
-    if isinstance(value, str) and kind is not str:
+def _convert_kind(kind: type, value: Any, from_text: bool) -> Any:
+    if from_text and isinstance(value, str) and kind is not str:
         if kind is bool:
             return _parse_bool(value)
         return int(value, 0) if kind is int else float(value)
@@ -171,14 +175,15 @@ class Config:
         prefix = name + "."
         return {k[len(prefix):]: v for k, v in self.values.items() if k.startswith(prefix)}
 
-    def with_values(self, updates: Mapping[str, Any], source: str) -> Config:
+    def with_values(self, updates: Mapping[str, Any], source: str,
+                    from_text: bool = False) -> Config:
         """A new Config with ``updates`` applied (checked) as coming from ``source``."""
         values, sources = dict(self.values), dict(self.sources)
         for key, value in updates.items():
             if key not in PARAM_BY_KEY:
                 raise ConfigError(f"{source}: unknown parameter {key!r}; accepted: "
                                   f"{', '.join(sorted(PARAM_BY_KEY))}")
-            values[key] = convert(PARAM_BY_KEY[key], value, source)
+            values[key] = convert(PARAM_BY_KEY[key], value, source, from_text)
             sources[key] = source
         _check_cross(values, source)
         return Config(values, sources)
@@ -249,8 +254,8 @@ def load(
         config = config.with_values(flatten(table), "launch file")
     env = from_environment(os.environ if environ is None else environ)
     if env:
-        config = config.with_values(env, "environment")
+        config = config.with_values(env, "environment", from_text=True)
     sets = parse_assignments(overrides)
     if sets:
-        config = config.with_values(sets, "command line")
+        config = config.with_values(sets, "command line", from_text=True)
     return config

@@ -77,7 +77,7 @@ def _unit_config(defaults: dict[str, Any], bus: dict[str, Any], unit: dict[str, 
     merged = merged.with_values(cfg.flatten({"bus": bus}), f"{where} [bus]")
     merged = merged.with_values(cfg.flatten(unit), f"{where} [[unit]]")
     env = cfg.from_environment(os.environ)
-    return merged.with_values(env, "environment") if env else merged
+    return merged.with_values(env, "environment", from_text=True) if env else merged
 
 
 def _check_units(units: list[cfg.Config], where: str) -> None:

@@ -55,8 +55,11 @@ def test_bad_values_name_key_and_accepted_values(key: str, value: str, message: 
 
 def test_toml_types_are_checked(tmp_path: Path) -> None:
     file = tmp_path / "unit.toml"
-    file.write_text('[code]\nlength = "16"\n[bus]\nfd = 1\n')
-    with pytest.raises(ConfigError, match="bus.fd: expected bool"):
+    file.write_text('[code]\nlength = "16"\n')
+    with pytest.raises(ConfigError, match=r"code\.length: expected int"):
+        config.load(file=file, environ={})
+    file.write_text("[bus]\nfd = 1\n")
+    with pytest.raises(ConfigError, match=r"bus\.fd: expected bool"):
         config.load(file=file, environ={})
 
 
