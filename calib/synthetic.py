@@ -1,0 +1,154 @@
+"""Synthetic board views with a known camera, for tests and ``atris calib simulate``.
+
+A view is the board texture warped through ``H = K [r1 r2 t] A⁻¹`` (A maps board metres
+to texture pixels), then blurred and given Gaussian noise. Laser lines on the board are
+drawn from the geometry: the intersection of each light plane ``y = z·cot α_k − b``
+(camera frame, see :mod:`atris_node.mounting`) with the board plane, as a Gaussian
+stripe across the board. The camera has no lens distortion here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.calibration import CameraModel, LaserCalibration
+from calib.board import BoardSpec, texture
+
+PX_PER_SQUARE = 120
+MARGIN_SQUARES = 1
+#: views are rendered at this many times the resolution and averaged down (anti-aliasing)
+SUPERSAMPLE = 3
+
+
+@dataclass(frozen=True)
+class BoardPose:
+    """Board-to-camera pose: rotation vector (3,) and translation (3,) in metres."""
+
+    rvec: npt.NDArray[np.float64]
+    tvec: npt.NDArray[np.float64]
+
+    @property
+    def rotation(self) -> npt.NDArray[np.float64]:
+        """3×3 rotation matrix, board frame to camera frame."""
+        return np.asarray(cv2.Rodrigues(self.rvec)[0], dtype=np.float64)
+
+    def plane(self) -> tuple[npt.NDArray[np.float64], float]:
+        """Board plane in the camera frame as (unit normal n (3,), d): n·X = d."""
+        normal = self.rotation[:, 2]
+        return normal, float(normal @ self.tvec)
+
+
+def _corners_in_view(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
+                     margin_px: float) -> bool:
+    w, h = spec.size_m
+    corners = np.array([[0, 0, 0], [w, 0, 0], [w, h, 0], [0, h, 0]], dtype=np.float64)
+    points, _ = cv2.projectPoints(corners, pose.rvec, pose.tvec, camera.matrix, None)
+    uv = points.reshape(-1, 2)
+    return bool(np.all(uv >= margin_px) and np.all(uv[:, 0] <= camera.width_px - margin_px)
+                and np.all(uv[:, 1] <= camera.height_px - margin_px))
+
+
+def _random_pose(spec: BoardSpec, rng: np.random.Generator, distance_m: float,
+                 tilt_deg: float) -> BoardPose:
+    tilt = np.radians(rng.uniform(-tilt_deg, tilt_deg, size=2))
+    roll = np.radians(rng.uniform(-15.0, 15.0))
+    tilted = cv2.Rodrigues(np.array([tilt[0], tilt[1], 0.0]))[0]
+    rolled = cv2.Rodrigues(np.array([0.0, 0.0, roll]))[0]
+    rvec = np.asarray(cv2.Rodrigues(tilted @ rolled)[0], dtype=np.float64).ravel()
+    rotation = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
+    centre = np.array([spec.size_m[0] / 2, spec.size_m[1] / 2, 0.0])
+    target = np.array([rng.uniform(-0.1, 0.1) * distance_m,
+                       rng.uniform(-0.08, 0.08) * distance_m, distance_m])
+    return BoardPose(rvec, target - rotation @ centre)
+
+
+def random_poses(spec: BoardSpec, camera: CameraModel, count: int, rng: np.random.Generator,
+                 *, distance_m: tuple[float, float] = (0.6, 1.3),
+                 tilt_deg: float = 30.0) -> list[BoardPose]:
+    """``count`` board poses fully in view (20 px margin), distances spread over the range."""
+    poses: list[BoardPose] = []
+    for distance in np.linspace(*distance_m, count):
+        for _ in range(200):
+            pose = _random_pose(spec, rng, float(distance), tilt_deg)
+            if _corners_in_view(spec, camera, pose, 20.0):
+                poses.append(pose)
+                break
+    return poses
+
+
+def _texture_to_image(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
+                      supersample: int = 1) -> npt.NDArray[np.float64]:
+    scale = PX_PER_SQUARE / spec.square_m
+    offset = MARGIN_SQUARES * PX_PER_SQUARE - 0.5  # pixel centres sit at integers
+    metres_to_texture = np.array([[scale, 0.0, offset], [0.0, scale, offset], [0, 0, 1.0]])
+    rotation = pose.rotation
+    fine = np.array([[supersample, 0.0, (supersample - 1) / 2],
+                     [0.0, supersample, (supersample - 1) / 2], [0.0, 0.0, 1.0]])
+    board_to_image = fine @ camera.matrix @ np.column_stack([rotation[:, 0], rotation[:, 1],
+                                                             pose.tvec])
+    return board_to_image @ np.linalg.inv(metres_to_texture)
+
+
+def render_board_view(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
+                      rng: np.random.Generator, *, noise_dn: float = 2.0,
+                      blur_px: float = 0.7) -> npt.NDArray[np.uint8]:
+    """(height_px, width_px) uint8 camera image of the board on a grey background."""
+    board = texture(spec, PX_PER_SQUARE, MARGIN_SQUARES * PX_PER_SQUARE).astype(np.float32)
+    board = np.asarray(cv2.GaussianBlur(board * 0.8 + 20.0, (0, 0), 1.0))  # print: not 0, 255
+    homography = _texture_to_image(spec, camera, pose, SUPERSAMPLE)
+    fine = cv2.warpPerspective(board, homography, (camera.width_px * SUPERSAMPLE,
+                                                   camera.height_px * SUPERSAMPLE),
+                               flags=cv2.INTER_LINEAR, borderValue=110.0)
+    view = cv2.resize(fine, (camera.width_px, camera.height_px), interpolation=cv2.INTER_AREA)
+    view = cv2.GaussianBlur(view, (0, 0), blur_px) if blur_px > 0 else view
+    view = view + rng.normal(0.0, noise_dn, view.shape)
+    return np.clip(np.rint(view), 0, 255).astype(np.uint8)
+
+
+def laser_rows_on_board(spec: BoardSpec, camera: CameraModel, laser: LaserCalibration,
+                        pose: BoardPose) -> npt.NDArray[np.float64]:
+    """True line rows on the board: (K, width_px) float64 image rows (absolute pixels) of
+    each light plane where it hits the board, -1.0 for columns off the board."""
+    normal, d = pose.plane()
+    columns = np.arange(camera.width_px, dtype=np.float64)
+    rows = np.full((len(laser.alpha_rad), camera.width_px), -1.0)
+    ray_x = (columns - camera.cx_px) / camera.focal_px
+    for k, alpha in enumerate(laser.alpha_rad):
+        # a point of plane k on the ray (x', y', 1)·z: y' = cot α − b/z, and n·X = d
+        # gives z (n_x x' + n_y cot α + n_z) − n_y b = d
+        z = (d + normal[1] * laser.baseline_m) / (
+            normal[0] * ray_x + normal[1] / np.tan(alpha) + normal[2])
+        y_over_z = 1.0 / np.tan(alpha) - laser.baseline_m / z
+        rows[k] = camera.cy_px + camera.focal_px * y_over_z
+    return _mask_off_board(spec, camera, pose, rows)
+
+
+def _mask_off_board(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
+                    rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    inverse = np.linalg.inv(_texture_to_image(spec, camera, pose))
+    columns = np.broadcast_to(np.arange(camera.width_px, dtype=np.float64), rows.shape)
+    pixels = np.stack([columns, rows, np.ones_like(rows)], axis=-1) @ inverse.T
+    tex = pixels[..., :2] / pixels[..., 2:3]
+    margin = MARGIN_SQUARES * PX_PER_SQUARE - 0.5
+    limit = np.array([spec.squares_x, spec.squares_y]) * PX_PER_SQUARE
+    on_board = np.all((tex >= margin) & (tex <= margin + limit), axis=-1)
+    on_board &= (rows >= 0) & (rows <= camera.height_px - 1)
+    return np.where(on_board, rows, -1.0)
+
+
+def render_line_map(rows: npt.NDArray[np.float64], height_px: int, rng: np.random.Generator,
+                    *, peak_dn: float = 400.0, sigma_px: float = 1.2,
+                    noise_dn: float = 6.0) -> npt.NDArray[np.int32]:
+    """A distortion map with Gaussian stripes at ``rows`` (K, W) (-1 = absent):
+    (height_px, W) int32, peak ``peak_dn`` plus Gaussian noise."""
+    grid = np.arange(height_px, dtype=np.float64)[:, None]
+    image = np.zeros((height_px, rows.shape[1]))
+    for line in rows:
+        stripe = peak_dn * np.exp(-0.5 * ((grid - line[None, :]) / sigma_px) ** 2)
+        image += np.where(line[None, :] >= 0, stripe, 0.0)
+    image += rng.normal(0.0, noise_dn, image.shape)
+    return np.rint(image).astype(np.int32)

@@ -1,0 +1,74 @@
+"""ChArUco board and intrinsics on synthetic views rendered with a known camera."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from atris_node.calibration import CameraModel
+from atris_node.errors import CalibrationError
+from calib.board import BoardSpec, detect, write_printable
+from calib.intrinsics import calibrate_intrinsics
+from calib.synthetic import random_poses, render_board_view
+
+SPEC = BoardSpec()
+TRUE_CAMERA = CameraModel(1280, 800, 763.0, 641.3, 398.2)
+
+
+@pytest.fixture(scope="module")
+def views() -> list[tuple[str, np.ndarray]]:
+    rng = np.random.default_rng(7)
+    poses = random_poses(SPEC, TRUE_CAMERA, 9, rng)
+    return [(f"view_{i}", render_board_view(SPEC, TRUE_CAMERA, p, rng, noise_dn=3.0))
+            for i, p in enumerate(poses)]
+
+
+def test_focal_length_and_principal_point_round_trip(views: list) -> None:
+    result = calibrate_intrinsics(SPEC, views)
+    assert result.camera.focal_px == pytest.approx(TRUE_CAMERA.focal_px, rel=0.005)
+    assert result.camera.cx_px == pytest.approx(TRUE_CAMERA.cx_px, abs=3.0)
+    assert result.camera.cy_px == pytest.approx(TRUE_CAMERA.cy_px, abs=3.0)
+    assert (result.camera.width_px, result.camera.height_px) == (1280, 800)
+    assert result.rms_px < 0.3
+    assert len(result.view_rms_px) == 9
+
+
+def test_too_few_views_is_refused(views: list) -> None:
+    with pytest.raises(CalibrationError, match="only 3 usable board views"):
+        calibrate_intrinsics(SPEC, views[:3])
+
+
+def test_too_few_corners_is_refused(views: list) -> None:
+    with pytest.raises(CalibrationError, match="only 0 usable board views"):
+        calibrate_intrinsics(SPEC, views, min_corners=SPEC.corner_count + 1)
+
+
+def test_rms_above_threshold_is_refused(views: list) -> None:
+    with pytest.raises(CalibrationError, match=r"RMS reprojection error .* above"):
+        calibrate_intrinsics(SPEC, views, max_rms_px=0.001)
+
+
+def test_views_of_different_sizes_are_refused(views: list) -> None:
+    mixed = [*views[:5], ("small", cv2.resize(views[5][1], (640, 400)))]
+    with pytest.raises(CalibrationError, match="all views must have one size"):
+        calibrate_intrinsics(SPEC, mixed)
+
+
+def test_printable_board_is_detected_with_every_corner(tmp_path: Path) -> None:
+    png, pdf = write_printable(SPEC, tmp_path / "board.png", tmp_path / "board.pdf", dpi=150)
+    assert pdf is not None and pdf.read_bytes().startswith(b"%PDF")
+    image = cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)
+    square_px = round(SPEC.square_m * 1000 / 25.4 * 150)
+    assert image.shape == ((SPEC.squares_y + 1) * square_px, (SPEC.squares_x + 1) * square_px)
+    detection = detect(SPEC, image)
+    assert detection is not None and detection.count == SPEC.corner_count
+
+
+def test_invalid_board_is_a_clear_error() -> None:
+    with pytest.raises(CalibrationError, match="marker_m must be in"):
+        BoardSpec(square_m=0.03, marker_m=0.04)
+    with pytest.raises(CalibrationError, match="unknown ArUco dictionary"):
+        BoardSpec(dictionary="DICT_9X9_1")
