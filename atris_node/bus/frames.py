@@ -1,0 +1,134 @@
+"""Encode and decode frames through cantools with the shipped DBC, generic over messages.
+
+Messages are looked up by name (encode) or by arbitration ID (decode), so messages added
+to ``atris.dbc`` (the code-negotiation frames) work without code here. A message with an
+``E2EDataID`` attribute is E2E protected (:mod:`atris_node.bus.e2e`): its ``CRC`` and
+``Counter`` signals are filled in by :meth:`FrameCodec.encode`.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.resources
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import can
+import cantools
+from cantools.database.can import Database, Message
+
+from atris_node.bus import e2e
+from atris_node.errors import FrameDecodeError
+
+logger = logging.getLogger(__name__)
+
+DBC_NAME = "atris.dbc"
+E2E_ATTRIBUTE = "E2EDataID"
+SignalValue = int | float | str
+
+
+def dbc_text() -> str:
+    """Text of the shipped DBC (package data ``atris_node/bus/atris.dbc``)."""
+    return importlib.resources.files("atris_node.bus").joinpath(DBC_NAME).read_text("utf-8")
+
+
+@functools.cache
+def load_database() -> Database:
+    """The shipped DBC, parsed once (strict: overlapping signals are an error)."""
+    db = cantools.database.load_string(dbc_text(), database_format="dbc")
+    assert isinstance(db, Database)
+    return db
+
+
+def e2e_data_id(message: Message) -> int | None:
+    """E2E data ID of ``message`` from its DBC attribute, or None when unprotected."""
+    attributes = message.dbc.attributes if message.dbc is not None else {}
+    attribute = attributes.get(E2E_ATTRIBUTE)
+    return None if attribute is None else int(attribute.value)
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """One received frame, decoded with the DBC.
+
+    ``signals`` holds physical values; raw values listed in a VAL_ table come out as
+    their name (``"invalid"``, ``"no_return"``...). ``crc_ok`` is None for messages
+    without E2E protection.
+    """
+
+    name: str
+    arbitration_id: int
+    is_extended_id: bool
+    signals: dict[str, SignalValue]
+    data_id: int | None = None
+    crc_ok: bool | None = None
+
+
+class FrameCodec:
+    """Encoder/decoder over one cantools database (by default the shipped DBC)."""
+
+    def __init__(self, database: Database | None = None) -> None:
+        self.database = database if database is not None else load_database()
+        self._by_id = {(m.frame_id, m.is_extended_frame): m for m in self.database.messages}
+
+    def message(self, name: str) -> Message:
+        """The DBC message called ``name``; FrameDecodeError when there is none."""
+        try:
+            return self.database.get_message_by_name(name)
+        except KeyError:
+            raise FrameDecodeError(f"no message {name!r} in the CAN database") from None
+
+    def encode(self, name: str, signals: Mapping[str, SignalValue], counter: int = 0,
+               *, scaling: bool = True, fd: bool = False) -> can.Message:
+        """Frame of message ``name`` from ``signals`` (physical, or raw if not ``scaling``).
+
+        E2E protected messages get ``Counter = counter`` (0..14) and their CRC; others
+        ignore ``counter``. Out-of-range values raise FrameDecodeError (strict).
+        """
+        message = self.message(name)
+        data_id = e2e_data_id(message)
+        values = dict(signals)
+        if data_id is not None:
+            values.update(CRC=0, Counter=counter)
+        data = self._encode(message, values, scaling)
+        if data_id is not None:
+            data = e2e.protect(data, data_id, counter)
+        return can.Message(arbitration_id=message.frame_id, data=data, is_fd=fd,
+                           bitrate_switch=fd, is_extended_id=message.is_extended_frame)
+
+    def decode(self, arbitration_id: int, data: bytes,
+               is_extended_id: bool = False) -> DecodedFrame:
+        """Decode one frame; FrameDecodeError for unknown IDs or malformed data."""
+        message = self._by_id.get((arbitration_id, is_extended_id))
+        if message is None:
+            kind = "extended" if is_extended_id else "standard"
+            raise FrameDecodeError(f"{kind} ID 0x{arbitration_id:X} is not in the CAN database")
+        if len(data) != message.length:
+            raise FrameDecodeError(f"{message.name}: {len(data)} data bytes, "
+                                   f"the DBC says {message.length}")
+        signals = self._decode(message, bytes(data))
+        data_id = e2e_data_id(message)
+        crc_ok = None if data_id is None else data[0] == e2e.profile1_crc(data_id, data)
+        return DecodedFrame(message.name, arbitration_id, is_extended_id, signals,
+                            data_id, crc_ok)
+
+    def decode_message(self, msg: can.Message) -> DecodedFrame:
+        """:meth:`decode` of a python-can message."""
+        return self.decode(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
+
+    @staticmethod
+    def _encode(message: Message, values: dict[str, SignalValue], scaling: bool) -> bytes:
+        try:
+            return bytes(message.encode(values, scaling=scaling, strict=True))
+        except (cantools.database.EncodeError, KeyError, ValueError, TypeError) as exc:
+            raise FrameDecodeError(f"cannot encode {message.name}: {exc}") from exc
+
+    @staticmethod
+    def _decode(message: Message, data: bytes) -> dict[str, SignalValue]:
+        try:
+            decoded = message.decode(data, decode_choices=True, scaling=True)
+        except (cantools.database.DecodeError, ValueError) as exc:
+            raise FrameDecodeError(f"cannot decode {message.name}: {exc}") from exc
+        assert isinstance(decoded, dict)
+        return {k: v if isinstance(v, int | float) else str(v) for k, v in decoded.items()}

@@ -1,0 +1,234 @@
+"""The cycle publisher: status, quality, nearest-obstacle and sector frames of one unit.
+
+Its own scheduler thread (python-can's ``send_periodic`` dies on the first failed send)
+sends one cycle every ``period_s`` and one at once when :meth:`Publisher.update` brings a
+new measurement. Data older than ``max_age_s``, or from a unit that is not RUNNING or
+has a fault that spoils its distances, goes out as "invalid", never as a stale distance.
+A failed send starts a back-off (doubling from one period to ``backoff_cap_s``) during
+which cycles are skipped; the thread never dies silently: an unexpected error is logged
+and kept, and :meth:`Publisher.check` re-raises it in the owner's loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import can
+
+from atris_node.bus import payloads
+from atris_node.bus.busconfig import BusHealth
+from atris_node.bus.e2e import COUNTER_MODULO
+from atris_node.bus.frames import FrameCodec
+from atris_node.bus.ids import FrameKind, message_name
+from atris_node.errors import ConfigError, NodeFaultError
+from atris_node.types import FaultBits, Measurement, UnitState, UnitStatus
+
+logger = logging.getLogger(__name__)
+
+#: faults after which the distances of a measurement must not be used
+SPOILING_FAULTS = (FaultBits.CAMERA_LOST | FaultBits.LASER_FAULT | FaultBits.PLAN_CONFLICT
+                   | FaultBits.CALIBRATION)
+MIN_PERIOD_S = 0.01
+
+
+@dataclass
+class PublisherStats:
+    """Counters of a publisher (read them any time; they only grow)."""
+
+    frames_sent: int = 0
+    cycles: int = 0
+    deadline_misses: int = 0
+    send_errors: int = 0
+    bus_off_count: int = 0
+    skipped_cycles: int = 0
+
+
+class Publisher:
+    """Publish one unit's frames on ``bus`` from its own thread.
+
+    Args:
+        bus: an open python-can bus (the publisher does not shut it down).
+        unit_id: 0..15, selects the ID block ``0x500 + 0x10 * unit_id``.
+        period_s: cycle period, 0.01..1.0 s.
+        max_age_s: data older than this at send time is sent as invalid, s.
+        clock: monotonic clock in seconds, the clock of ``Measurement.newest_time_s``.
+        sector_count: sectors published before the first measurement (1..16).
+        tolerance_s: a cycle later than ``period_s + tolerance_s`` is a deadline miss
+            (default a quarter period).
+        fd: send CAN FD frames (same 8-byte payloads, bit-rate switch on).
+        health: error-frame listener of the bus, if the owner runs a Notifier.
+    """
+
+    def __init__(self, bus: can.BusABC, unit_id: int, period_s: float = 0.05,
+                 max_age_s: float = 0.2, clock: Callable[[], float] = time.monotonic, *,
+                 sector_count: int = 8, tolerance_s: float | None = None, fd: bool = False,
+                 backoff_cap_s: float = 1.0, health: BusHealth | None = None) -> None:
+        if not MIN_PERIOD_S <= period_s <= 1.0:
+            raise ConfigError(f"publish period must be 0.01..1.0 s, got {period_s}")
+        if not max_age_s > 0.0:
+            raise ConfigError(f"max_age_s must be > 0, got {max_age_s}")
+        self.bus, self.unit_id, self.period_s, self.max_age_s = bus, unit_id, period_s, max_age_s
+        self.clock, self.fd, self.backoff_cap_s = clock, fd, backoff_cap_s
+        self.tolerance_s = period_s / 4.0 if tolerance_s is None else tolerance_s
+        self.health = health or BusHealth()
+        self.stats = PublisherStats()
+        self._names = {kind: message_name(unit_id, kind) for kind in FrameKind}
+        self._sector_count = payloads.check_sector_count(sector_count)
+        self._codec = FrameCodec()
+        self._counters = dict.fromkeys(self._names.values(), 0)
+        self._measurement: Measurement | None = None
+        self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._fatal: BaseException | None = None
+        self._last_cycle_s: float | None = None
+        self._backoff_s = 0.0
+        self._retry_at_s = 0.0
+        self._bus_error = False
+
+    # -- owner side -------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the scheduler thread (once)."""
+        if self._thread is not None:
+            return
+        self._thread = threading.Thread(target=self._run, name=f"atris-publisher-{self.unit_id}",
+                                        daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop and join the thread; safe to call more than once."""
+        self._stopping.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def update(self, measurement: Measurement | None, status: UnitStatus) -> None:
+        """Hand over the newest measurement and status; a new measurement is sent at once."""
+        if measurement is not None:
+            payloads.check_sector_count(max(len(measurement.sectors), 1))
+        with self._lock:
+            fresh = measurement is not None and measurement is not self._measurement
+            self._measurement, self._status = measurement, status
+        if fresh:
+            self._wake.set()
+
+    def check(self) -> None:
+        """Re-raise, as NodeFaultError, an error that stopped the publisher thread."""
+        if self._fatal is not None:
+            raise NodeFaultError(f"CAN publisher of unit {self.unit_id} failed: "
+                                 f"{self._fatal!r}") from self._fatal
+
+    @property
+    def alive(self) -> bool:
+        """True while the scheduler thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    # -- scheduler thread ----------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except Exception as exc:
+            logger.exception("CAN publisher of unit %d stopped", self.unit_id)
+            self._fatal = exc
+
+    def _loop(self) -> None:
+        next_due = self.clock()
+        while not self._stopping.is_set():
+            self._wake.wait(timeout=max(0.0, next_due - self.clock()))
+            if self._stopping.is_set():
+                return
+            self._wake.clear()
+            now = self.clock()
+            self._cycle(now)
+            next_due = now + self.period_s
+
+    def _cycle(self, now: float) -> None:
+        late = self._last_cycle_s is not None and (
+            now - self._last_cycle_s > self.period_s + self.tolerance_s)
+        self._last_cycle_s = now
+        self.stats.cycles += 1
+        self.stats.deadline_misses += int(late)
+        self.stats.bus_off_count = self.health.bus_off_count
+        if now < self._retry_at_s:
+            self.stats.skipped_cycles += 1
+            return
+        with self._lock:
+            measurement, status = self._measurement, self._status
+        self._send_all(self._compose(measurement, status, now, late))
+
+    # -- composing frames ----------------------------------------------------------------
+    def usable(self, measurement: Measurement | None, status: UnitStatus, now: float) -> bool:
+        """True when ``measurement`` may be published as valid distances at ``now``."""
+        if measurement is None or status.state is not UnitState.RUNNING:
+            return False
+        if status.faults & SPOILING_FAULTS:
+            return False
+        age = now - measurement.newest_time_s
+        return math.isfinite(age) and age <= self.max_age_s
+
+    def _faults(self, status: UnitStatus, late: bool) -> FaultBits:
+        faults = FaultBits(status.faults)
+        if late:
+            faults |= FaultBits.DEADLINE_MISS
+        if self._bus_error or self.health.take_error():
+            faults |= FaultBits.BUS_ERROR
+        return faults
+
+    def _compose(self, measurement: Measurement | None, status: UnitStatus, now: float,
+                 late: bool) -> list[can.Message]:
+        usable = self.usable(measurement, status, now)
+        age = None if measurement is None else now - measurement.newest_time_s
+        count = len(measurement.sectors) if measurement and measurement.sectors else (
+            self._sector_count)
+        self._sector_count = count
+        if measurement is not None:
+            status = replace(status, measurement_counter=measurement.counter)
+        frames = [
+            (FrameKind.STATUS, payloads.status_signals(status, self._faults(status, late), age)),
+            (FrameKind.QUALITY, payloads.quality_signals(status, count)),
+            (FrameKind.NEAREST, payloads.nearest_signals(measurement, usable)),
+        ]
+        sectors = measurement.sectors if measurement is not None else ()
+        frames += [(FrameKind.SECTORS, s)
+                   for s in payloads.sectors_signals(sectors, count, usable)]
+        return [self._encode(kind, signals) for kind, signals in frames]
+
+    def _encode(self, kind: FrameKind, signals: payloads.RawSignals) -> can.Message:
+        name = self._names[kind]
+        counter = self._counters[name]
+        self._counters[name] = (counter + 1) % COUNTER_MODULO
+        return self._codec.encode(name, signals, counter, scaling=False, fd=self.fd)
+
+    # -- sending -------------------------------------------------------------------------
+    def _send_all(self, frames: list[can.Message]) -> None:
+        for msg in frames:
+            if not self._send(msg):
+                return
+        if self._backoff_s:
+            logger.warning("CAN sending of unit %d resumed", self.unit_id)
+        self._backoff_s = 0.0
+        self._bus_error = False
+
+    def _send(self, msg: can.Message) -> bool:
+        try:
+            self.bus.send(msg, timeout=self.period_s)
+        except (can.CanError, OSError) as exc:
+            self._on_send_error(exc)
+            return False
+        self.stats.frames_sent += 1
+        return True
+
+    def _on_send_error(self, exc: Exception) -> None:
+        self.stats.send_errors += 1
+        self._bus_error = True
+        self._backoff_s = min(self.backoff_cap_s, max(self.period_s, 2.0 * self._backoff_s))
+        self._retry_at_s = self.clock() + self._backoff_s
+        logger.error("CAN send of unit %d failed (%s); retry in %.3f s",
+                     self.unit_id, exc, self._backoff_s)

@@ -1,0 +1,202 @@
+"""The publisher on a real python-can virtual bus: period, immediate send, invalid data."""
+
+from __future__ import annotations
+
+import itertools
+import time
+import uuid
+from collections.abc import Iterator
+from typing import Any
+
+import can
+import pytest
+from can.interfaces.virtual import VirtualBus
+
+from atris_node.bus.e2e import E2EChecker
+from atris_node.bus.frames import DecodedFrame, FrameCodec
+from atris_node.bus.ids import FrameKind, frame_id
+from atris_node.bus.publisher import Publisher
+from atris_node.errors import NodeFaultError
+from atris_node.types import (
+    FaultBits,
+    Measurement,
+    SectorDistance,
+    SectorState,
+    UnitState,
+    UnitStatus,
+)
+
+RUNNING = UnitStatus(UnitState.RUNNING, code_row=3, code_length=16, chip_rate_hz=480.0,
+                     measurement_counter=0)
+
+
+class FlakyBus(VirtualBus):  # type: ignore[misc]
+    """A virtual bus whose send fails while ``failing`` is set (an unplugged cable)."""
+
+    failing = False
+    error: type[Exception] = can.CanOperationError
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.failing:
+            raise self.error("simulated transmit failure")
+        super().send(msg, timeout)
+
+
+@pytest.fixture
+def channel() -> str:
+    return f"pub-{uuid.uuid4().hex}"
+
+
+@pytest.fixture
+def listener(channel: str) -> Iterator[can.BusABC]:
+    bus = can.Bus(interface="virtual", channel=channel)
+    yield bus
+    bus.shutdown()
+
+
+def _measurement(age_s: float = 0.0, counter: int = 7) -> Measurement:
+    sectors = tuple(SectorDistance(i, 0.1 * i, SectorState.VALID, 1.0 + i, 0.9)
+                    for i in range(8))
+    return Measurement(counter, sectors, time.monotonic() - age_s, 100, nearest=sectors[0],
+                       closing_speed_mps=1.0, time_to_collision_s=1.0)
+
+
+def _collect(bus: can.BusABC, duration_s: float) -> list[tuple[float, DecodedFrame]]:
+    codec, frames = FrameCodec(), []
+    end = time.monotonic() + duration_s
+    while (left := end - time.monotonic()) > 0:
+        msg = bus.recv(timeout=left)
+        if msg is not None:
+            frames.append((time.monotonic(), codec.decode_message(msg)))
+    return frames
+
+
+def _of(frames: list[tuple[float, DecodedFrame]], suffix: str) -> list[DecodedFrame]:
+    return [f for _, f in frames if f.name.endswith(suffix)]
+
+
+def _run(bus: can.BusABC, **kwargs: Any) -> Publisher:
+    publisher = Publisher(bus, unit_id=kwargs.pop("unit_id", 2), **kwargs)
+    publisher.start()
+    return publisher
+
+
+def test_period_is_kept_and_frames_pass_e2e(channel: str, listener: can.BusABC) -> None:
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = _run(bus, period_s=0.02)
+        frames = _collect(listener, 0.5)
+        publisher.stop()
+        publisher.check()
+    times = [t for t, f in frames if f.name == "Atris2_Status"]
+    gaps = sorted(b - a for a, b in itertools.pairwise(times))
+    assert 15 <= len(times) <= 30
+    assert 0.012 < gaps[len(gaps) // 2] < 0.035
+    assert all(f.crc_ok for _, f in frames)
+    assert publisher.stats.frames_sent == len(frames)
+
+
+def test_counters_run_in_sequence(channel: str, listener: can.BusABC) -> None:
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = _run(bus, period_s=0.01, unit_id=5)
+        messages = [listener.recv(timeout=1.0) for _ in range(200)]
+        publisher.stop()
+    checker = E2EChecker(frame_id(5, FrameKind.SECTORS))
+    states = [checker.check(bytes(m.data), 0.0) for m in messages
+              if m is not None and m.arbitration_id == 0x553]
+    assert len(states) > 20 and all(s.valid for s in states)
+
+
+def test_immediate_send_on_new_measurement(channel: str, listener: can.BusABC) -> None:
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = _run(bus, period_s=1.0)
+        _collect(listener, 0.1)  # the first cycle
+        publisher.update(_measurement(), RUNNING)
+        start = time.monotonic()
+        msg = listener.recv(timeout=0.5)
+        publisher.stop()
+    assert msg is not None and time.monotonic() - start < 0.5
+    assert msg.arbitration_id == 0x520
+
+
+def test_fresh_data_is_valid(channel: str, listener: can.BusABC) -> None:
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = _run(bus, period_s=0.05)
+        publisher.update(_measurement(age_s=0.03), RUNNING)
+        frames = _collect(listener, 0.12)
+        publisher.stop()
+    sectors = _of(frames, "Sectors")[-4:]
+    assert [f.signals["Distance0"] for f in sectors] == [1.0, 3.0, 5.0, 7.0]
+    nearest = _of(frames, "Nearest")[-1].signals
+    assert nearest["Valid"] == 1 and nearest["Distance"] == 1.0
+    status = _of(frames, "Status")[-1].signals
+    assert status["State"] == "RUNNING" and 0.02 <= float(status["DataAge"]) <= 0.15
+
+
+def test_stale_data_is_sent_invalid(channel: str, listener: can.BusABC) -> None:
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = _run(bus, period_s=0.05, max_age_s=0.2)
+        publisher.update(_measurement(age_s=1.0), RUNNING)
+        frames = _collect(listener, 0.12)
+        publisher.stop()
+    for frame in _of(frames, "Sectors"):
+        assert frame.signals["Distance0"] == "invalid" == frame.signals["Distance1"]
+        assert frame.signals["Confidence0"] == 0
+    nearest = _of(frames, "Nearest")[-1].signals
+    assert nearest["Valid"] == 0 and nearest["Distance"] == "invalid"
+    assert 0.99 <= float(_of(frames, "Status")[-1].signals["DataAge"]) <= 1.2
+
+
+def test_faulted_status_invalidates_distances(channel: str, listener: can.BusABC) -> None:
+    faulted = UnitStatus(UnitState.RUNNING, 3, 16, 480.0, 0, faults=FaultBits.CAMERA_LOST)
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = _run(bus, period_s=0.05)
+        publisher.update(_measurement(), faulted)
+        frames = _collect(listener, 0.08)
+        publisher.stop()
+    assert all(f.signals["Distance0"] == "invalid" for f in _of(frames, "Sectors"))
+    assert _of(frames, "Status")[-1].signals["Fault_CameraLost"] == 1
+
+
+def test_failing_send_keeps_running_and_reports(channel: str, listener: can.BusABC) -> None:
+    bus = FlakyBus(channel=channel)
+    bus.failing = True
+    try:
+        publisher = _run(bus, period_s=0.01, backoff_cap_s=0.04)
+        time.sleep(0.15)
+        assert publisher.alive and publisher.stats.send_errors >= 2
+        assert publisher.stats.skipped_cycles >= 1
+        assert listener.recv(timeout=0.0) is None
+        bus.failing = False
+        frames = _collect(listener, 0.15)
+        publisher.stop()
+    finally:
+        bus.shutdown()
+    publisher.check()
+    statuses = _of(frames, "Status")
+    assert statuses
+    assert statuses[0].signals["Fault_BusError"] == 1
+    assert statuses[-1].signals["Fault_BusError"] == 0
+
+
+def test_unexpected_error_is_kept_for_check(channel: str) -> None:
+    bus = FlakyBus(channel=channel)
+    bus.failing, bus.error = True, RuntimeError
+    try:
+        publisher = _run(bus, period_s=0.01)
+        deadline = time.monotonic() + 1.0
+        while publisher.alive and time.monotonic() < deadline:
+            time.sleep(0.01)
+        publisher.stop()
+        publisher.stop()
+    finally:
+        bus.shutdown()
+    with pytest.raises(NodeFaultError, match="simulated transmit failure"):
+        publisher.check()
+
+
+def test_sector_count_above_16_is_rejected(channel: str) -> None:
+    sectors = tuple(SectorDistance(i, 0.0, SectorState.NO_RETURN) for i in range(17))
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = Publisher(bus, 0)
+        with pytest.raises(ValueError, match=r"1\.\.16"):
+            publisher.update(Measurement(0, sectors, 0.0, 0), RUNNING)
