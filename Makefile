@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: run test test-fast lint bench clean
+.PHONY: run test test-fast test-vcan lint bench clean
 
 $(STAMP): pyproject.toml scripts/system-deps.sh
 	bash scripts/system-deps.sh
@@ -20,6 +20,11 @@ run: $(STAMP)
 ## every test: lint and types (inside pytest), host tests
 test: $(STAMP)
 	$(PY) -m pytest -q
+	bash scripts/vcan-tests.sh
+
+## real SocketCAN tests (tests/vcan): natively with vcan0/vcan1, else in a VM; see docs/vcan.md
+test-vcan: $(STAMP)
+	bash scripts/vcan-tests.sh
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -q -x -m 'not slow and not vcan and not hardware'

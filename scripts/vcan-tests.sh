@@ -1,0 +1,124 @@
+#!/usr/bin/env bash
+# Runs the vcan integration tests (tests/vcan, marker `vcan`) on real SocketCAN.
+#
+#   scripts/vcan-tests.sh            host: native when vcan0 and vcan1 exist, else one VM boot
+#   scripts/vcan-tests.sh --guest D  inside the VM: create vcan0/vcan1, run pytest, write to D
+#
+# The VM is virtme-ng (PyPI) on qemu-system-x86 without KVM, booting a Debian kernel
+# (linux-image-amd64) over the host's root file system, read-only. Only the results directory
+# is writable from the guest. The run FAILS when a test failed, errored or was skipped, or
+# when nothing was collected: a broken VM path cannot pass silently. See docs/vcan.md.
+set -euo pipefail
+
+cd "$(dirname "$0")/.."
+VENV=${VENV:-.venv}
+PY=$VENV/bin/python
+VCAN_IFACES=(vcan0 vcan1)
+VM_MEMORY=${ATRIS_VCAN_VM_MEMORY:-2G}
+VM_TIMEOUT_S=${ATRIS_VCAN_VM_TIMEOUT_S:-900}
+APT_PKGS=(qemu-system-x86 linux-image-amd64 busybox-static)
+
+log() { echo "vcan-tests: $*"; }
+die() { echo "vcan-tests: error: $*" >&2; exit 1; }
+
+# pytest over tests/vcan only, no cache or bytecode writes (the repo is read-only in the VM)
+run_pytest() {
+  local results=$1
+  PYTHONDONTWRITEBYTECODE=1 HYPOTHESIS_STORAGE_DIRECTORY="$results/.hypothesis" \
+    ATRIS_VCAN_RESULTS="$results" \
+    "$PY" -m pytest -m vcan tests/vcan -p no:cacheprovider -q -rA \
+    -o junit_family=xunit1 --junitxml="$results/junit.xml"
+}
+
+have_vcan() {
+  local iface
+  for iface in "${VCAN_IFACES[@]}"; do
+    ip link show "$iface" >/dev/null 2>&1 || return 1
+  done
+}
+
+# --- inside the VM ----------------------------------------------------------------------
+guest_main() {
+  local results=$1 iface rc=0
+  modprobe vcan
+  for iface in "${VCAN_IFACES[@]}"; do
+    ip link add dev "$iface" type vcan
+    ip link set "$iface" up
+  done
+  log "guest kernel $(uname -r), $(nproc) CPU(s), booted in $(cut -d' ' -f1 /proc/uptime) s"
+  run_pytest "$results" || rc=$?
+  echo "$rc" >"$results/pytest.rc"
+  return "$rc"
+}
+
+# --- host: what the VM needs --------------------------------------------------------------
+guest_kernel() {
+  local k ver
+  for k in $(ls -1 /boot/vmlinuz-* 2>/dev/null | sort -rV); do
+    ver=${k#/boot/vmlinuz-}
+    if find "/lib/modules/$ver" -name 'vcan.ko*' 2>/dev/null | grep -q .; then
+      echo "$k"; return 0
+    fi
+  done
+  return 1
+}
+
+missing_apt_pkgs() {
+  command -v qemu-system-x86_64 >/dev/null || echo qemu-system-x86
+  guest_kernel >/dev/null || echo linux-image-amd64
+  [ -x /bin/busybox ] || [ -x /usr/bin/busybox ] || echo busybox-static
+}
+
+ensure_vm_tools() {
+  local missing
+  missing=$(missing_apt_pkgs | xargs)
+  if [ -n "$missing" ]; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+      log "installing $missing"
+      export DEBIAN_FRONTEND=noninteractive
+      apt-get update -qq
+      # shellcheck disable=SC2086
+      apt-get install -y -qq --no-install-recommends $missing >/dev/null
+    else
+      die "no vcan0/vcan1 on this host and the test VM needs: $missing
+  install them with: sudo apt-get install ${APT_PKGS[*]}
+  or run natively: sudo modprobe vcan; for i in ${VCAN_IFACES[*]}; do
+    sudo ip link add dev \$i type vcan; sudo ip link set \$i up; done"
+    fi
+  fi
+  [ -x "$VENV/bin/vng" ] || { log "installing virtme-ng into $VENV"; "$PY" -m pip install -q virtme-ng; }
+}
+
+run_in_vm() {
+  local results=$1 kernel
+  ensure_vm_tools
+  kernel=$(guest_kernel) || die "no kernel in /boot with a vcan module"
+  log "booting $kernel without KVM (${VM_MEMORY}, 2 CPUs), results in $results"
+  PATH="$PWD/$VENV/bin:$PATH" timeout "$VM_TIMEOUT_S" vng --run "$kernel" --disable-kvm \
+    --memory "$VM_MEMORY" --cpus 2 --rwdir "$results" \
+    --exec "bash scripts/vcan-tests.sh --guest $results" </dev/null
+}
+
+# --- host: the verdict ----------------------------------------------------------------------
+host_main() {
+  local results rc=0 start=$SECONDS
+  results=$(mktemp -d "${TMPDIR:-/tmp}/atris-vcan.XXXXXX")
+  if have_vcan; then
+    log "host has ${VCAN_IFACES[*]}: running natively"
+    run_pytest "$results" || rc=$?
+  else
+    log "host has no ${VCAN_IFACES[*]}: running in a virtme-ng VM"
+    run_in_vm "$results" || rc=$?
+  fi
+  log "finished in $((SECONDS - start)) s (exit code $rc)"
+  "$PY" scripts/check_junit.py "$results/junit.xml" || rc=1
+  rm -rf "$results"
+  return "$rc"
+}
+
+if [ "${1:-}" = "--guest" ]; then
+  [ $# -eq 2 ] || die "usage: $0 --guest RESULTS_DIR"
+  guest_main "$2"
+else
+  host_main
+fi

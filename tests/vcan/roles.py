@@ -1,0 +1,119 @@
+"""Roles a vcan test runs as separate processes: ``python roles.py ROLE ARGS...``.
+
+Each role opens its own python-can ``socketcan`` bus, prints JSON lines on stdout
+(``{"event": "ready"}`` once its bus is open, ``{"event": "done", ...}`` at the end) and
+runs until it has finished its work or, for open-ended roles, until its stdin is closed.
+Times are ``time.time()`` seconds, the clock SocketCAN stamps received frames with.
+"""
+
+from __future__ import annotations
+
+import json
+import selectors
+import struct
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+
+SEQ_FRAME = struct.Struct("<IHxx")  # sequence number, sender's unit id
+
+
+def emit(event: str, **fields: Any) -> None:
+    """Prints one JSON line for the parent test and flushes it."""
+    print(json.dumps({"event": event, **fields}), flush=True)
+
+
+class StdinWatch:
+    """Non-blocking check whether the parent closed our stdin (the stop request)."""
+
+    def __init__(self) -> None:
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(sys.stdin, selectors.EVENT_READ)
+        self.closed = False
+
+    def poll(self, timeout_s: float = 0.0) -> bool:
+        """True once stdin reached end of file; waits at most ``timeout_s`` seconds."""
+        if not self.closed and self._selector.select(timeout_s):
+            self.closed = sys.stdin.readline() == ""
+        return self.closed
+
+
+def open_bus(channel: str, *filters: int) -> can.BusABC:
+    """A socketcan bus on ``channel``; with ``filters``, only those standard ids arrive."""
+    can_filters = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in filters]
+    return can.Bus(interface="socketcan", channel=channel, can_filters=can_filters or None)
+
+
+def sender(channel: str, arb_id: str, count: str, period_s: str) -> None:
+    """Sends ``count`` sequence frames every ``period_s``; reports each send time."""
+    sent: list[float] = []
+    with open_bus(channel) as bus:
+        emit("ready")
+        for seq in range(int(count)):
+            sent.append(time.time())
+            bus.send(can.Message(arbitration_id=int(arb_id, 0), is_extended_id=False,
+                                 data=SEQ_FRAME.pack(seq, 0)))
+            time.sleep(float(period_s))
+    emit("done", sent=sent)
+
+
+def echo(channel: str, rx_id: str, tx_id: str) -> None:
+    """Answers every frame with id ``rx_id`` by the same data on ``tx_id``, until stopped."""
+    stop, answered = StdinWatch(), 0
+    with open_bus(channel, int(rx_id, 0)) as bus:
+        emit("ready")
+        while not stop.poll():
+            msg = bus.recv(0.05)
+            if msg is not None:
+                bus.send(can.Message(arbitration_id=int(tx_id, 0), is_extended_id=False,
+                                     data=msg.data))
+                answered += 1
+    emit("done", answered=answered)
+
+
+def babbler(channel: str, arb_id: str) -> None:
+    """Floods the bus with ``arb_id`` frames as fast as it can (cangen -g 0), until stopped."""
+    stop, sent, errors, start = StdinWatch(), 0, 0, time.monotonic()
+    msg = can.Message(arbitration_id=int(arb_id, 0), is_extended_id=False, data=bytes(8))
+    with open_bus(channel, 0x7FF) as bus:
+        emit("ready")
+        while not (sent % 256 == 0 and stop.poll()):
+            try:
+                bus.send(msg, timeout=0.01)
+                sent += 1
+            except can.CanOperationError:
+                errors += 1
+    elapsed = time.monotonic() - start
+    emit("done", sent=sent, errors=errors, frames_per_s=sent / elapsed)
+
+
+def periodic(channel: str, arb_id: str, period_s: str) -> None:
+    """Sends sequence frames on an absolute schedule, measuring its own send period."""
+    stop, period, errors = StdinWatch(), float(period_s), 0
+    periods: list[float] = []
+    with open_bus(channel, 0x7FF) as bus:
+        emit("ready")
+        seq, next_at, last = 0, time.monotonic(), None
+        while not stop.poll(max(next_at - time.monotonic(), 0.0)):
+            now = time.monotonic()
+            if now < next_at:
+                continue
+            try:
+                bus.send(can.Message(arbitration_id=int(arb_id, 0), is_extended_id=False,
+                                     data=SEQ_FRAME.pack(seq, 0)), timeout=period)
+            except can.CanOperationError:
+                errors += 1
+            periods += [] if last is None else [now - last]
+            seq, last, next_at = seq + 1, now, next_at + period
+    emit("done", sent=seq, errors=errors, periods=periods)
+
+
+ROLES: dict[str, Callable[..., None]] = {
+    "sender": sender, "echo": echo, "babbler": babbler, "periodic": periodic,
+}
+
+if __name__ == "__main__":
+    ROLES[sys.argv[1]](*sys.argv[2:])
