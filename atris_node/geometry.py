@@ -1,0 +1,150 @@
+"""Triangulation of line samples (paper Eq. 1), error propagation and lens distortion.
+
+Conventions are those of :mod:`atris_node.mounting`: ``u`` is the undistorted image row and
+``v`` the column, both in pixels from the principal point; camera x right, y down, z
+forward; the projector at (0, -b, 0); line k is the plane ``y = z·cot α_k - b``, so
+
+    [x y z] = b / (f·cot α_k - u) · [v, u, f]                    (Eq. 1)
+
+A denominator ``f·cot α_k - u <= 0`` (at or beyond the singular row) or a range beyond
+``z_max`` is "no return": the point is flagged, never given an inf, NaN or negative range.
+
+>>> import numpy as np
+>>> from atris_node.calibration import CameraModel, LaserCalibration
+>>> cam = CameraModel(640, 400, 400.0, 320.0, 200.0)
+>>> laser = LaserCalibration(0.1, (np.pi / 2,))
+>>> pts = triangulate(np.array([-20.0]), np.array([0.0]), np.array([0]), cam, laser,
+...                   z_max_m=10.0)
+>>> pts.xyz_m.round(3).tolist(), pts.valid.tolist()
+([[0.0, -0.1, 2.0]], [True])
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.calibration import CameraModel, LaserCalibration
+from atris_node.errors import CalibrationError
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: smallest accepted Eq. 1 denominator f·cot α - u, pixels; below it the range is infinite
+MIN_DENOMINATOR_PX = 1e-6
+#: fixed-point iterations of the inverse distortion model (converges to < 1e-6 px for
+#: the moderate distortion of machine-vision lenses)
+UNDISTORT_ITERATIONS = 12
+
+
+@dataclass(frozen=True)
+class Points:
+    """Triangulated line samples, all arrays of length n.
+
+    Attributes:
+        xyz_m: (n, 3) float64 camera-frame points, metres; rows where ``valid`` is False
+            hold the point on the pixel ray at ``z = z_max`` (a direction, not a return).
+        valid: (n,) bool, True where Eq. 1 gives a range in (0, z_max].
+        sigma_z_m: (n,) float64 propagated range standard deviation, metres (0 where not
+            valid).
+    """
+
+    xyz_m: FloatArray
+    valid: BoolArray
+    sigma_z_m: FloatArray
+
+
+def _distortion_coefficients(camera: CameraModel) -> FloatArray:
+    """(k1, k2, p1, p2, k3) as float64, zeros where the model gives fewer (OpenCV order)."""
+    d = np.zeros(5)
+    given = np.asarray(camera.distortion[:5], dtype=np.float64)
+    d[: given.size] = given
+    if any(abs(c) > 0 for c in camera.distortion[5:]):
+        raise CalibrationError("only the k1, k2, p1, p2, k3 distortion model is supported, "
+                               f"got {len(camera.distortion)} non-zero coefficients")
+    return d
+
+
+def _distort_normalised(x: FloatArray, y: FloatArray, d: FloatArray) -> tuple[FloatArray,
+                                                                              FloatArray]:
+    """Apply the OpenCV radial-tangential model to normalised coordinates (x, y)."""
+    k1, k2, p1, p2, k3 = d
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return xd, yd
+
+
+def distort_pixels(row: npt.ArrayLike, col: npt.ArrayLike,
+                   camera: CameraModel) -> tuple[FloatArray, FloatArray]:
+    """Ideal (undistorted) pixel positions -> observed pixel positions (row, col), float64."""
+    f = camera.focal_px
+    x = (np.asarray(col, np.float64) - camera.cx_px) / f
+    y = (np.asarray(row, np.float64) - camera.cy_px) / f
+    xd, yd = _distort_normalised(x, y, _distortion_coefficients(camera))
+    return yd * f + camera.cy_px, xd * f + camera.cx_px
+
+
+def undistort_pixels(row: npt.ArrayLike, col: npt.ArrayLike,
+                     camera: CameraModel) -> tuple[FloatArray, FloatArray]:
+    """Observed pixel (row, col) -> (u, v): undistorted pixels from the principal point.
+
+    Vectorised fixed-point inverse of the OpenCV k1, k2, p1, p2, k3 model (what
+    ``cv2.undistortPoints`` does), float64 in and out, any matching shapes.
+    """
+    f = camera.focal_px
+    xd = (np.asarray(col, np.float64) - camera.cx_px) / f
+    yd = (np.asarray(row, np.float64) - camera.cy_px) / f
+    d = _distortion_coefficients(camera)
+    if not d.any():
+        return yd * f, xd * f
+    x, y = xd.copy(), yd.copy()
+    for _ in range(UNDISTORT_ITERATIONS):
+        xe, ye = _distort_normalised(x, y, d)
+        x, y = x - (xe - xd), y - (ye - yd)
+    return y * f, x * f
+
+
+def line_row_at_range(line: int, z_m: float, camera: CameraModel,
+                      laser: LaserCalibration) -> float:
+    """Undistorted row ``u = f·cot α_k - f·b/z`` of line k at range z (pixels from cy)."""
+    f = camera.focal_px
+    return float(f / np.tan(laser.alpha_rad[line]) - f * laser.baseline_m / z_m)
+
+
+def singular_rows(camera: CameraModel, laser: LaserCalibration) -> FloatArray:
+    """(K,) float64 singular rows ``u = f·cot α_k`` (pixels from cy, may be far off-image)."""
+    return camera.focal_px / np.tan(np.asarray(laser.alpha_rad, dtype=np.float64))
+
+
+def triangulate(u_px: npt.ArrayLike, v_px: npt.ArrayLike, line: npt.ArrayLike,
+                camera: CameraModel, laser: LaserCalibration, *, z_max_m: float,
+                sigma_u_px: npt.ArrayLike = 0.0) -> Points:
+    """Eq. 1 for n samples: (n,) undistorted u, v (px from the principal point), line index.
+
+    ``sigma_u_px`` (scalar or (n,)) gives ``sigma_z ≈ z²·σ_u / (f·b)``. Returns
+    :class:`Points`; a denominator <= 0 or ``z > z_max_m`` is not valid.
+    """
+    u = np.asarray(u_px, dtype=np.float64)
+    v = np.asarray(v_px, dtype=np.float64)
+    f, b = camera.focal_px, laser.baseline_m
+    denominator = singular_rows(camera, laser)[np.asarray(line, dtype=np.int64)] - u
+    ok = denominator > MIN_DENOMINATOR_PX
+    scale = np.divide(b, denominator, out=np.zeros_like(u), where=ok)
+    valid = ok & (scale * f <= z_max_m)
+    scale = np.where(valid, scale, z_max_m / f)
+    xyz = np.stack([v * scale, u * scale, np.full_like(u, f) * scale], axis=-1)
+    z = xyz[:, 2] if xyz.ndim == 2 else xyz[..., 2]
+    sigma_z = np.where(valid, z * z * np.asarray(sigma_u_px, np.float64) / (f * b), 0.0)
+    return Points(xyz_m=xyz, valid=valid, sigma_z_m=sigma_z)
+
+
+def range_sigma(z_m: npt.ArrayLike, sigma_u_px: float, focal_px: float,
+                baseline_m: float) -> FloatArray:
+    """Propagated range standard deviation ``z²·σ_u / (f·b)``, metres (float64)."""
+    z = np.asarray(z_m, dtype=np.float64)
+    return z * z * sigma_u_px / (focal_px * baseline_m)

@@ -1,0 +1,174 @@
+"""Sub-pixel line extraction, noise floor, saturation, bands and line identification."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pipeline_scenes import oak_calibration, stripe_map
+
+from atris_node.errors import ConfigError
+from atris_node.geometry import distort_pixels, line_row_at_range
+from atris_node.lines import (
+    PEAK_METHODS,
+    Band,
+    ExtractorSettings,
+    extract_lines,
+    line_bands,
+    noise_floor,
+    read_padding,
+)
+
+WIDTH = 640
+
+
+def _stripe(rng: np.random.Generator, sigma: float, snr: float, height: int = 80,
+            amplitude: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
+    """One wavy stripe at random sub-pixel rows; returns (int32 map, true rows (W,))."""
+    rows = 40.0 + rng.uniform(-3.0, 3.0, WIDTH) + np.linspace(-4.0, 4.0, WIDTH)
+    image = stripe_map(height, rows[None, :], np.full((1, WIDTH), amplitude), sigma,
+                       noise_dn=amplitude / snr, rng=rng)
+    return np.round(image).astype(np.int32), rows
+
+
+def _rms(method: str, sigma: float, snr: float, seed: int = 3) -> tuple[float, int]:
+    rng = np.random.default_rng(seed)
+    values, rows = _stripe(rng, sigma, snr)
+    settings = ExtractorSettings(method, snr_min=5.0, stripe_sigma_px=sigma)
+    ex = extract_lines(values, np.zeros(values.shape, bool), (Band(0, 20, 60),), settings)
+    err = ex.samples.row_px - rows[ex.samples.col_px.astype(int)]
+    return float(np.sqrt(np.mean(err**2))), len(ex.samples)
+
+
+@pytest.mark.parametrize("method", PEAK_METHODS)
+def test_every_method_finds_a_clean_stripe(method: str) -> None:
+    rms, count = _rms(method, sigma=1.0, snr=200.0)
+    assert count == WIDTH
+    assert rms < 0.08, f"{method}: {rms:.4f} px"
+
+
+def test_best_method_reaches_a_sixteenth_pixel_at_snr_20() -> None:
+    results = {m: _rms(m, sigma=1.0, snr=20.0) for m in PEAK_METHODS}
+    best = min(rms for rms, _ in results.values())
+    assert best <= 1.0 / 16.0, results
+    assert results["steger"][0] <= 1.0 / 16.0
+
+
+@pytest.mark.parametrize(("sigma", "snr"), [(1.5, 30.0), (2.0, 35.0)])
+def test_steger_stays_within_a_sixteenth_on_wider_stripes(sigma: float, snr: float) -> None:
+    # The Cramér-Rao bound for a Gaussian stripe is sqrt(2σ/√π)/SNR px: at SNR 20 it is
+    # 0.065 px for σ = 1.5, so wider stripes need a proportionally higher SNR.
+    rms, count = _rms("steger", sigma, snr)
+    assert count == WIDTH
+    assert rms <= 1.0 / 16.0
+
+
+def test_peak_below_snr_min_is_not_accepted() -> None:
+    rng = np.random.default_rng(4)
+    values, _ = _stripe(rng, 1.0, snr=4.0)
+    settings = ExtractorSettings("gaussian", snr_min=8.0, stripe_sigma_px=1.0)
+    ex = extract_lines(values, np.zeros(values.shape, bool), (Band(0, 20, 60),), settings)
+    assert len(ex.samples) < WIDTH // 10
+    assert ex.weak > WIDTH * 0.9
+
+
+def test_noise_floor_comes_from_the_map() -> None:
+    rng = np.random.default_rng(5)
+    values, _ = _stripe(rng, 1.0, snr=20.0, height=200)
+    background, sigma = noise_floor(values, [(0, 200)])
+    assert abs(sigma - 50.0) < 5.0
+    assert abs(background) < 5.0
+
+
+def test_flat_topped_saturated_stripe_gives_its_centre() -> None:
+    rng = np.random.default_rng(6)
+    rows = np.full(WIDTH, 40.0) + rng.uniform(-0.5, 0.5, WIDTH)
+    image = stripe_map(80, rows[None, :], np.full((1, WIDTH), 5000.0), 2.0, noise_dn=5.0, rng=rng)
+    clip = 3000.0
+    saturated = image >= clip
+    values = np.round(np.minimum(image, clip)).astype(np.int32)
+    for method in PEAK_METHODS:
+        ex = extract_lines(values, saturated, (Band(0, 20, 60),),
+                           ExtractorSettings(method, stripe_sigma_px=2.0))
+        assert ex.samples.saturated.all()
+        err = ex.samples.row_px - rows[ex.samples.col_px.astype(int)]
+        assert np.abs(err).max() <= 0.75
+        assert np.isfinite(ex.samples.sigma_u_px).all()
+
+
+def test_unknown_peak_method_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="peak_method"):
+        ExtractorSettings("centroid")
+
+
+def test_bands_hold_the_rows_of_the_range_limits() -> None:
+    cal = oak_calibration((78.0, 82.0), distortion=(-0.05, 0.01, 0.0, 0.0))
+    cam, laser = cal.camera, cal.laser
+    bands = line_bands(cam, laser, 0.5, 8.0, margin_px=2.0)
+    cols = np.arange(0.0, cam.width_px, 7.0)
+    for band in bands:
+        for z in (0.5, 2.0, 8.0):
+            u = line_row_at_range(band.line, z, cam, laser)
+            r, _ = distort_pixels(np.full_like(cols, u + cam.cy_px), cols, cam)
+            inside = r[(r >= 0) & (r < cam.height_px)]
+            assert ((inside >= band.row_lo) & (inside < band.row_hi)).all()
+    narrow = line_bands(cam, laser, 2.0, 8.0, margin_px=2.0)
+    assert narrow[0].row_hi - narrow[0].row_lo < bands[0].row_hi - bands[0].row_lo
+
+
+def test_rows_outside_the_bands_are_never_read() -> None:
+    rng = np.random.default_rng(7)
+    values, _ = _stripe(rng, 1.0, snr=30.0, height=200)
+    values[:] = np.roll(values, 60, axis=0)  # stripe around row 100
+    bands = (Band(0, 80, 120),)
+    settings = ExtractorSettings("steger", stripe_sigma_px=1.0)
+    clean = extract_lines(values, np.zeros(values.shape, bool), bands, settings)
+    poisoned = values.copy()
+    pad = read_padding(settings)
+    poisoned[: 80 - pad] = rng.integers(10**6, 10**8, (80 - pad, WIDTH))
+    poisoned[120 + pad:] = 2**31 - 1
+    sat = np.zeros(values.shape, bool)
+    sat[: 80 - pad] = True
+    dirty = extract_lines(poisoned, sat, bands, settings)
+    assert len(clean.samples) == WIDTH
+    np.testing.assert_array_equal(dirty.samples.row_px, clean.samples.row_px)
+    assert dirty.noise_floor_dn == clean.noise_floor_dn
+    assert clean.rows_read == 40 + 2 * pad
+
+
+def _two_lines(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Line 0 near row 60 and line 1 near row 100, line 1 dipping to row 75 mid-image."""
+    rows = np.stack([np.full(WIDTH, 60.0), np.full(WIDTH, 100.0)])
+    rows[1, 300:340] = 75.0
+    rows[0, 500:540] = np.nan  # line 0 absent here: line 1's peak is alone in both bands
+    rows[1, 500:540] = 83.0  # 17 rows from line 1's level, 23 from line 0's
+    image = stripe_map(160, rows, np.full(rows.shape, 800.0), 1.0, noise_dn=10.0, rng=rng)
+    return np.round(image).astype(np.int32), rows
+
+
+def test_overlapping_bands_are_resolved_by_order_and_continuity() -> None:
+    rng = np.random.default_rng(8)
+    values, rows = _two_lines(rng)
+    bands = (Band(0, 40, 85), Band(1, 70, 120))
+    for roi, lost in ((True, 0), (False, 40)):  # without ROI, order alone cannot decide
+        ex = extract_lines(values, np.zeros(values.shape, bool), bands,
+                           ExtractorSettings("gaussian", stripe_sigma_px=1.0), roi_bands=roi)
+        s = ex.samples
+        truth = rows[s.line, s.col_px.astype(int)]
+        assert np.isfinite(truth).all(), "a sample was given to a line that is absent there"
+        assert np.abs(s.row_px - truth).max() < 0.5
+        assert (s.line == 1).sum() >= WIDTH - lost - 5
+        assert (s.line == 0).sum() >= WIDTH - 40 - 5
+        assert ex.ambiguous == lost
+        assert len(ex.line_snr) == 2 and min(ex.line_snr) > 20.0
+
+
+def test_a_peak_no_continuity_can_place_is_counted_ambiguous() -> None:
+    rng = np.random.default_rng(9)
+    rows = np.full((2, WIDTH), np.nan)
+    rows[0, :20] = 78.0  # a short stripe inside the overlap, no neighbours either side
+    image = stripe_map(160, rows, np.full(rows.shape, 800.0), 1.0, noise_dn=10.0, rng=rng)
+    values = np.round(image).astype(np.int32)
+    ex = extract_lines(values, np.zeros(values.shape, bool), (Band(0, 40, 85),
+                       Band(1, 70, 120)), ExtractorSettings("gaussian", stripe_sigma_px=1.0))
+    assert ex.ambiguous == 20
+    assert len(ex.samples) == 0
