@@ -156,3 +156,19 @@ def _write_pdf(image: npt.NDArray[np.uint8], path: Path, dpi: int, spec: BoardSp
     with PdfPages(path) as pdf:
         pdf.savefig(figure, dpi=dpi)
     return path
+
+
+def estimate_pose(spec: BoardSpec, camera_matrix: npt.NDArray[np.float64],
+                  distortion: npt.NDArray[np.float64], image: npt.NDArray[np.generic],
+                  min_corners: int = 8) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Board-to-camera pose (rvec (3,), tvec (3,) in m) from one view, by ``solvePnP``."""
+    detection = detect(spec, image)
+    if detection is None or detection.count < min_corners:
+        found = 0 if detection is None else detection.count
+        raise CalibrationError(f"board pose needs at least {min_corners} corners, found {found}")
+    ok, rvec, tvec = cv2.solvePnP(detection.object_points, detection.image_points,
+                                  camera_matrix, distortion)
+    if not ok:
+        raise CalibrationError("solvePnP found no board pose for this view")
+    return (np.asarray(rvec, dtype=np.float64).ravel(),
+            np.asarray(tvec, dtype=np.float64).ravel())
