@@ -1,0 +1,208 @@
+"""Byte layouts and 29-bit identifiers of the code-negotiation frames.
+
+Identifier (29 bits, extended frame)::
+
+    bits 28..26  priority, 0b110 (as J1939's default 6)
+    bits 25..23  kind: REQUEST 0, CLAIM 1, CANNOT_CLAIM 2, PLAN 3, SYNC 4
+    bits 22..16  field: the claimed 1-based Walsh row in CLAIM, 0 otherwise
+    bits 15..4   NAME fold: the 64-bit NAME XOR-folded to 12 bits
+    bits  3..0   unit_id of the sender
+
+The low 16 bits are the sender's identity, so two units claiming at the same instant
+never send the same identifier (a real bus would turn that into a bit error). The DBC
+describes each kind at its base identifier (field and identity bits zero); a receiver
+masks the identifier with :data:`KIND_MASK` to find the message. Payloads are
+little-endian, as J1939 puts the NAME on the wire.
+
+Example:
+    >>> frame = encode_claim(0x1122334455667788, unit_id=3, code_row=5)
+    >>> hex(frame.can_id), frame.data.hex()
+    ('0x18857ad3', '8877665544332211')
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+
+from atris_node.bus.negotiation_plan import MODES, Plan
+from atris_node.errors import CodeError, ConfigError, FrameDecodeError
+
+PRIORITY_BITS = 0x18000000
+KIND_SHIFT = 23
+FIELD_SHIFT = 16
+KIND_MASK = 0x1F800000
+FIELD_MASK = 0x007F0000
+IDENTITY_MASK = 0x0000FFFF
+MAX_FIELD = 0x7F
+MAX_NAME = 2**64 - 1
+
+#: REQUEST, CLAIM, CANNOT_CLAIM: the sender's 64-bit NAME
+NAME_STRUCT = struct.Struct("<Q")
+#: PLAN: code_length, mode (0 async, 1 sync), flags, nonce, chip rate in millihertz
+PLAN_STRUCT = struct.Struct("<BBBBI")
+#: SYNC: cycle counter, code_length, reserved (0), code period in microseconds
+SYNC_STRUCT = struct.Struct("<HBBI")
+
+PLAN_FLAG_PROPOSAL = 0x01  # a request for this plan, addressed to the lowest NAME
+PLAN_FLAG_CONFLICT = 0x02  # the sender cannot adopt the winning plan
+
+
+class FrameKind(enum.IntEnum):
+    """Kind bits of a negotiation identifier; the DBC message is ``Negotiation_<Kind>``."""
+
+    REQUEST = 0
+    CLAIM = 1
+    CANNOT_CLAIM = 2
+    PLAN = 3
+    SYNC = 4
+
+    @property
+    def base_id(self) -> int:
+        """Identifier with field and identity bits zero (the DBC message's ID)."""
+        return PRIORITY_BITS | (self.value << KIND_SHIFT)
+
+
+@dataclass(frozen=True)
+class RawFrame:
+    """A frame as it goes on the bus: 29-bit ``can_id`` and up to 8 ``data`` bytes."""
+
+    can_id: int
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Sender identity from the identifier's low 16 bits."""
+
+    name_fold: int
+    unit_id: int
+
+    @property
+    def bits(self) -> int:
+        """The 16 identity bits."""
+        return (self.name_fold << 4) | self.unit_id
+
+
+@dataclass(frozen=True)
+class PlanAnnouncement:
+    """Decoded PLAN payload."""
+
+    plan: Plan
+    proposal: bool
+    conflict: bool
+    nonce: int
+
+
+@dataclass(frozen=True)
+class Header:
+    """Decoded identifier: kind, field (the claimed row in CLAIM) and sender identity."""
+
+    kind: FrameKind
+    field: int
+    identity: Identity
+
+
+def name_fold(name: int) -> int:
+    """The 64-bit NAME XOR-folded to the 12 identity bits of the identifier."""
+    fold = 0
+    for shift in range(0, 64, 12):
+        fold ^= (name >> shift) & 0xFFF
+    return fold
+
+
+def identity_of(name: int, unit_id: int) -> Identity:
+    """The identity a unit puts in its identifiers; checks NAME and unit_id ranges."""
+    if not 0 <= name <= MAX_NAME:
+        raise ConfigError(f"NAME must be a 64-bit unsigned integer, got {name}")
+    if not 0 <= unit_id <= 15:
+        raise ConfigError(f"unit_id must be 0..15, got {unit_id}")
+    return Identity(name_fold(name), unit_id)
+
+
+def make_id(kind: FrameKind, identity: Identity, field: int = 0) -> int:
+    """29-bit identifier of a negotiation frame."""
+    if not 0 <= field <= MAX_FIELD:
+        raise CodeError(f"identifier field must be 0..{MAX_FIELD}, got {field}")
+    return kind.base_id | (field << FIELD_SHIFT) | identity.bits
+
+
+def parse_id(can_id: int) -> Header | None:
+    """Split a 29-bit identifier; None when it is not a negotiation frame."""
+    if can_id & ~0x1FFFFFFF or can_id & 0x1C000000 != PRIORITY_BITS:
+        return None
+    kind_value = (can_id >> KIND_SHIFT) & 0x7
+    if kind_value not in FrameKind._value2member_map_:
+        return None
+    identity = Identity((can_id >> 4) & 0xFFF, can_id & 0xF)
+    return Header(FrameKind(kind_value), (can_id & FIELD_MASK) >> FIELD_SHIFT, identity)
+
+
+def _name_frame(kind: FrameKind, name: int, unit_id: int, field: int = 0) -> RawFrame:
+    identity = identity_of(name, unit_id)
+    return RawFrame(make_id(kind, identity, field), NAME_STRUCT.pack(name))
+
+
+def encode_request(name: int, unit_id: int) -> RawFrame:
+    """Request for claims: everyone re-announces at once."""
+    return _name_frame(FrameKind.REQUEST, name, unit_id)
+
+
+def encode_claim(name: int, unit_id: int, code_row: int) -> RawFrame:
+    """Claim of the 1-based Walsh row ``code_row`` (1 < row <= 127)."""
+    if not 2 <= code_row <= MAX_FIELD:
+        raise CodeError(f"claimed code row must be 2..{MAX_FIELD}, got {code_row}")
+    return _name_frame(FrameKind.CLAIM, name, unit_id, code_row)
+
+
+def encode_cannot_claim(name: int, unit_id: int) -> RawFrame:
+    """Cannot-claim: the sender has no code and keeps its laser off."""
+    return _name_frame(FrameKind.CANNOT_CLAIM, name, unit_id)
+
+
+def encode_plan(name: int, unit_id: int, announcement: PlanAnnouncement) -> RawFrame:
+    """PLAN: the plan the sender uses (or, with the proposal flag, asks for)."""
+    plan = announcement.plan
+    flags = (PLAN_FLAG_PROPOSAL if announcement.proposal else 0) | (
+        PLAN_FLAG_CONFLICT if announcement.conflict else 0)
+    data = PLAN_STRUCT.pack(plan.code_length, MODES.index(plan.mode), flags,
+                            announcement.nonce & 0xFF, plan.chip_rate_mhz)
+    return RawFrame(make_id(FrameKind.PLAN, identity_of(name, unit_id)), data)
+
+
+def encode_sync(name: int, unit_id: int, counter: int, plan: Plan) -> RawFrame:
+    """SYNC, sent by the lowest NAME at the start of each of its code periods."""
+    period_us = min(round(plan.cycle_s * 1e6), 2**32 - 1)
+    data = SYNC_STRUCT.pack(counter & 0xFFFF, plan.code_length, 0, period_us)
+    return RawFrame(make_id(FrameKind.SYNC, identity_of(name, unit_id)), data)
+
+
+def _unpack(layout: struct.Struct, data: bytes, what: str) -> tuple[int, ...]:
+    if len(data) != layout.size:
+        raise FrameDecodeError(f"{what} payload must be {layout.size} bytes, got {len(data)}")
+    return layout.unpack(data)
+
+
+def decode_name(data: bytes) -> int:
+    """NAME from a REQUEST, CLAIM or CANNOT_CLAIM payload."""
+    return int(_unpack(NAME_STRUCT, data, "NAME")[0])
+
+
+def decode_plan(data: bytes) -> PlanAnnouncement:
+    """PLAN payload; raises :class:`FrameDecodeError` for values no plan can have."""
+    code_length, mode, flags, nonce, rate_mhz = _unpack(PLAN_STRUCT, data, "PLAN")
+    if mode >= len(MODES) or flags & ~(PLAN_FLAG_PROPOSAL | PLAN_FLAG_CONFLICT):
+        raise FrameDecodeError(f"PLAN mode {mode} or flags {flags:#x} not defined")
+    try:
+        plan = Plan(code_length, rate_mhz / 1000.0, MODES[mode])
+    except (CodeError, ConfigError) as exc:
+        raise FrameDecodeError(f"PLAN payload is not a valid plan: {exc}") from exc
+    return PlanAnnouncement(plan, bool(flags & PLAN_FLAG_PROPOSAL),
+                            bool(flags & PLAN_FLAG_CONFLICT), nonce)
+
+
+def decode_sync(data: bytes) -> tuple[int, int, int]:
+    """SYNC payload: (counter, code_length, period_us)."""
+    counter, code_length, _, period_us = _unpack(SYNC_STRUCT, data, "SYNC")
+    return counter, code_length, period_us
