@@ -78,7 +78,7 @@ class FaultyBus(can.BusABC):
         self._held: can.Message | None = None
         self._lock = threading.Lock()
         self.channel_info = f"faulty({inner.channel_info})"
-        super().__init__(channel=getattr(inner, "channel", None), **kwargs)
+        super().__init__(channel=str(getattr(inner, "channel", "faulty")), **kwargs)
 
     def _hit(self, rate: float) -> bool:
         return rate > 0.0 and self._random.random() < rate
