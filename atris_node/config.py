@@ -98,6 +98,18 @@ PARAMS: tuple[Param, ...] = (
     P("negotiation.reannounce_s", float, 1.0, "periodic re-announce, s", in_range(0.1, 60.0)),
     P("negotiation.silence_timeout_s", float, 3.0, "a silent owner frees its code after, s",
       in_range(0.2, 600.0)),
+    P("mounting.source", str, "driver", "mounting pose: from the driver (simulator scene) or "
+      "from the mounting.* parameters", one_of("driver", "config")),
+    P("mounting.x_m", float, 0.0, "camera position forward of the reference, m",
+      in_range(-50.0, 50.0)),
+    P("mounting.y_m", float, 0.0, "camera position left of the reference, m",
+      in_range(-50.0, 50.0)),
+    P("mounting.z_m", float, 0.5, "camera height above the ground, m", in_range(-5.0, 10.0)),
+    P("mounting.roll_deg", float, 0.0, "camera roll, deg", in_range(-180.0, 180.0)),
+    P("mounting.pitch_deg", float, 0.0, "camera pitch, positive nose down, deg",
+      in_range(-89.0, 89.0)),
+    P("mounting.yaw_deg", float, 0.0, "camera yaw, positive to the left, deg",
+      in_range(-180.0, 180.0)),
     P("calibration.file", str, "", "calibration file; empty = the simulator's truth"),
 )
 PARAM_BY_KEY: dict[str, Param] = {p.key: p for p in PARAMS}

@@ -1,0 +1,352 @@
+"""The node: lifecycle over its components and the real-time loop that ties them.
+
+Lifecycle (as rclpy's managed nodes): ``configure()`` opens the camera, projector, bus
+services and pipeline with the laser off; ``activate()`` starts the loop; ``deactivate()``
+stops it and switches the laser off; ``shutdown()`` releases everything. Every method is
+safe to call more than once.
+
+One sub-frame step of the loop::
+
+    negotiation says may_strobe?  --no-->  laser off, window reset, status NEGOTIATING/NO_CODE
+            | yes
+    strobe chip[seq % N] for the next sub-frame, read it, push it to the demodulator
+            | a distortion map is complete
+    pipeline -> Measurement -> publisher (status + sectors + nearest)
+
+The projector is off whenever the node is not demodulating: before activation, while the
+code is not owned, on a camera fault, on deactivate/shutdown, and (through ``atexit`` and the
+signal handlers of the CLI) when the process ends.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import can
+
+from atris_node import wiring
+from atris_node.codes import code_set, walsh_chips
+from atris_node.config import Config
+from atris_node.demod import BlockDemodulator, SlidingDemodulator
+from atris_node.errors import AtrisError, CameraLostError, NodeFaultError
+from atris_node.types import (
+    DistortionMap,
+    FaultBits,
+    Measurement,
+    SectorDistance,
+    SectorState,
+    SubFrame,
+    UnitState,
+    UnitStatus,
+)
+from drivers import Camera, Projector
+
+logger = logging.getLogger(__name__)
+
+#: seconds between reconnection attempts after a camera loss (doubles up to the cap)
+RECONNECT_BACKOFF_S = (0.1, 2.0)
+
+
+class Lifecycle:
+    """Lifecycle states of a node."""
+
+    UNCONFIGURED = "unconfigured"
+    INACTIVE = "inactive"
+    ACTIVE = "active"
+    FINALIZED = "finalized"
+
+
+@dataclass
+class NodeStats:
+    """Counters a node reports (status frame, logs, launch summary)."""
+
+    sub_frames: int = 0
+    maps: int = 0
+    measurements: int = 0
+    dropped_sub_frames: int = 0
+    deadline_misses: int = 0
+    camera_faults: int = 0
+    reconnects: int = 0
+    strobe_lit_while_not_allowed: int = 0
+    last_lag: int = 0
+    history: list[tuple[float, bool, int | None]] = field(default_factory=list)
+
+
+def invalid_sectors(count: int, fov_rad: float) -> tuple[SectorDistance, ...]:
+    """``count`` INVALID sectors: what is published when nothing valid is known."""
+    width = fov_rad / count
+    return tuple(SectorDistance(i, -fov_rad / 2 + (i + 0.5) * width, SectorState.INVALID)
+                 for i in range(count))
+
+
+class Unit:
+    """One sensor unit: camera + projector + demodulator + pipeline + bus services."""
+
+    def __init__(
+        self,
+        config: Config,
+        bus: can.BusABC,
+        open_backend: Callable[..., tuple[Camera, Projector]] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.config = config
+        self.bus = bus
+        self.clock = clock
+        self.lifecycle = Lifecycle.UNCONFIGURED
+        self.stats = NodeStats()
+        self.faults = FaultBits.NONE
+        self._open_backend = open_backend
+        self._camera: Camera | None = None
+        self._projector: Projector | None = None
+        self._demod: BlockDemodulator | SlidingDemodulator | None = None
+        self._demod_key: tuple[int, int] | None = None
+        self._pipeline: Any = None
+        self._publisher: Any = None
+        self._negotiator: Any = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._fatal: BaseException | None = None
+        self._next_seq: int | None = None
+        self._last_map: DistortionMap | None = None
+        self._counter = 0
+
+    # ----------------------------------------------------------------- lifecycle
+    def configure(self) -> None:
+        """Open every component with the laser off."""
+        if self.lifecycle != Lifecycle.UNCONFIGURED:
+            return
+        self._camera, self._projector = wiring.open_driver(self.config, self._open_backend)
+        self._projector.off()
+        self._pipeline = wiring.make_pipeline(self.config, self._camera)
+        self._publisher = wiring.make_publisher(self.config, self.bus, self.clock)
+        self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera)
+        self.lifecycle = Lifecycle.INACTIVE
+        logger.info("unit %s configured", self.label)
+
+    def activate(self, threaded: bool = True) -> None:
+        """Start the bus services and the real-time loop (in a thread by default)."""
+        if self.lifecycle != Lifecycle.INACTIVE:
+            return
+        self._stop.clear()
+        self._publisher.start()
+        self._negotiator.start()
+        self.lifecycle = Lifecycle.ACTIVE
+        if threaded:
+            self._thread = threading.Thread(target=self._guarded_loop,
+                                            name=f"atris-unit-{self.label}", daemon=True)
+            self._thread.start()
+
+    def deactivate(self) -> None:
+        """Stop the loop and the bus services; the laser goes off first."""
+        if self.lifecycle != Lifecycle.ACTIVE:
+            return
+        self._stop.set()
+        self._laser_off()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        self._negotiator.stop()
+        self._publisher.stop()
+        self.lifecycle = Lifecycle.INACTIVE
+
+    def shutdown(self) -> None:
+        """Deactivate and release everything; safe to call more than once."""
+        self.deactivate()
+        self._laser_off()
+        for part in (self._projector, self._camera):
+            if part is not None:
+                part.close()
+        self.lifecycle = Lifecycle.FINALIZED
+
+    def check(self) -> None:
+        """Re-raise a fatal error stored by the loop thread or a bus service."""
+        if self._fatal is not None:
+            raise NodeFaultError(f"unit {self.label} stopped: {self._fatal}") from self._fatal
+        for service in (self._publisher, self._negotiator):
+            if service is not None and hasattr(service, "check"):
+                service.check()
+
+    @property
+    def label(self) -> str:
+        return str(self.config["unit.label"])
+
+    @property
+    def projector(self) -> Projector | None:
+        return self._projector
+
+    @property
+    def negotiator(self) -> Any:
+        return self._negotiator
+
+    @property
+    def publisher(self) -> Any:
+        return self._publisher
+
+    # ----------------------------------------------------------------- the loop
+    def _guarded_loop(self) -> None:
+        try:
+            while not self._stop.is_set():
+                self.step()
+        except Exception as exc:  # stored and re-raised by check(); the laser goes off
+            logger.exception("unit %s loop failed", self.label)
+            self._fatal = exc
+            self._laser_off()
+
+    def run_for(self, duration_s: float) -> None:
+        """Run the loop in the calling thread for ``duration_s`` seconds."""
+        end = self.clock() + duration_s
+        while self.clock() < end and not self._stop.is_set():
+            self.step()
+
+    def step(self) -> None:
+        """One sub-frame: negotiate, strobe, read, demodulate, measure, publish."""
+        self._negotiator.tick()
+        allowed = bool(self._negotiator.may_strobe)
+        chips = self._chips() if allowed else None
+        if chips is None:
+            self._laser_off()
+        try:
+            sub = self._read_with_strobe(chips)
+        except CameraLostError as exc:
+            self._on_camera_lost(exc)
+            return
+        self._record_strobe(allowed)
+        self.faults &= ~FaultBits.CAMERA_LOST
+        self.stats.sub_frames += 1
+        dmap = self._demodulate(sub) if chips is not None else None
+        if dmap is not None:
+            self._on_map(dmap)
+        elif chips is None:
+            self._publish(None)
+
+    def _read_with_strobe(self, chips: Any) -> SubFrame:
+        camera, projector = self._camera, self._projector
+        assert camera is not None and projector is not None
+        if chips is not None and self._next_seq is not None:
+            projector.strobe(int(chips[self._next_seq % len(chips)]), self._next_seq)
+        sub = camera.read(timeout_s=1.0)
+        self._next_seq = sub.sequence + 1
+        return sub
+
+    def _record_strobe(self, allowed: bool) -> None:
+        lit = bool(self._projector is not None and self._projector.is_lit)
+        if lit and not allowed:
+            self.stats.strobe_lit_while_not_allowed += 1
+        row = self._negotiator.code_row if allowed else None
+        self.stats.history.append((self.clock(), lit, row))
+        if len(self.stats.history) > 20000:
+            del self.stats.history[:10000]
+
+    def _chips(self) -> Any:
+        row = self._negotiator.code_row
+        plan = self._negotiator.plan
+        if row is None:
+            return None
+        key = (int(plan.code_length), int(row))
+        if key != self._demod_key:
+            self._new_demodulator(key)
+        return walsh_chips(*key)
+
+    def _new_demodulator(self, key: tuple[int, int]) -> None:
+        chips = walsh_chips(*key)
+        bits = int(getattr(self._camera, "bits", 8))
+        lag = None if self.config["driver.lag_sub_frames"] else 0
+        kind = SlidingDemodulator if self.config["code.demod"] == "sliding" else BlockDemodulator
+        self._demod = kind(chips, bits=bits, lag=lag)
+        self._demod_key = key
+        logger.info("unit %s: code row %d of N=%d", self.label, key[1], key[0])
+
+    def _demodulate(self, sub: SubFrame) -> DistortionMap | None:
+        assert self._demod is not None
+        dmap = self._demod.push(sub)
+        if dmap is not None:
+            self.stats.maps += 1
+            self.stats.dropped_sub_frames += dmap.dropped
+            self.stats.last_lag = dmap.phase
+        return dmap
+
+    def _on_map(self, dmap: DistortionMap) -> None:
+        self._last_map = dmap
+        result = self._pipeline.process(dmap)
+        self.stats.measurements += 1
+        self._publish(result.measurement)
+
+    def _on_camera_lost(self, exc: AtrisError) -> None:
+        """Camera fault: laser off, invalid distances, reconnect with back-off."""
+        self._laser_off()
+        self.faults |= FaultBits.CAMERA_LOST
+        self.stats.camera_faults += 1
+        logger.warning("unit %s: camera lost: %s", self.label, exc)
+        self._publish(None)
+        if self._demod is not None:
+            self._demod.reset()
+        self._next_seq = None
+        self._reconnect()
+
+    def _reconnect(self) -> None:
+        delay = RECONNECT_BACKOFF_S[0] * 2 ** min(self.stats.camera_faults - 1, 5)
+        self._stop.wait(min(delay, RECONNECT_BACKOFF_S[1]))
+        try:
+            if self._camera is not None:
+                self._camera.close()
+            self._camera, projector = wiring.open_driver(self.config, self._open_backend)
+        except AtrisError as exc:
+            logger.warning("unit %s: reconnect failed: %s", self.label, exc)
+            return
+        if self._projector is not None:
+            self._projector.close()
+        self._projector = projector
+        self._projector.off()
+        self.stats.reconnects += 1
+
+    def _laser_off(self) -> None:
+        if self._projector is not None:
+            self._projector.off()
+
+    # ----------------------------------------------------------------- output
+    def status(self) -> UnitStatus:
+        """The content of the status frame now."""
+        neg = self._negotiator
+        dmap = self._last_map
+        extra = dmap.extra if dmap is not None else {}
+        plan = neg.plan
+        return UnitStatus(
+            state=self._unit_state(),
+            code_row=int(neg.code_row or 0) if neg.may_strobe else 0,
+            code_length=int(plan.code_length),
+            chip_rate_hz=float(getattr(self._camera, "rate_hz", 0.0)),
+            measurement_counter=self._counter,
+            faults=self.faults | self._negotiation_faults(),
+            ambient_level=float(extra.get("ambient_level", 0.0)),
+            saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
+            foreign_code_energy=float(extra.get("foreign_code_energy", 0.0)),
+            dropped_sub_frames=self.stats.dropped_sub_frames,
+        )
+
+    def _unit_state(self) -> UnitState:
+        if self.faults & FaultBits.CAMERA_LOST:
+            return UnitState.FAULT
+        name = getattr(self._negotiator.state, "name", str(self._negotiator.state))
+        if self._negotiator.may_strobe:
+            return UnitState.RUNNING
+        return UnitState.NO_CODE if name in ("NO_CODE", "CONFLICT") else UnitState.NEGOTIATING
+
+    def _negotiation_faults(self) -> FaultBits:
+        name = getattr(self._negotiator.state, "name", "")
+        return FaultBits.PLAN_CONFLICT if name == "CONFLICT" else FaultBits.NONE
+
+    def _publish(self, measurement: Measurement | None) -> None:
+        if measurement is not None:
+            self._counter += 1
+            measurement = replace(measurement, counter=self._counter)
+        self._publisher.update(measurement, self.status())
+
+
+def default_code_rows(config: Config) -> tuple[int, ...]:
+    """The code rows a unit may claim under its configured plan."""
+    return code_set(int(config["code.length"]), str(config["code.mode"]))

@@ -1,0 +1,185 @@
+"""Run units: one in the foreground (``atris run``), or a launch file's units as threads on
+one in-process bus or as supervised processes on a real bus (``atris launch``).
+
+Process supervision escalates SIGINT -> SIGTERM -> SIGKILL (as ROS 2 launch does) and
+restarts a unit that exits when the launch file asks for it.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+
+from atris_node.config import Config
+from atris_node.errors import BusError
+from atris_node.launch import LaunchSpec
+from atris_node.node import Unit
+
+logger = logging.getLogger(__name__)
+
+#: seconds to wait after SIGINT, then after SIGTERM, before the next signal
+ESCALATION_S = (3.0, 2.0)
+
+
+def open_bus(config: Config, **extra: Any) -> can.BusABC:
+    """Open the python-can bus a unit's configuration names."""
+    kwargs: dict[str, Any] = {"interface": config["bus.interface"],
+                              "channel": config["bus.channel"]}
+    if config["bus.interface"] not in ("virtual", "udp_multicast"):
+        kwargs["bitrate"] = config["bus.bitrate"]
+    if config["bus.fd"]:
+        kwargs["fd"] = True
+    kwargs.update(extra)
+    try:
+        return can.Bus(**kwargs)
+    except (can.CanError, OSError, ValueError) as exc:
+        raise BusError(f"cannot open CAN bus {kwargs}: {exc}") from exc
+
+
+@contextmanager
+def stop_on_signals(stop: threading.Event) -> Iterator[None]:
+    """Set ``stop`` on SIGINT/SIGTERM while the block runs (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for sig in previous:
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def run_unit(config: Config, duration_s: float | None = None,
+             stop: threading.Event | None = None) -> Unit:
+    """Run one unit in the calling thread until ``duration_s`` passes or a signal arrives.
+
+    The laser is off when this returns, whatever happened.
+    """
+    stop = stop or threading.Event()
+    bus = open_bus(config)
+    unit = Unit(config, bus)
+    try:
+        with stop_on_signals(stop):
+            unit.configure()
+            unit.activate(threaded=False)
+            end = None if duration_s is None else time.monotonic() + duration_s
+            while not stop.is_set() and (end is None or time.monotonic() < end):
+                unit.step()
+                unit.check()
+    finally:
+        unit.shutdown()
+        bus.shutdown()
+    return unit
+
+
+@dataclass
+class FleetRun:
+    """Units of a launch file running as threads on one in-process bus."""
+
+    spec: LaunchSpec
+    units: list[Unit] = field(default_factory=list)
+    buses: list[can.BusABC] = field(default_factory=list)
+
+    def start(self) -> None:
+        """Configure every unit (laser off), then activate them all."""
+        for config in self.spec.units:
+            bus = open_bus(config)
+            self.buses.append(bus)
+            self.units.append(Unit(config, bus))
+        for unit in self.units:
+            unit.configure()
+        for unit in self.units:
+            unit.activate(threaded=True)
+
+    def check(self) -> None:
+        """Re-raise a fault of any unit."""
+        for unit in self.units:
+            unit.check()
+
+    def stop(self) -> None:
+        """Shut every unit down (laser off) and close the buses; idempotent."""
+        for unit in self.units:
+            unit.shutdown()
+        for bus in self.buses:
+            bus.shutdown()
+        self.buses.clear()
+
+
+def unit_command(config: Config) -> list[str]:
+    """The ``atris run`` command line of one unit of a launch file."""
+    sets = [f"{k}={v}" for k, v, s in config.describe() if s != "default"]
+    command = [sys.executable, "-m", "atris_node", "run"]
+    for item in sets:
+        command += ["--set", item]
+    return command
+
+
+@dataclass
+class Supervised:
+    """One unit process and its respawn count."""
+
+    config: Config
+    process: subprocess.Popen[bytes] | None = None
+    respawns: int = 0
+
+
+def escalate(process: subprocess.Popen[bytes], waits: tuple[float, float] = ESCALATION_S) -> int:
+    """Stop a process: SIGINT, then SIGTERM, then SIGKILL; returns its exit code."""
+    for sig, wait in ((signal.SIGINT, waits[0]), (signal.SIGTERM, waits[1])):
+        if process.poll() is not None:
+            break
+        process.send_signal(sig)
+        try:
+            return process.wait(timeout=wait)
+        except subprocess.TimeoutExpired:
+            logger.warning("pid %d ignored %s", process.pid, signal.Signals(sig).name)
+    if process.poll() is None:
+        process.kill()
+    return process.wait()
+
+
+@dataclass
+class ProcessRun:
+    """Units of a launch file as supervised ``atris run`` processes."""
+
+    spec: LaunchSpec
+    spawn: Callable[[list[str]], subprocess.Popen[bytes]] = subprocess.Popen
+    children: list[Supervised] = field(default_factory=list)
+
+    def start(self) -> None:
+        self.children = [Supervised(config) for config in self.spec.units]
+        for child in self.children:
+            child.process = self.spawn(unit_command(child.config))
+
+    def supervise(self) -> None:
+        """Respawn exited units within the launch file's limits."""
+        for child in self.children:
+            process = child.process
+            if process is None or process.poll() is None:
+                continue
+            if self.spec.respawn and child.respawns < self.spec.max_respawns:
+                child.respawns += 1
+                logger.warning("unit %s exited with %s; respawn %d",
+                               child.config["unit.label"], process.returncode, child.respawns)
+                child.process = self.spawn(unit_command(child.config))
+
+    def check(self) -> None:
+        self.supervise()
+
+    def stop(self) -> None:
+        for child in self.children:
+            if child.process is not None:
+                escalate(child.process)

@@ -1,0 +1,116 @@
+"""Build a unit's components from its configuration.
+
+The node calls these once at ``configure()``; nothing here runs per sub-frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import can
+
+from atris_node.bus.negotiation import Negotiator
+from atris_node.bus.negotiation_plan import Plan
+from atris_node.bus.publisher import Publisher
+from atris_node.calibration import Calibration
+from atris_node.config import Config
+from atris_node.errors import CalibrationError, ConfigError
+from atris_node.mounting import Mounting
+from atris_node.pipeline import Pipeline, PipelineConfig
+from atris_node.sectors import SectorLayout
+from drivers import Camera, Projector
+from drivers import open_backend as registry_open_backend
+
+#: default 64-bit NAME when none is configured: a fixed prefix and the unit id
+DEFAULT_NAME_PREFIX = 0x0A70_0000_0000_0000
+
+
+def driver_settings(config: Config) -> tuple[str, dict[str, Any]]:
+    """The backend name and its keyword settings."""
+    name = str(config["driver.name"])
+    if name == "sim":
+        return name, {"scene": config["driver.scene"], "seed": config["driver.seed"],
+                      "lag_sub_frames": config["driver.lag_sub_frames"],
+                      "realtime": config["driver.realtime"]}
+    if name == "replay":
+        if not config["driver.path"]:
+            raise ConfigError("driver.path: the replay driver needs a recording directory")
+        return name, {"path": config["driver.path"], "realtime": config["driver.realtime"]}
+    return name, {}
+
+
+def open_driver(config: Config, opener: Callable[..., tuple[Camera, Projector]] | None = None
+                ) -> tuple[Camera, Projector]:
+    """Open the configured camera and projector (laser off)."""
+    name, settings = driver_settings(config)
+    camera, projector = (opener or registry_open_backend)(name, **settings)
+    projector.off()
+    return camera, projector
+
+
+def mounting_of(config: Config, camera: Camera) -> Mounting:
+    """The mounting pose: the driver's (simulator scene) or the configured one."""
+    from_driver = getattr(camera, "mounting", None)
+    if config["mounting.source"] == "driver" and isinstance(from_driver, Mounting):
+        return from_driver
+    return Mounting(x_m=config["mounting.x_m"], y_m=config["mounting.y_m"],
+                    z_m=config["mounting.z_m"],
+                    roll_rad=math.radians(config["mounting.roll_deg"]),
+                    pitch_rad=math.radians(config["mounting.pitch_deg"]),
+                    yaw_rad=math.radians(config["mounting.yaw_deg"]))
+
+
+def calibration_of(config: Config, camera: Camera) -> Calibration:
+    """The unit's calibration: its file, else what the device knows (simulator truth)."""
+    size = getattr(camera, "size", None)
+    if config["calibration.file"]:
+        from calib.files import load_calibration
+
+        return load_calibration(config["calibration.file"], expected_size=size)
+    factory = camera.factory_calibration()
+    if factory is None:
+        raise CalibrationError("calibration.file is empty and the driver "
+                               f"{config['driver.name']!r} has no calibration of its own; "
+                               "run 'atris calib laser' and set calibration.file")
+    return factory
+
+
+def pipeline_config(config: Config) -> PipelineConfig:
+    """The pipeline settings from the ``pipeline.*`` parameters."""
+    p = config.section("pipeline")
+    return PipelineConfig(peak_method=p["peak_method"], snr_min=p["snr_min"],
+                          z_min_m=p["z_min_m"], z_max_m=p["z_max_m"],
+                          roi_bands=p["roi_bands"], sector_count=p["sector_count"],
+                          fov_deg=p["fov_deg"], min_points=p["min_points"],
+                          objects=p["objects"])
+
+
+def make_pipeline(config: Config, camera: Camera) -> Pipeline:
+    """The line-to-sector pipeline for this unit's calibration and mounting."""
+    p = pipeline_config(config)
+    layout = SectorLayout(p.sector_count, math.radians(p.fov_deg))
+    return Pipeline(p, calibration_of(config, camera), mounting_of(config, camera), layout)
+
+
+def make_publisher(config: Config, bus: can.BusABC, clock: Callable[[], float]) -> Publisher:
+    """The cycle publisher of this unit's frames."""
+    return Publisher(bus, config["unit.unit_id"], period_s=config["publish.period_s"],
+                     max_age_s=config["publish.max_age_s"], clock=clock,
+                     sector_count=config["pipeline.sector_count"], fd=config["bus.fd"])
+
+
+def unit_name(config: Config) -> int:
+    """The configured NAME, or the default one derived from the unit id."""
+    return int(config["unit.name"]) or DEFAULT_NAME_PREFIX | int(config["unit.unit_id"])
+
+
+def make_negotiator(config: Config, bus: can.BusABC, camera: Camera) -> Negotiator:
+    """The code negotiation service for this unit."""
+    rate = float(camera.rate_hz) or 240.0
+    plan = Plan(code_length=config["code.length"], chip_rate_hz=rate, mode=config["code.mode"])
+    n = config.section("negotiation")
+    return Negotiator(bus, unit_name(config), plan, config["unit.unit_id"],
+                      window_s=n["window_s"], reannounce_s=n["reannounce_s"],
+                      silence_timeout_s=n["silence_timeout_s"])
