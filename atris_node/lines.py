@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -47,6 +48,10 @@ MIN_NOISE_DN = 0.5
 SATURATED_SIGMA_PX = 0.5
 #: half window (px) searched for the saturated run of a flat-topped stripe
 SATURATION_WINDOW_PX = 8
+#: peaks kept per column beyond one per line (reflections, foreign light)
+EXTRA_PEAKS = 4
+#: continuity cost of a line with no samples in the neighbouring columns, pixels
+UNKNOWN_TRACK_COST_PX = 1e4
 #: columns per block of the continuity reference used to resolve overlapping bands
 CONTINUITY_BLOCK = 32
 
@@ -114,6 +119,8 @@ class Extraction:
 
     samples: LineSamples
     noise_floor_dn: float
+    background_dn: float  # median of the map rows read
+    spans: tuple[tuple[int, int], ...]  # row intervals [lo, hi) read
     weak: int  # column slots without a peak above snr_min
     dropped: int  # peaks above snr_min rejected (window off the image, failed fit)
     ambiguous: int  # peaks whose line could not be told from order and continuity
@@ -271,32 +278,54 @@ def saturated_centre(saturated: BoolArray, rows: IntArray, cols: IntArray,
 # --------------------------------------------------------------------------- search
 
 
-def _band_maxima(values: npt.NDArray[np.generic], band: Band) -> IntArray:
-    """(W,) absolute row of the largest value of each column inside ``band``."""
-    if band.empty:
-        return np.full(values.shape[1], -1, dtype=np.int64)
-    return band.row_lo + np.argmax(values[band.row_lo:band.row_hi], axis=0).astype(np.int64)
+def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]],
+                  threshold_dn: float, sep: int, per_column: int) -> IntArray:
+    """(per_column, W) rows of the local maxima >= ``threshold_dn`` in ``spans``, sorted
+    top to bottom in each column, -1 padded. A maximum is strictly above the ``sep`` rows
+    over it and not below the ``sep`` rows under it (a plateau counts once)."""
+    rows, cols = [], []
+    for lo, hi in spans:
+        block = values[lo:hi]
+        peak = block >= threshold_dn
+        for d in range(1, sep + 1):
+            peak[d:] &= block[d:] > block[:-d]
+            peak[:-d] &= block[:-d] >= block[d:]
+        r, c = np.nonzero(peak)
+        rows.append(r + lo)
+        cols.append(c)
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    order = np.lexsort((r, c))
+    r, c = r[order], c[order]
+    pos = np.arange(r.size) - np.searchsorted(c, np.arange(values.shape[1]))[c]
+    out = np.full((per_column, values.shape[1]), -1, dtype=np.int64)
+    keep = pos < per_column
+    out[pos[keep], c[keep]] = r[keep]
+    return out
 
 
-def _masked_maxima(values: npt.NDArray[np.generic], band: Band, cols: IntArray,
-                   allowed_lo: IntArray, allowed_hi: IntArray) -> IntArray:
-    """Re-search ``band`` in ``cols`` only between rows [allowed_lo, allowed_hi) per column."""
-    if cols.size == 0 or band.empty:
-        return np.full(cols.size, -1, dtype=np.int64)
-    block = values[band.row_lo:band.row_hi][:, cols].astype(np.float64)
-    rows = np.arange(band.row_lo, band.row_hi)[:, None]
-    block[(rows < allowed_lo[None, :]) | (rows >= allowed_hi[None, :])] = -np.inf
-    best = np.argmax(block, axis=0)
-    found = np.isfinite(block[best, np.arange(cols.size)])
-    return np.where(found, band.row_lo + best, -1).astype(np.int64)
+def _assign_down(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
+    """(K, W): each line, top first, takes the first free peak below the previous line's
+    inside its band (the greedy order-preserving matching with the most pairs)."""
+    big = np.iinfo(np.int64).max
+    last = np.full(peaks.shape[1], -1)
+    out = np.full((len(bands), peaks.shape[1]), -1, dtype=np.int64)
+    for band in bands:
+        ok = (peaks >= band.row_lo) & (peaks < band.row_hi) & (peaks > last)
+        first = np.where(ok, peaks, big).min(axis=0)
+        out[band.line] = np.where(first < big, first, -1)
+        last = np.where(first < big, first, last)
+    return out
 
 
-def _snr_at(values: npt.NDArray[np.generic], rows: IntArray, background: float,
-            noise: float) -> FloatArray:
-    """(W,) SNR of ``values[rows[c], c]``; 0 where ``rows`` is -1."""
-    cols = np.arange(rows.size)
-    peak = values[np.maximum(rows, 0), cols].astype(np.float64)
-    return np.where(rows >= 0, (peak - background) / noise, 0.0)
+def _assign_up(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
+    """(K, W): as :func:`_assign_down` but bottom line first, taking the lowest peak."""
+    below = np.full(peaks.shape[1], np.iinfo(np.int64).max)
+    out = np.full((len(bands), peaks.shape[1]), -1, dtype=np.int64)
+    for band in reversed(bands):
+        ok = (peaks >= band.row_lo) & (peaks < band.row_hi) & (peaks < below)
+        out[band.line] = np.where(ok, peaks, -1).max(axis=0)
+        below = np.where(out[band.line] >= 0, out[band.line], below)
+    return out
 
 
 def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
@@ -311,113 +340,36 @@ def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
     return np.asarray(np.repeat(median, CONTINUITY_BLOCK)[:w], dtype=np.float64)
 
 
-@dataclass
-class _Search:
-    """Working state of the per-line search: rows (K, W), -1 where no candidate."""
-
-    values: npt.NDArray[np.generic]
-    bands: tuple[Band, ...]
-    rows: IntArray
-    background: float
-    noise: float
-    snr_min: float
-    sep: int
-    ambiguous: int = 0
-
-    def ok(self, k: int) -> BoolArray:
-        return _snr_at(self.values, self.rows[k], self.background, self.noise) >= self.snr_min
-
-    def swap_crossed(self, k: int) -> None:
-        """Order: line k is above line k+1; two distinct peaks found crossed are swapped."""
-        crossed = self.ok(k) & self.ok(k + 1) & (self.rows[k + 1] < self.rows[k] - self.sep)
-        self.rows[k, crossed], self.rows[k + 1, crossed] = (self.rows[k + 1, crossed],
-                                                            self.rows[k, crossed])
-
-    def resolve_shared(self, k: int) -> None:
-        """A peak claimed by lines k and k+1 goes to the line that leaves the other one a
-        stripe of its own (searched again away from the peak), else to the line it
-        continues; peaks neither rule can place are dropped and counted ambiguous."""
-        ok_k, ok_k1 = self.ok(k), self.ok(k + 1)
-        cols = np.flatnonzero(ok_k & ok_k1 & (self.rows[k + 1] - self.rows[k] < self.sep))
-        if cols.size == 0:
-            return
-        peak = self.rows[k, cols]
-        above = self._strong(k, cols, np.zeros_like(peak), peak - self.sep + 1)
-        below = self._strong(k + 1, cols, peak + self.sep, np.full_like(peak, 1 << 30))
-        good_k, good_k1 = ok_k.copy(), ok_k1.copy()
-        good_k[cols] = good_k1[cols] = False
-        d_k = np.abs(peak - _continuity_reference(self.rows[k], good_k)[cols])
-        d_k1 = np.abs(peak - _continuity_reference(self.rows[k + 1], good_k1)[cols])
-        to_k = (below >= 0) & (above < 0)
-        to_k1 = (above >= 0) & (below < 0)
-        tie = ~to_k & ~to_k1
-        to_k |= tie & np.isfinite(d_k) & (d_k + self.sep <= d_k1)
-        to_k1 |= tie & np.isfinite(d_k1) & (d_k1 + self.sep <= d_k)
-        self.rows[k + 1, cols] = np.where(to_k, below, np.where(to_k1, peak, -1))
-        self.rows[k, cols] = np.where(to_k1, above, np.where(to_k, peak, -1))
-        self.ambiguous += int((~to_k & ~to_k1).sum())
-
-    def _strong(self, k: int, cols: IntArray, lo: IntArray, hi: IntArray) -> IntArray:
-        """Strongest row of line k's band in ``cols`` between [lo, hi); -1 if below SNR."""
-        rows = _masked_maxima(self.values, self.bands[k], cols, lo, hi)
-        peak = self.values[np.maximum(rows, 0), cols].astype(np.float64)
-        strong = (rows >= 0) & ((peak - self.background) / self.noise >= self.snr_min)
-        return np.where(strong, rows, -1)
+def _continuity_cost(rows: IntArray, differ: BoolArray, ref: FloatArray) -> FloatArray:
+    """(W,) summed distance (px) of the differing assigned rows to their line's
+    reference; a line without a reference costs UNKNOWN_TRACK_COST_PX."""
+    dist = np.where(np.isfinite(ref), np.abs(rows - np.where(np.isfinite(ref), ref, 0.0)),
+                    UNKNOWN_TRACK_COST_PX)
+    return np.asarray(np.where(differ & (rows >= 0), dist, 0.0).sum(axis=0), np.float64)
 
 
-def search_roi(values: npt.NDArray[np.generic], bands: tuple[Band, ...], background: float,
-               noise: float, settings: ExtractorSettings) -> tuple[IntArray, int]:
-    """(K, W) integer peak rows per line (-1 = none) from each line's own band, and the
-    number of ambiguous peaks; overlapping bands are resolved by order and continuity."""
-    rows = np.stack([_band_maxima(values, b) for b in bands])
-    state = _Search(values, bands, rows, background, noise, settings.snr_min,
-                    settings.min_separation_px)
-    for k in range(len(bands) - 1):
-        if bands[k].row_hi > bands[k + 1].row_lo:
-            state.swap_crossed(k)
-            state.resolve_shared(k)
-    return state.rows, state.ambiguous
+def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int) -> tuple[IntArray, int]:
+    """(K, W) row of each line per column (-1 = none) and the count of ambiguous samples.
 
-
-def _top_peaks(values: npt.NDArray[np.generic], count: int, sep: int) -> IntArray:
-    """(count, W) rows of the ``count`` largest peaks of each column, ±sep suppressed."""
-    work = values.astype(np.float32)
-    cols = np.arange(values.shape[1])
-    found = np.empty((count, values.shape[1]), dtype=np.int64)
-    for i in range(count):
-        found[i] = np.argmax(work, axis=0)
-        for d in range(-sep, sep + 1):
-            work[np.clip(found[i] + d, 0, values.shape[0] - 1), cols] = -np.inf
-    return np.sort(found, axis=0)
-
-
-def _band_count(rows: IntArray, bands: tuple[Band, ...]) -> IntArray:
-    """How many bands hold each entry of ``rows`` (any shape of row numbers)."""
-    return sum((((rows >= b.row_lo) & (rows < b.row_hi)).astype(np.int64) for b in bands),
-               np.zeros(rows.shape, dtype=np.int64))
-
-
-def search_full(values: npt.NDArray[np.generic], bands: tuple[Band, ...], background: float,
-                noise: float, settings: ExtractorSettings) -> tuple[IntArray, int]:
-    """(K, W) peak rows per line (-1 = none) from the K strongest peaks of each whole
-    column (ROI bands off). Peaks are given to lines in row order within each line's band;
-    a peak inside two bands in a column with fewer than K peaks is ambiguous and dropped."""
-    k_lines, width = len(bands), values.shape[1]
-    peaks = _top_peaks(values, k_lines, settings.min_separation_px)
-    strong = np.stack([_snr_at(values, p, background, noise) >= settings.snr_min
-                       for p in peaks])
-    rows = np.full((k_lines, width), -1, dtype=np.int64)
-    taken = np.full(width, -1)
-    order = np.arange(k_lines)[:, None]
-    for k, band in enumerate(bands):
-        free = strong & (peaks >= band.row_lo) & (peaks < band.row_hi) & (order > taken)
-        has = free.any(axis=0)
-        first = np.argmax(free, axis=0)
-        rows[k] = np.where(has, peaks[first, np.arange(width)], -1)
-        taken = np.where(has, first, taken)
-    short = (strong & (_band_count(peaks, bands) > 0)).sum(axis=0) < k_lines
-    unsure = (rows >= 0) & (_band_count(rows, bands) >= 2) & short[None, :]
-    rows[unsure] = -1
+    Order: lines keep their top-to-bottom order and each stays in its band. Both greedy
+    matchings (top down and bottom up) have the most pairs; where they agree the identity
+    is certain. Where they differ, continuity decides: the matching whose differing rows
+    lie closer (by at least ``sep`` px) to each line's rows in the neighbouring columns
+    wins; otherwise the differing samples are dropped and counted ambiguous.
+    """
+    down, up = _assign_down(peaks, bands), _assign_up(peaks, bands)
+    differ = down != up
+    if not differ.any():
+        return down, 0
+    ref = np.stack([_continuity_reference(down[k], ~differ[k] & (down[k] >= 0))
+                    for k in range(len(bands))])
+    cost_down = _continuity_cost(down, differ, ref)
+    cost_up = _continuity_cost(up, differ, ref)
+    use_up = cost_up + sep <= cost_down
+    undecided = ~use_up & ~(cost_down + sep <= cost_up)
+    rows = np.where(use_up[None, :], up, down)
+    unsure = differ & undecided[None, :] & (down >= 0)
+    rows[differ & undecided[None, :]] = -1
     return rows, int(unsure.sum())
 
 
@@ -463,8 +415,9 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     height = values.shape[0]
     spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
     background, noise = noise_floor(values, spans)
-    search = search_roi if roi_bands else search_full
-    rows, ambiguous = search(values, bands, background, noise, settings)
+    peaks = strong_maxima(values, spans, background + settings.snr_min * noise,
+                          settings.min_separation_px, len(bands) + EXTRA_PEAKS)
+    rows, ambiguous = identify_lines(peaks, bands, settings.min_separation_px)
     line, cols = np.nonzero(rows >= 0)
     peak_rows = rows[line, cols]
     snr = (values[peak_rows, cols].astype(np.float64) - background) / noise
@@ -475,7 +428,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     samples = LineSamples(line[ok].astype(np.int64), row[ok], cols[ok].astype(np.float64),
                           snr[ok], sigma[ok], flat[ok])
     searched = sum(values.shape[1] for b in bands if not b.empty)
-    return Extraction(samples, noise, weak=max(searched - int(strong.sum()) - ambiguous, 0),
+    return Extraction(samples, noise, background, tuple(spans),
+                      weak=max(searched - int(strong.sum()) - ambiguous, 0),
                       dropped=int((~ok).sum()), ambiguous=ambiguous,
                       rows_read=sum(hi - lo for lo, hi in spans),
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)))
