@@ -308,6 +308,14 @@ class Unit:
         if self._projector is not None:
             self._projector.off()
 
+    def truth_sector_distances(self) -> tuple[float | None, ...] | None:
+        """The simulator's true sector distances for the newest map, or None (hardware)."""
+        simulator = getattr(self._camera, "simulator", None)
+        if simulator is None or self._last_map is None or self._pipeline is None:
+            return None
+        truth = simulator.truth(self._last_map.last_sequence, self._pipeline.layout)
+        return tuple(truth.sector_distance_m)
+
     # ----------------------------------------------------------------- output
     def status(self) -> UnitStatus:
         """The content of the status frame now."""

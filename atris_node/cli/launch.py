@@ -1,0 +1,142 @@
+"""``atris launch FILE``: run the units of a launch file and watch what they publish.
+
+``--print`` shows what would start. Every frame on the bus goes through a decoding
+monitor (E2E checked) and, with ``--log FILE``, into a python-can log. With ``--json`` the
+run ends with a summary object: ``units``, each with ``name``, ``code_row``,
+``code_length``, ``state``, ``frames_sent`` and ``e2e_errors``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from typing import Any
+
+import can
+
+from atris_node.bus.busconfig import BusConfig, open_bus
+from atris_node.bus.e2e import E2EState
+from atris_node.bus.ids import unit_of
+from atris_node.bus.monitor import BusMonitor
+from atris_node.fleetview import fleet_table
+from atris_node.launch import LaunchSpec, describe, load_launch
+from atris_node.runner import FleetRun, ProcessRun, stop_on_signals
+
+CLEAR = "\x1b[H\x1b[2J"
+E2E_ERRORS = (E2EState.WRONG_CRC, E2EState.WRONG_SEQUENCE, E2EState.REPEATED)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", help="launch file (path, or name of a shipped one)")
+    parser.add_argument("--print", action="store_true", help="show what would start, and exit")
+    parser.add_argument("--duration", type=float, metavar="S",
+                        help="run time, s (default: the launch file's)")
+    parser.add_argument("--json", action="store_true", help="end with a JSON summary")
+    parser.add_argument("--log", metavar="FILE", help="write every frame (.log, .asc, .blf)")
+    parser.add_argument("--refresh", type=float, default=1.0, help="table period, s")
+    parser.add_argument("--quiet", action="store_true", help="no table while running")
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = load_launch(args.file)
+    if args.print:
+        print("\n".join(describe(spec)))
+        return 0
+    duration = spec.duration_s if args.duration is None else args.duration
+    summary = run_launch(spec, duration, args.log, None if args.quiet else args.refresh,
+                         live=sys.stdout.isatty() and not args.json)
+    if args.json:
+        print(json.dumps(summary, indent=1))
+    else:
+        print(summary_text(summary))
+    return 0
+
+
+def _monitor_bus(spec: LaunchSpec) -> can.BusABC:
+    first = spec.units[0]
+    config = BusConfig(first["bus.interface"], first["bus.channel"],
+                       None if first["bus.interface"] == "virtual" else first["bus.bitrate"])
+    return open_bus(config, receive_own_messages=False)
+
+
+def run_launch(spec: LaunchSpec, duration_s: float, log: str | None = None,
+               refresh_s: float | None = 1.0, live: bool = False) -> dict[str, Any]:
+    """Run ``spec`` for ``duration_s`` seconds; return the summary object."""
+    monitor = BusMonitor(e2e_timeout_s=0.5)
+    listeners: list[can.Listener] = [monitor] + ([can.Logger(log)] if log else [])
+    stop = threading.Event()
+    with _monitor_bus(spec) as bus:
+        notifier = can.Notifier(bus, listeners, timeout=0.1)
+        runner: FleetRun | ProcessRun = (FleetRun(spec) if spec.mode == "threads"
+                                         else ProcessRun(spec))
+        try:
+            with stop_on_signals(stop):
+                runner.start()
+                _watch(runner, monitor, duration_s, stop, refresh_s=refresh_s, live=live)
+        finally:
+            runner.stop()
+            notifier.stop()
+            for listener in listeners:
+                listener.stop()
+    return summarize(spec, runner, monitor)
+
+
+def _watch(runner: FleetRun | ProcessRun, monitor: BusMonitor, duration_s: float,
+           stop: threading.Event, *, refresh_s: float | None, live: bool) -> None:
+    end = time.monotonic() + duration_s
+    next_table = time.monotonic() + (refresh_s or duration_s)
+    while not stop.is_set() and time.monotonic() < end:
+        stop.wait(min(0.1, max(0.0, end - time.monotonic())))
+        runner.check()
+        if refresh_s is not None and time.monotonic() >= next_table:
+            next_table += refresh_s
+            table = fleet_table(runner, monitor)
+            sys.stdout.write((CLEAR if live else "") + table + "\n")
+            sys.stdout.flush()
+
+
+def e2e_errors_by_unit(monitor: BusMonitor) -> dict[int, int]:
+    """Frames whose E2E check failed (wrong CRC, skipped or repeated), per unit id."""
+    errors: dict[int, int] = {}
+    for arbitration_id, checker in monitor.checkers.items():
+        owner = unit_of(arbitration_id)
+        if owner is None:
+            continue
+        counts = checker.counts or {}
+        errors[owner[0]] = errors.get(owner[0], 0) + sum(counts.get(s, 0) for s in E2E_ERRORS)
+    return errors
+
+
+def summarize(spec: LaunchSpec, runner: FleetRun | ProcessRun,
+              monitor: BusMonitor) -> dict[str, Any]:
+    """The summary object of a launch run (fields are relied on by other tools)."""
+    snapshot = monitor.snapshot()["units"]
+    errors = e2e_errors_by_unit(monitor)
+    units = []
+    for config in spec.units:
+        unit_id = int(config["unit.unit_id"])
+        view = snapshot.get(str(unit_id), {})
+        units.append({
+            "name": config["unit.label"],
+            "unit_id": unit_id,
+            "code_row": view.get("code_row"),
+            "code_length": view.get("code_length"),
+            "state": view.get("state"),
+            "frames_sent": int(view.get("frames", 0)),
+            "e2e_errors": errors.get(unit_id, 0),
+        })
+    return {"launch": spec.name, "mode": spec.mode, "units": units,
+            "error_frames": monitor.error_frames, "unknown_frames": monitor.unknown_frames}
+
+
+def summary_text(summary: dict[str, Any]) -> str:
+    """A few readable lines of a summary."""
+    lines = [f"launch {summary['launch']} ({summary['mode']}):"]
+    for unit in summary["units"]:
+        lines.append(f"  {unit['name']:<8} code {unit['code_row']}/{unit['code_length']}  "
+                     f"state {unit['state']}  frames {unit['frames_sent']}  "
+                     f"E2E errors {unit['e2e_errors']}")
+    return "\n".join(lines)
