@@ -1,0 +1,95 @@
+"""Soak run: the simulated fleet for minutes, with its resource use measured.
+
+Reported after a warm-up (the first fifth of the run, at most 60 s): resident memory growth
+in MB, thread count at the start and the end, the fraction of publisher cycles that missed
+their deadline, and frames whose E2E check failed.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import can
+import psutil
+
+from atris_node.bus.monitor import BusMonitor
+from atris_node.cli.launch import e2e_errors_by_unit
+from atris_node.launch import LaunchSpec, load_launch
+from atris_node.runner import FleetRun
+
+WARMUP_FRACTION = 0.2
+WARMUP_MAX_S = 60.0
+
+
+@dataclass(frozen=True)
+class SoakReport:
+    """What a soak run measured (fields are relied on by other tools)."""
+
+    minutes: float
+    units: int
+    rss_start_mb: float
+    rss_end_mb: float
+    rss_growth_mb: float
+    threads_start: int
+    threads_end: int
+    cycles: int
+    deadline_misses: int
+    deadline_miss_fraction: float
+    e2e_errors: int
+    measurements: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _rss_mb() -> float:
+    return float(psutil.Process().memory_info().rss) / 1e6
+
+
+def _publisher_totals(fleet: FleetRun) -> tuple[int, int]:
+    cycles = sum(u.publisher.stats.cycles for u in fleet.units)
+    misses = sum(u.publisher.stats.deadline_misses for u in fleet.units)
+    return cycles, misses
+
+
+def _run_phase(fleet: FleetRun, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        time.sleep(min(0.5, max(0.0, end - time.monotonic())))
+        fleet.check()
+
+
+def soak(minutes: float, spec: LaunchSpec | None = None) -> SoakReport:
+    """Run the soak fleet for ``minutes`` and measure it after the warm-up."""
+    spec = spec or load_launch("sim_soak")
+    total_s = minutes * 60.0
+    warmup_s = min(total_s * WARMUP_FRACTION, WARMUP_MAX_S)
+    monitor = BusMonitor(e2e_timeout_s=1.0)
+    fleet = FleetRun(spec)
+    first = spec.units[0]
+    with can.Bus(interface=first["bus.interface"], channel=first["bus.channel"]) as bus:
+        notifier = can.Notifier(bus, [monitor], timeout=0.1)
+        try:
+            fleet.start()
+            _run_phase(fleet, warmup_s)
+            rss0, threads0 = _rss_mb(), threading.active_count()
+            cycles0, misses0 = _publisher_totals(fleet)
+            errors0 = sum(e2e_errors_by_unit(monitor).values())
+            _run_phase(fleet, total_s - warmup_s)
+            rss1, threads1 = _rss_mb(), threading.active_count()
+            cycles1, misses1 = _publisher_totals(fleet)
+            errors1 = sum(e2e_errors_by_unit(monitor).values())
+            measurements = sum(u.stats.measurements for u in fleet.units)
+        finally:
+            fleet.stop()
+            notifier.stop()
+    cycles, misses = cycles1 - cycles0, misses1 - misses0
+    return SoakReport(
+        minutes=minutes, units=len(spec.units), rss_start_mb=round(rss0, 2),
+        rss_end_mb=round(rss1, 2), rss_growth_mb=round(rss1 - rss0, 2),
+        threads_start=threads0, threads_end=threads1, cycles=cycles,
+        deadline_misses=misses, deadline_miss_fraction=misses / cycles if cycles else 0.0,
+        e2e_errors=errors1 - errors0, measurements=measurements)
