@@ -114,6 +114,8 @@ class Unit:
         self._next_seq: int | None = None
         self._last_map: DistortionMap | None = None
         self._counter = 0
+        #: called with every measurement handed to the publisher (benchmarks, views)
+        self.on_measurement: Callable[[Measurement], None] | None = None
 
     # ----------------------------------------------------------------- lifecycle
     def configure(self) -> None:
@@ -174,6 +176,10 @@ class Unit:
     @property
     def label(self) -> str:
         return str(self.config["unit.label"])
+
+    @property
+    def camera(self) -> Camera | None:
+        return self._camera
 
     @property
     def projector(self) -> Projector | None:
@@ -352,6 +358,8 @@ class Unit:
         if measurement is not None:
             self._counter += 1
             measurement = replace(measurement, counter=self._counter)
+            if self.on_measurement is not None:
+                self.on_measurement(measurement)
         self._publisher.update(measurement, self.status())
 
 

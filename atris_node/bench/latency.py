@@ -1,0 +1,104 @@
+"""``atris bench latency``: data age from the newest sub-frame to its frame on the bus.
+
+One simulated unit paced at its sub-frame rate publishes on an in-process virtual bus; a
+second bus object receives. For every measurement the age is the receive time of the
+quality frame that carries its counter minus the host timestamp of the newest sub-frame
+the measurement used (both ``time.monotonic()``), in ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import threading
+import time
+from typing import Any
+
+import can
+import numpy as np
+
+from atris_node import config as cfg
+from atris_node.bus.frames import FrameCodec
+from atris_node.bus.ids import FrameKind, unit_of
+from atris_node.errors import FrameDecodeError
+from atris_node.node import Unit
+from atris_node.types import Measurement
+
+CHANNEL = "atris-bench-latency"
+
+
+class _Arrivals(can.Listener):
+    """Receive time of the first quality frame carrying each measurement counter."""
+
+    def __init__(self) -> None:
+        self.codec = FrameCodec()
+        self.arrivals: dict[int, float] = {}
+        self._lock = threading.Lock()
+
+    def on_message_received(self, msg: can.Message) -> None:
+        owner = None if msg.is_extended_id else unit_of(msg.arbitration_id)
+        if owner is None or owner[1] is not FrameKind.QUALITY:
+            return
+        now = time.monotonic()
+        try:
+            counter = int(self.codec.decode_message(msg).signals["MeasurementCounter"])
+        except (FrameDecodeError, KeyError, ValueError):
+            return
+        with self._lock:
+            self.arrivals.setdefault(counter, now)
+
+    def on_error(self, exc: Exception) -> None:
+        raise exc
+
+
+def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
+    """Run one unit for ``seconds`` and return the latency row."""
+    config = cfg.load(environ={}, overrides=[
+        f"driver.scene={scene}", "driver.realtime=true", f"code.length={code_length}",
+        f"bus.channel={CHANNEL}"])
+    sent: dict[int, float] = {}
+    arrivals = _Arrivals()
+    with can.Bus(interface="virtual", channel=CHANNEL) as rx, \
+            can.Bus(interface="virtual", channel=CHANNEL) as tx:
+        notifier = can.Notifier(rx, [arrivals], timeout=0.05)
+        unit = Unit(config, tx)
+
+        def remember(m: Measurement) -> None:
+            sent[m.counter & 0xFFFF] = m.newest_time_s
+
+        unit.on_measurement = remember
+        try:
+            unit.configure()
+            unit.activate()
+            time.sleep(seconds)
+        finally:
+            unit.shutdown()
+            notifier.stop()
+    return _row(scene, unit, sent, arrivals.arrivals)
+
+
+def _row(scene: str, unit: Unit, sent: dict[int, float],
+         arrivals: dict[int, float]) -> dict[str, Any]:
+    ages = np.array([1e3 * (arrivals[c] - t) for c, t in sent.items() if c in arrivals])
+    shape = getattr(unit.camera, "size", (0, 0))
+    if ages.size == 0:
+        return {"scene": scene, "width": shape[0], "height": shape[1], "samples": 0,
+                "p50_ms": None, "p99_ms": None, "max_ms": None}
+    return {"scene": scene, "width": shape[0], "height": shape[1], "samples": int(ages.size),
+            "p50_ms": round(float(np.percentile(ages, 50)), 3),
+            "p99_ms": round(float(np.percentile(ages, 99)), 3),
+            "max_ms": round(float(ages.max()), 3)}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scene", default="indoor_lab", help="simulator scene (640x400)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="run time, s")
+    parser.add_argument("--code-length", type=int, default=8, help="N")
+    parser.add_argument("--json", action="store_true", help="print the row as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    row = measure(args.scene, args.seconds, args.code_length)
+    print(json.dumps(row) if args.json else
+          "  ".join(f"{k}={v}" for k, v in row.items()))
+    return 0
