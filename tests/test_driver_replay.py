@@ -198,13 +198,39 @@ def test_feature_cli_record_sim(tmp_path: Path) -> None:
     assert len(recording) == 8 and set(recording.index.chip[1:]) <= {0, 1}
 
 
+class StripeCamera(Camera):
+    """A camera looking at a lit stripe: row 3 brightens when the chip commanded for
+    ``lag`` sub-frames earlier was 1 (the strobe lands late, as on an OAK)."""
+
+    bits = 8
+    rate_hz = 100.0
+
+    def __init__(self, projector: ReplayProjector, lag: int) -> None:
+        self.projector, self.lag, self.sequence = projector, lag, 0
+
+    def _read(self, timeout_s: float) -> SubFrame:
+        seq, self.sequence = self.sequence, self.sequence + 1
+        pixels = np.full((8, 8), 40 + seq % 5, np.uint8)
+        pixels[3] += np.uint8(90 * self.projector.commanded.get(seq - self.lag, 0))
+        return SubFrame(pixels=pixels, sequence=seq, device_time_s=seq / 100.0,
+                        host_time_s=seq / 100.0, exposure_us=1000.0)
+
+
 def test_feature_cli_replay_demodulates(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     codes = pytest.importorskip("atris_node.codes")
     pytest.importorskip("atris_node.demod")
     chips = [int(c) for c in codes.walsh_chips(4, 3)]
-    camera = PatternCamera(shape=(8, 8), first=0)
+    projector = ReplayProjector()
     with RecordingWriter(tmp_path / "rec", rate_hz=100.0) as writer:
-        record(camera, ReplayProjector(), writer, 17, chips=chips)
+        record(StripeCamera(projector, lag=1), projector, writer, 80, chips=chips)
+    recording = Recording(tmp_path / "rec")
+    from atris_node.cli.replay import infer_code
+
+    assert infer_code(recording.index) == (4, 3)
     assert main(["replay", str(tmp_path / "rec"), "--json"]) == 0
     rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
-    assert rows and all(r["last_sequence"] - r["first_sequence"] == 3 for r in rows)
+    assert len(rows) >= 8
+    assert all(r["last_sequence"] - r["first_sequence"] == 3 and r["lag"] == 1 for r in rows)
+    assert all(r["snr"] > 1.0 and r["saturated_fraction"] == 0.0 for r in rows)
+    assert main(["replay", str(tmp_path / "rec"), "--code-length", "4", "--row", "3"]) == 0
+    assert capsys.readouterr().out.startswith("seq ")
