@@ -33,7 +33,7 @@ from atris_node import wiring
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
-from atris_node.errors import AtrisError, CameraLostError, NodeFaultError
+from atris_node.errors import AtrisError, CameraLostError, DemodulationError, NodeFaultError
 from atris_node.types import (
     DistortionMap,
     FaultBits,
@@ -71,6 +71,7 @@ class NodeStats:
     dropped_sub_frames: int = 0
     deadline_misses: int = 0
     camera_faults: int = 0
+    bad_sub_frames: int = 0
     reconnects: int = 0
     strobe_lit_while_not_allowed: int = 0
     last_lag: int = 0
@@ -269,7 +270,11 @@ class Unit:
 
     def _demodulate(self, sub: SubFrame) -> DistortionMap | None:
         assert self._demod is not None
-        dmap = self._demod.push(sub)
+        try:
+            dmap = self._demod.push(sub)
+        except DemodulationError as exc:
+            self._on_bad_sub_frame(exc)
+            return None
         if dmap is not None:
             self.stats.maps += 1
             self.stats.dropped_sub_frames += dmap.dropped
@@ -281,6 +286,14 @@ class Unit:
         result = self._pipeline.process(dmap)
         self.stats.measurements += 1
         self._publish(result.measurement)
+
+    def _on_bad_sub_frame(self, exc: DemodulationError) -> None:
+        """A sub-frame that cannot be demodulated: drop it, restart the window, go invalid."""
+        self.stats.bad_sub_frames += 1
+        logger.warning("unit %s: sub-frame rejected: %s", self.label, exc)
+        assert self._demod is not None
+        self._demod.reset()
+        self._publish(None)
 
     def _on_camera_lost(self, exc: AtrisError) -> None:
         """Camera fault: laser off, invalid distances, reconnect with back-off."""
