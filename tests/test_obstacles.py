@@ -1,0 +1,148 @@
+"""Ground rejection, sector states and distances, nearest obstacle, closing speed, objects."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from atris_node.errors import ConfigError
+from atris_node.objects import cluster_objects, export_cloud
+from atris_node.obstacles import (
+    ClosingTracker,
+    GroundPlane,
+    SectorInput,
+    SectorSettings,
+    estimate_ground,
+    nearest_obstacle,
+    sector_distances,
+)
+from atris_node.sectors import SectorLayout
+from atris_node.types import SectorState
+
+LAYOUT = SectorLayout(4, np.deg2rad(80.0))  # sectors 20° wide, index 0 at the right
+
+
+def _ground(rng: np.random.Generator, n: int, bearing_deg: float) -> np.ndarray:
+    r = rng.uniform(1.0, 8.0, n)
+    b = np.deg2rad(bearing_deg + rng.uniform(-5.0, 5.0, n))
+    return np.stack([r * np.cos(b), r * np.sin(b), rng.normal(0.0, 0.01, n)], axis=1)
+
+
+def _wall(rng: np.random.Generator, n: int, x_m: float, bearing_deg: float) -> np.ndarray:
+    b = np.deg2rad(bearing_deg + rng.uniform(-5.0, 5.0, n))
+    return np.stack([np.full(n, x_m), x_m * np.tan(b), rng.uniform(0.2, 1.0, n)], axis=1)
+
+
+def _input(points: np.ndarray, plane: GroundPlane, clearance: float = 0.1) -> SectorInput:
+    return SectorInput(points, plane.height(points) > clearance, np.full(len(points), 30.0))
+
+
+def test_ground_points_make_a_free_sector_and_a_wall_a_valid_one() -> None:
+    rng = np.random.default_rng(1)
+    pts = np.concatenate([_ground(rng, 200, -30.0), _ground(rng, 200, 10.0),
+                          _wall(rng, 100, 2.5, 10.0)])
+    sectors = sector_distances(_input(pts, GroundPlane()), LAYOUT, SectorSettings())
+    states = [s.state for s in sectors]
+    assert states == [SectorState.NO_RETURN, SectorState.INVALID, SectorState.VALID,
+                      SectorState.INVALID]
+    wall = sectors[2]
+    assert wall.distance_m == pytest.approx(2.5, rel=0.01)
+    assert wall.point_count == 100 and wall.confidence == 1.0
+    assert all(s.distance_m == 0.0 for s in sectors if s.state is not SectorState.VALID)
+
+
+def test_too_few_obstacle_points_are_invalid_not_a_distance() -> None:
+    rng = np.random.default_rng(2)
+    pts = np.concatenate([_ground(rng, 200, 10.0), _wall(rng, 3, 2.0, 10.0)])
+    sector = sector_distances(_input(pts, GroundPlane()), LAYOUT, SectorSettings())[2]
+    assert sector.state is SectorState.INVALID and sector.distance_m == 0.0
+
+
+def test_low_snr_lowers_confidence_to_invalid() -> None:
+    rng = np.random.default_rng(3)
+    pts = _wall(rng, 100, 3.0, 10.0)
+    data = SectorInput(pts, np.ones(100, bool), np.full(100, 6.0))
+    settings = SectorSettings(min_confidence=0.6, snr_min=6.0)
+    assert sector_distances(data, LAYOUT, settings)[2].state is SectorState.INVALID
+    strong = SectorInput(pts, np.ones(100, bool), np.full(100, 20.0))
+    assert sector_distances(strong, LAYOUT, settings)[2].state is SectorState.VALID
+
+
+def test_low_quantile_ignores_a_few_near_outliers() -> None:
+    rng = np.random.default_rng(4)
+    pts = _wall(rng, 200, 4.0, -10.0)
+    pts[:3, 0] = 0.5  # three spurious near points
+    sector = sector_distances(_input(pts, GroundPlane()), LAYOUT, SectorSettings())[1]
+    assert sector.distance_m == pytest.approx(4.0, rel=0.02)
+
+
+def test_nearest_obstacle_has_the_bearing_of_its_points() -> None:
+    rng = np.random.default_rng(5)
+    pts = np.concatenate([_wall(rng, 100, 5.0, -30.0), _wall(rng, 100, 2.0, 12.0)])
+    data = _input(pts, GroundPlane())
+    sectors = sector_distances(data, LAYOUT, SectorSettings())
+    nearest = nearest_obstacle(sectors, data, LAYOUT)
+    assert nearest is not None and nearest.index == 2
+    assert nearest.distance_m == pytest.approx(2.0, rel=0.02)
+    assert np.rad2deg(nearest.bearing_rad) == pytest.approx(7.5, abs=3.0)
+    assert sectors[3].state is SectorState.INVALID
+    assert nearest_obstacle(sectors[3:], data, LAYOUT) is None
+
+
+def test_ground_plane_estimated_with_open3d() -> None:
+    rng = np.random.default_rng(6)
+    pts = _ground(rng, 600, 0.0)
+    pts[:, 2] = 0.05 + 0.02 * pts[:, 0]  # 1.1° slope, 5 cm offset
+    pts = np.concatenate([pts, _wall(rng, 100, 3.0, 0.0)])
+    plane = estimate_ground(pts, GroundPlane())
+    assert plane is not None
+    assert np.rad2deg(np.arccos(plane.normal[2])) == pytest.approx(1.15, abs=0.2)
+    heights = plane.height(pts[:600])
+    assert np.abs(heights).max() < 0.05
+    assert estimate_ground(_wall(rng, 300, 3.0, 0.0), GroundPlane()) is None
+
+
+def test_closing_speed_and_time_to_collision() -> None:
+    tracker = ClosingTracker()
+    out = [tracker.update(5.0 - 2.0 * t, t) for t in np.arange(0.0, 0.5, 0.1)]
+    assert out[0] == (None, None)
+    closing, ttc = out[-1]
+    assert closing == pytest.approx(2.0, rel=1e-6)
+    assert ttc == pytest.approx((5.0 - 0.8) / 2.0, rel=1e-6)
+    assert tracker.update(None, 0.5) == (None, None)
+    receding = [tracker.update(2.0 + t, t) for t in np.arange(1.0, 1.4, 0.1)]
+    assert receding[-1][0] == pytest.approx(-1.0) and receding[-1][1] is None
+
+
+def test_a_jump_to_another_object_restarts_the_track() -> None:
+    tracker = ClosingTracker()
+    for t in (0.0, 0.1, 0.2):
+        tracker.update(6.0, t)
+    assert tracker.update(2.0, 0.3) == (None, None)
+
+
+def test_dbscan_objects_and_their_boxes() -> None:
+    rng = np.random.default_rng(7)
+    a = rng.normal([3.0, 1.0, 0.5], 0.05, (80, 3))
+    b = rng.normal([6.0, -2.0, 0.8], 0.05, (60, 3))
+    boxes = cluster_objects(np.concatenate([b, a]), eps_m=0.3, min_points=10)
+    assert [o.point_count for o in boxes] == [80, 60]
+    assert boxes[0].centre_m == pytest.approx((3.0, 1.0, 0.5), abs=0.1)
+    assert boxes[0].distance_m < np.hypot(3.0, 1.0)
+    assert cluster_objects(a[:5]) == ()
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".pcd"])
+def test_point_cloud_export_reads_back(tmp_path: Path, suffix: str) -> None:
+    pts = np.random.default_rng(8).normal(size=(50, 3))
+    path = export_cloud(pts, tmp_path / "sub" / f"cloud{suffix}")
+    back = np.asarray(o3d.io.read_point_cloud(str(path)).points)
+    np.testing.assert_allclose(back, pts, atol=1e-5)
+
+
+def test_unknown_cloud_format_is_a_config_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"\.ply"):
+        export_cloud(np.zeros((3, 3)), tmp_path / "cloud.xyz")
