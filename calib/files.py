@@ -76,7 +76,7 @@ class CameraFile:
 # ---------------------------------------------------------------- writing
 
 
-def _toml_value(value: object, where: str) -> str:
+def toml_value(value: object, where: str) -> str:
     """One TOML value: bool, int, finite float, str, or a (nested) list of those."""
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -90,12 +90,12 @@ def _toml_value(value: object, where: str) -> str:
         escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
         return f'"{escaped}"'
     if isinstance(value, list | tuple):
-        return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v, where) for v in value) + "]"
     raise CalibrationError(f"{where}: cannot write a {type(value).__name__} to a TOML file")
 
 
-def _toml_table(name: str, table: Mapping[str, object]) -> str:
-    lines = [f"[{name}]"] + [f"{k} = {_toml_value(v, f'{name}.{k}')}" for k, v in table.items()]
+def toml_table(name: str, table: Mapping[str, object]) -> str:
+    lines = [f"[{name}]"] + [f"{k} = {toml_value(v, f'{name}.{k}')}" for k, v in table.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -119,7 +119,7 @@ def _laser_table(laser: LaserCalibration, meta: Mapping[str, object]) -> dict[st
 
 def _write(path: str | Path, kind: str, tables: Mapping[str, Mapping[str, object]]) -> Path:
     header = f'format = "{FORMAT}"\nversion = {VERSION}\nkind = "{kind}"\n'
-    text = header + "".join("\n" + _toml_table(n, t) for n, t in tables.items() if t)
+    text = header + "".join("\n" + toml_table(n, t) for n, t in tables.items() if t)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text, encoding="utf-8")

@@ -257,7 +257,8 @@ def svd_plane(points: FloatArray) -> PlaneCheck:
     rms_mm = float(np.sqrt(np.mean(((points - centroid) @ normal) ** 2))) * 1000.0
     scale = np.hypot(normal[1], normal[2])
     d = float(normal @ centroid)
-    return PlaneCheck(baseline_m=-d / scale, alpha_rad=float(np.arctan2(normal[1], -normal[2])),
+    return PlaneCheck(baseline_m=float(-d / scale),
+                      alpha_rad=float(np.arctan2(normal[1], -normal[2])),
                       tilt_rad=float(np.arcsin(np.clip(normal[0], -1.0, 1.0))), rms_mm=rms_mm)
 
 

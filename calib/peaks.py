@@ -5,12 +5,15 @@ each column is searched over its full height: the ``count`` strongest maxima at 
 ``separation_px`` apart, each above ``snr_min`` robust noise floors, refined to a
 sub-pixel row by the 3-point Gaussian (parabola through the logarithms). A column where
 fewer than ``count`` lines stand out is marked invalid for every line, so the index k
-(top of the image first) always means the same projected line.
+(top of the image first) always means the same projected line. Lines are continuous
+across columns while glints and speckle are not: a column in which any line's row is more
+than ``max_jump_px`` from the running median of its neighbours is dropped as well.
 """
 
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +22,9 @@ import numpy.typing as npt
 from atris_node.errors import CalibrationError
 
 logger = logging.getLogger(__name__)
+
+#: columns over which a line's running median row is taken (glint rejection)
+CONTINUITY_WINDOW = 31
 
 
 @dataclass(frozen=True)
@@ -67,8 +73,26 @@ def _gaussian_offset(values: npt.NDArray[np.float64], rows: npt.NDArray[np.int64
     return inner - rows + np.clip(offset, -0.5, 0.5)
 
 
+def _continuous(rows: npt.NDArray[np.float64], valid: npt.NDArray[np.bool_],
+                max_jump_px: float, window: int = CONTINUITY_WINDOW) -> npt.NDArray[np.bool_]:
+    """(W,) True for columns where every line is within ``max_jump_px`` of its running
+    median over ``window`` columns (median of the valid ones)."""
+    if not valid.any():
+        return np.zeros(rows.shape[1], dtype=bool)
+    half = window // 2
+    padded = np.pad(np.where(valid, rows, np.nan), ((0, 0), (half, half)),
+                    constant_values=np.nan)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, window, axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows: no neighbours
+        median = np.nanmedian(windows, axis=-1)
+    close = np.abs(np.nan_to_num(rows - median, nan=np.inf)) <= max_jump_px
+    return np.all(close & valid, axis=0)
+
+
 def find_line_rows(distortion_map: npt.NDArray[np.generic], count: int,
-                   separation_px: int = 6, snr_min: float = 8.0) -> LineRows:
+                   separation_px: int = 6, snr_min: float = 8.0,
+                   max_jump_px: float = 2.0) -> LineRows:
     """The rows of ``count`` lines in each column of a (H, W) distortion map (DN)."""
     values = np.asarray(distortion_map, dtype=np.float64)
     if values.ndim != 2 or count < 1:
@@ -81,6 +105,7 @@ def find_line_rows(distortion_map: npt.NDArray[np.generic], count: int,
     order = np.argsort(refined, axis=0)
     refined = np.take_along_axis(refined, order, axis=0)
     valid = np.broadcast_to(np.all(strong, axis=0), rows.shape).copy()
+    valid &= _continuous(refined, valid, max_jump_px)[None, :]
     logger.debug("%d of %d columns show all %d lines", int(valid[0].sum()), values.shape[1],
                  count)
     return LineRows(np.where(valid, refined, 0.0), valid)
