@@ -1,0 +1,159 @@
+"""The whole chain on synthetic scenes with exact truth: sectors, free space, ground,
+closing speed, optional objects and export, configuration errors."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pipeline_scenes import Box, Scene, as_map, oak_calibration, render
+
+from atris_node import objects as objects_mod
+from atris_node.errors import ConfigError
+from atris_node.geometry import range_sigma
+from atris_node.mounting import Mounting
+from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.types import SectorState
+
+LEVEL = Mounting(z_m=0.5)
+PITCHED = Mounting(z_m=0.8, pitch_rad=np.deg2rad(4.0))
+SCENES = {
+    "boxes_one_line": Scene(oak_calibration((84.5,)), LEVEL,
+                            boxes=(Box(3.0, -0.5, 0.3), Box(6.0, 0.8, 2.5, 0.6))),
+    "boxes_three_lines": Scene(oak_calibration((88.0, 85.0, 82.0)), LEVEL,
+                               boxes=(Box(2.0, -1.0, -0.2), Box(4.5, 0.3, 1.5, 0.4))),
+    "near_wall_distorted": Scene(oak_calibration((86.0, 83.0),
+                                                 distortion=(-0.08, 0.02, 0.0, 0.0)),
+                                 PITCHED, boxes=(Box(1.2, -0.3, 0.4, 1.0),)),
+    "free_floor": Scene(oak_calibration((84.0, 81.0)), PITCHED),
+}
+CONFIG = PipelineConfig(peak_method="steger", stripe_sigma_px=1.2, z_min_m=0.5)
+
+
+def _run(scene: Scene, config: PipelineConfig = CONFIG, seed: int = 1) -> tuple[
+        PipelineResult, list[float | None]]:
+    dmap, truth = render(scene, np.random.default_rng(seed))
+    pipe = Pipeline(config, scene.calibration, scene.mounting, config.layout())
+    result = pipe.process(dmap)
+    return result, truth.sector_distance(config.layout(), config.ground_clearance_m,
+                                         config.z_max_m)
+
+
+def _sigma_u(result: PipelineResult) -> float:
+    return float(np.sqrt(np.mean(result.samples.sigma_u_px**2) + CONFIG.sigma_u_px**2))
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_sector_distances_match_the_truth(name: str) -> None:
+    scene = SCENES[name]
+    result, truth = _run(scene)
+    sigma_u = _sigma_u(result)
+    cal = scene.calibration
+    for sector, true_m in zip(result.measurement.sectors, truth, strict=True):
+        if true_m is None:
+            assert sector.state is not SectorState.VALID, f"{name}: phantom in {sector}"
+            continue
+        if sector.state is SectorState.VALID:
+            sigma_z = float(range_sigma(true_m, sigma_u, cal.camera.focal_px,
+                                        cal.laser.baseline_m))
+            assert abs(sector.distance_m - true_m) <= max(0.03 * true_m, 2 * sigma_z), (
+                name, sector, true_m)
+    seen = sum(t is not None for t in truth)
+    valid = sum(s.state is SectorState.VALID for s in result.measurement.sectors)
+    assert valid >= seen - 1, f"{name}: only {valid} of {seen} obstacle sectors valid"
+
+
+def test_free_floor_is_free_in_every_sector() -> None:
+    result, truth = _run(SCENES["free_floor"])
+    assert all(t is None for t in truth)
+    assert {s.state for s in result.measurement.sectors} == {SectorState.NO_RETURN}
+    assert result.measurement.nearest is None
+
+
+def test_measurement_carries_the_map_sequence_and_time() -> None:
+    scene = SCENES["boxes_one_line"]
+    dmap, _ = render(scene, np.random.default_rng(2))
+    pipe = Pipeline(CONFIG, scene.calibration, scene.mounting, CONFIG.layout())
+    first, second = pipe.process(dmap), pipe.process(dmap)
+    assert (first.measurement.counter, second.measurement.counter) == (0, 1)
+    assert first.measurement.newest_sequence == dmap.last_sequence
+    assert first.measurement.newest_time_s == dmap.last_time_s
+    assert first.diagnostics.valid_fraction > 0.9
+    assert first.points_vehicle_m.shape == (int(first.valid.sum()), 3)
+
+
+def test_roi_bands_read_fewer_rows_for_the_same_result() -> None:
+    scene = SCENES["boxes_three_lines"]
+    with_roi, _ = _run(scene)
+    without, _ = _run(scene, replace(CONFIG, roi_bands=False))
+    assert with_roi.diagnostics.rows_read < without.diagnostics.rows_read
+    assert with_roi.measurement.sectors == without.measurement.sectors
+
+
+def test_estimated_ground_removes_a_mounting_pitch_error() -> None:
+    truth_mount = Mounting(z_m=0.5, pitch_rad=np.deg2rad(3.0))
+    scene = Scene(oak_calibration((87.0, 85.0)), truth_mount, boxes=(Box(2.5, -0.3, 0.3),))
+    dmap, _ = render(scene, np.random.default_rng(3))
+    for mode, phantoms in (("calibrated", True), ("estimate", False)):
+        config = replace(CONFIG, ground_plane=mode, ground_clearance_m=0.08)
+        pipe = Pipeline(config, scene.calibration, LEVEL, config.layout())  # pitch unknown
+        result = pipe.process(dmap)
+        valid = [s for s in result.measurement.sectors if s.state is SectorState.VALID]
+        assert (len(valid) > 2) is phantoms, (mode, valid)
+    assert result.diagnostics.ground.normal[2] < 0.9995
+
+
+def test_closing_speed_and_time_to_collision_over_frames() -> None:
+    cal = oak_calibration((84.5,))
+    config = replace(CONFIG, z_max_m=8.0)
+    pipe = Pipeline(config, cal, LEVEL, config.layout())
+    rng = np.random.default_rng(4)
+    for i in range(6):
+        t = 0.1 * i
+        scene = Scene(cal, LEVEL, boxes=(Box(4.0 - 1.5 * t, -0.5, 0.5),))
+        dmap, _ = render(scene, rng)
+        m = pipe.process(replace(dmap, last_time_s=t)).measurement
+    assert m.closing_speed_mps == pytest.approx(1.5, rel=0.1)
+    assert m.time_to_collision_s == pytest.approx((4.0 - 0.75) / 1.5, rel=0.15)
+
+
+def test_objects_and_export_run_only_when_enabled(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[str] = []
+    real_cluster, real_export = objects_mod.cluster_objects, objects_mod.export_cloud
+
+    def cluster(*args: object, **kwargs: object) -> tuple[objects_mod.ObjectBox, ...]:
+        calls.append("cluster")
+        return real_cluster(*args, **kwargs)  # type: ignore[arg-type]
+
+    def export(*args: object, **kwargs: object) -> Path:
+        calls.append("export")
+        return real_export(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(objects_mod, "cluster_objects", cluster)
+    monkeypatch.setattr(objects_mod, "export_cloud", export)
+    scene = SCENES["boxes_one_line"]
+    off, _ = _run(scene)
+    assert calls == [] and off.objects is None
+    on, _ = _run(scene, replace(CONFIG, objects=True, export_dir=tmp_path))
+    assert calls == ["cluster", "export"]
+    assert on.objects is not None and len(on.objects) >= 1
+    assert on.objects[0].distance_m == pytest.approx(3.0, rel=0.05)
+    assert len(list(tmp_path.glob("cloud_*.ply"))) == 1
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("peak_method", "centroid"), ("z_min_m", 20.0), ("quantile", 0.9), ("min_points", 0),
+    ("ground_plane", "magic"), ("snr_min", 0.0), ("sigma_u_px", -1.0)])
+def test_bad_settings_are_config_errors_naming_the_field(field: str, value: object) -> None:
+    with pytest.raises(ConfigError, match=field):
+        PipelineConfig(**{field: value})
+
+
+def test_a_map_of_the_wrong_size_is_refused() -> None:
+    scene = SCENES["boxes_one_line"]
+    pipe = Pipeline(CONFIG, scene.calibration, scene.mounting, CONFIG.layout())
+    with pytest.raises(ConfigError, match="640x400"):
+        pipe.process(as_map(np.zeros((800, 1280))))
