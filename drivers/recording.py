@@ -117,7 +117,7 @@ class RecordingWriter:
             self._open_files(sub)
         self._check_like_first(sub)
         assert self._pixels is not None and self._index is not None
-        self._pixels.write(memoryview(np.ascontiguousarray(sub.pixels)).cast("B"))
+        self._pixels.write(np.ascontiguousarray(sub.pixels).data)
         self._index.write(",".join(_index_row(sub)) + "\n")
         self.count += 1
 
