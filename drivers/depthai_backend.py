@@ -42,6 +42,8 @@ logger = logging.getLogger(__name__)
 
 #: sensor resolutions of the OV9282 mono camera
 RESOLUTIONS = {"400p": "THE_400_P", "720p": "THE_720_P", "800p": "THE_800_P"}
+#: (width, height) in pixels of each resolution
+SIZES = {"400p": (640, 400), "720p": (1280, 720), "800p": (1280, 800)}
 EMITTER_MODES = ("dot", "flood", "external")
 #: commanded chips the projector keeps (the newest ones)
 COMMAND_HISTORY = 4096
@@ -79,14 +81,18 @@ class DepthaiCamera(Camera):
     """A camera over a queue of ImgFrames (a MonoCamera's output, or a host node's).
 
     ``control`` is the camera's control input queue (exposure), ``on_close`` releases
-    the pipeline and device.
+    the pipeline and device. ``size`` is (width, height) in pixels, ``bits`` the
+    significant bits per pixel (8 for the MonoCamera's RAW8 output).
     """
 
     def __init__(self, reader: FrameReader, control: Any | None = None, rate_hz: float = 0.0,
-                 on_close: Callable[[], None] | None = None) -> None:
+                 *, on_close: Callable[[], None] | None = None,
+                 size: tuple[int, int] | None = None, bits: int = 8) -> None:
         self.reader = reader
         self.control = control
         self.rate_hz = rate_hz
+        self.size = size
+        self.bits = bits
         self._on_close = on_close
 
     @property
@@ -237,7 +243,8 @@ def build_device_pipeline(device: Any, settings: DepthaiSettings
                                  settings.intensity, external=external)
     pipeline.start()
     camera = DepthaiCamera(FrameReader(frames, projector.chip_for), control,
-                           settings.rate_hz, on_close=lambda: _release(pipeline, device))
+                           settings.rate_hz, on_close=lambda: _release(pipeline, device),
+                           size=SIZES[settings.resolution])
     return pipeline, camera, projector
 
 

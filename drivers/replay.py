@@ -46,6 +46,7 @@ class ReplayCamera(Camera):
         self.realtime = realtime
         self.rate_hz = recording.meta.rate_hz
         self.bits = recording.meta.bits
+        self.size = (recording.meta.width, recording.meta.height)
         self._sleep, self._clock = sleep, clock
         self._position = 0
         self._lap = 0

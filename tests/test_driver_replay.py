@@ -75,6 +75,7 @@ def test_feature_replay_yields_identical_sub_frames(tmp_path: Path) -> None:
     with camera, projector:
         replayed = list(camera.frames())
     assert len(replayed) == 12 and camera.rate_hz == 100.0 and camera.bits == 10
+    assert camera.size == (9, 6)
     for original, copy in zip(source.delivered, replayed, strict=True):
         # no chip was commanded for the first sub-frame, nor for the one after the drop
         unknown = original.sequence in (1000, 1005)
