@@ -13,7 +13,14 @@ from collections.abc import Sequence
 
 from atris_node.bus.ids import MAX_SECTORS, SECTORS_PER_FRAME
 from atris_node.errors import ConfigError
-from atris_node.types import FaultBits, Measurement, SectorDistance, SectorState, UnitStatus
+from atris_node.types import (
+    FaultBits,
+    Measurement,
+    SectorDistance,
+    SectorState,
+    UnitState,
+    UnitStatus,
+)
 
 DISTANCE_SCALE_M = 0.001
 DISTANCE_MAX_RAW = 65532
@@ -28,7 +35,24 @@ TTC_NOT_AVAILABLE = 255
 #: FaultBits member -> status frame signal
 FAULT_SIGNALS = {bit: "Fault_" + "".join(w.capitalize() for w in str(bit.name).split("_"))
                  for bit in FaultBits if bit}
+#: faults after which the distances of a measurement must not be used
+SPOILING_FAULTS = (FaultBits.CAMERA_LOST | FaultBits.LASER_FAULT | FaultBits.PLAN_CONFLICT
+                   | FaultBits.CALIBRATION)
 RawSignals = dict[str, int]
+
+
+def data_usable(measurement: Measurement | None, status: UnitStatus, age_s: float | None,
+                max_age_s: float) -> bool:
+    """True when ``measurement`` (``age_s`` old) may go out as valid distances.
+
+    False without a measurement, when older than ``max_age_s``, when the unit is not
+    RUNNING, or when a fault in SPOILING_FAULTS is set.
+    """
+    if measurement is None or age_s is None or not math.isfinite(age_s):
+        return False
+    if status.state is not UnitState.RUNNING or status.faults & SPOILING_FAULTS:
+        return False
+    return age_s <= max_age_s
 
 
 def scaled(value: float, scale: float, lo: int, hi: int) -> int:

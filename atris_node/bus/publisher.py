@@ -12,7 +12,6 @@ and kept, and :meth:`Publisher.check` re-raises it in the owner's loop.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -30,9 +29,6 @@ from atris_node.types import FaultBits, Measurement, UnitState, UnitStatus
 
 logger = logging.getLogger(__name__)
 
-#: faults after which the distances of a measurement must not be used
-SPOILING_FAULTS = (FaultBits.CAMERA_LOST | FaultBits.LASER_FAULT | FaultBits.PLAN_CONFLICT
-                   | FaultBits.CALIBRATION)
 MIN_PERIOD_S = 0.01
 
 
@@ -166,12 +162,8 @@ class Publisher:
     # -- composing frames ----------------------------------------------------------------
     def usable(self, measurement: Measurement | None, status: UnitStatus, now: float) -> bool:
         """True when ``measurement`` may be published as valid distances at ``now``."""
-        if measurement is None or status.state is not UnitState.RUNNING:
-            return False
-        if status.faults & SPOILING_FAULTS:
-            return False
-        age = now - measurement.newest_time_s
-        return math.isfinite(age) and age <= self.max_age_s
+        age = None if measurement is None else now - measurement.newest_time_s
+        return payloads.data_usable(measurement, status, age, self.max_age_s)
 
     def _faults(self, status: UnitStatus, late: bool) -> FaultBits:
         faults = FaultBits(status.faults)
