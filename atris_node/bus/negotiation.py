@@ -175,6 +175,7 @@ class Negotiator:
         self._duplicate_until_s = -1e9
         self._plan_conflict = False
         self._sync_counter = 0
+        self._last_defence_s = -1e9
         self._error: BaseException | None = None
         self._reported: tuple[NegotiationState, int | None, Plan] | None = None
 
@@ -259,7 +260,7 @@ class Negotiator:
                 return
             now = self.clock()
             self._set_state(NegotiationState.IDLE, None, now)
-            self._outbox = [nf.encode_cannot_claim(self.name, self.unit_id)]
+            self._outbox = [nf.encode_cannot_claim(self.name, self.unit_id, leaving=True)]
             self._flush(now)
             self.peers.clear()
         self._detach()
@@ -312,6 +313,8 @@ class Negotiator:
             nf.decode_name(data)
         if header.kind is nf.FrameKind.CLAIM and header.field < 2:
             raise nf.FrameDecodeError(f"CLAIM of row {header.field}: rows start at 2")
+        if header.kind is not nf.FrameKind.CLAIM and header.field > nf.LEAVING:
+            raise nf.FrameDecodeError(f"{header.kind.name} with field {header.field}")
         peer = self.peers.accept(header.identity, now)
         if peer is None:
             return
@@ -351,27 +354,38 @@ class Negotiator:
     def _on_claim(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
         if not self._learn_name(peer, data, now):
             return
+        if peer.code_row != header.field and not self.peers.allow_change(peer, now):
+            return
         peer.code_row, peer.cannot_claim = header.field, False
         if not self._holds(header.field) or not self._same_plan(peer):
             return
         assert peer.name is not None
         if peer.name < self.name:
             self._lose(now, f"unit {peer.label()} (lower NAME) claims row {header.field}")
-        else:
+        elif now - self._last_defence_s >= MIN_ANNOUNCE_GAP_S:
+            self._last_defence_s = now
             self._outbox.append(nf.encode_claim(self.name, self.unit_id, header.field))
 
     def _on_cannot_claim(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
-        if self._learn_name(peer, data, now):
-            peer.code_row, peer.cannot_claim = None, True
+        if not self._learn_name(peer, data, now):
+            return
+        peer.code_row, peer.cannot_claim = None, True
+        if header.field == nf.LEAVING:
+            logger.info("unit %s leaves the bus", peer.label())
+            self.peers.forget(peer)
 
     def _on_plan(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
         announcement = nf.decode_plan(data)
+        changed = announcement.proposal or peer.plan not in (None, announcement.plan)
+        if changed and not self.peers.allow_change(peer, now):
+            return
         if announcement.proposal:
             self._on_proposal(peer, announcement.plan, now)
             return
         if peer.plan != announcement.plan:
             peer.code_row = None  # its claims were for its previous plan
         peer.plan, peer.conflict = announcement.plan, announcement.conflict
+        peer.established = announcement.established
         if peer.nonce is not None and peer.nonce != announcement.nonce and peer.name:
             logger.info("unit %s restarted", peer.label())
         peer.nonce = announcement.nonce
@@ -438,10 +452,12 @@ class Negotiator:
         if now - self._started_s < self.listen_s:
             return
         self._listening = False
-        heard = [(p.name or 0, p.plan) for p in self._live_named()
-                 if p.plan is not None and not p.conflict]
-        if heard:
-            self._adopt_or_conflict(min(heard, key=lambda item: item[0])[1], now)
+        running = [(p.name or 0, p.plan) for p in self._live_named()
+                   if p.plan is not None and p.established and not p.conflict]
+        if running:  # join a running fleet on its plan, whatever our NAME
+            self._adopt_or_conflict(min(running, key=lambda item: item[0])[1], now)
+        else:
+            self._agree_plan(now)
         self._maybe_grow(now)
         if self._state is NegotiationState.CLAIMING and self._code_row is None:
             self._choose_code(now)
@@ -474,8 +490,9 @@ class Negotiator:
             self._outbox.append(nf.encode_cannot_claim(self.name, self.unit_id))
 
     def _plan_frame(self, plan: Plan | None = None, proposal: bool = False) -> nf.RawFrame:
+        owned = self._state is NegotiationState.OWNED
         announcement = nf.PlanAnnouncement(plan or self._plan, proposal, self._plan_conflict,
-                                           self._nonce)
+                                           self._nonce, owned and not proposal)
         return nf.encode_plan(self.name, self.unit_id, announcement)
 
     def _flush(self, now: float) -> None:

@@ -4,7 +4,8 @@ Identifier (29 bits, extended frame)::
 
     bits 28..26  priority, 0b110 (as J1939's default 6)
     bits 25..23  kind: REQUEST 0, CLAIM 1, CANNOT_CLAIM 2, PLAN 3, SYNC 4
-    bits 22..16  field: the claimed 1-based Walsh row in CLAIM, 0 otherwise
+    bits 22..16  field: the claimed 1-based Walsh row in CLAIM; 1 in a CANNOT_CLAIM sent
+                 by a unit that stops (leaving); 0 otherwise
     bits 15..4   NAME fold: the 64-bit NAME XOR-folded to 12 bits
     bits  3..0   unit_id of the sender
 
@@ -45,8 +46,12 @@ PLAN_STRUCT = struct.Struct("<BBBBI")
 #: SYNC: cycle counter, code_length, reserved (0), code period in microseconds
 SYNC_STRUCT = struct.Struct("<HBBI")
 
+#: field value of a CANNOT_CLAIM sent by a unit that stops
+LEAVING = 1
 PLAN_FLAG_PROPOSAL = 0x01  # a request for this plan, addressed to the lowest NAME
 PLAN_FLAG_CONFLICT = 0x02  # the sender cannot adopt the winning plan
+PLAN_FLAG_ESTABLISHED = 0x04  # the sender owns a code under this plan (a running fleet)
+PLAN_FLAGS = PLAN_FLAG_PROPOSAL | PLAN_FLAG_CONFLICT | PLAN_FLAG_ESTABLISHED
 
 
 class FrameKind(enum.IntEnum):
@@ -93,6 +98,7 @@ class PlanAnnouncement:
     proposal: bool
     conflict: bool
     nonce: int
+    established: bool = False
 
 
 @dataclass(frozen=True)
@@ -156,16 +162,20 @@ def encode_claim(name: int, unit_id: int, code_row: int) -> RawFrame:
     return _name_frame(FrameKind.CLAIM, name, unit_id, code_row)
 
 
-def encode_cannot_claim(name: int, unit_id: int) -> RawFrame:
-    """Cannot-claim: the sender has no code and keeps its laser off."""
-    return _name_frame(FrameKind.CANNOT_CLAIM, name, unit_id)
+def encode_cannot_claim(name: int, unit_id: int, leaving: bool = False) -> RawFrame:
+    """Cannot-claim: the sender has no code and keeps its laser off.
+
+    With ``leaving`` (field 1) the sender also goes off the bus (stop): forget it at once.
+    """
+    return _name_frame(FrameKind.CANNOT_CLAIM, name, unit_id, LEAVING if leaving else 0)
 
 
 def encode_plan(name: int, unit_id: int, announcement: PlanAnnouncement) -> RawFrame:
     """PLAN: the plan the sender uses (or, with the proposal flag, asks for)."""
     plan = announcement.plan
-    flags = (PLAN_FLAG_PROPOSAL if announcement.proposal else 0) | (
-        PLAN_FLAG_CONFLICT if announcement.conflict else 0)
+    flags = ((PLAN_FLAG_PROPOSAL if announcement.proposal else 0)
+             | (PLAN_FLAG_CONFLICT if announcement.conflict else 0)
+             | (PLAN_FLAG_ESTABLISHED if announcement.established else 0))
     data = PLAN_STRUCT.pack(plan.code_length, MODES.index(plan.mode), flags,
                             announcement.nonce & 0xFF, plan.chip_rate_mhz)
     return RawFrame(make_id(FrameKind.PLAN, identity_of(name, unit_id)), data)
@@ -192,14 +202,15 @@ def decode_name(data: bytes) -> int:
 def decode_plan(data: bytes) -> PlanAnnouncement:
     """PLAN payload; raises :class:`FrameDecodeError` for values no plan can have."""
     code_length, mode, flags, nonce, rate_mhz = _unpack(PLAN_STRUCT, data, "PLAN")
-    if mode >= len(MODES) or flags & ~(PLAN_FLAG_PROPOSAL | PLAN_FLAG_CONFLICT):
+    if mode >= len(MODES) or flags & ~PLAN_FLAGS:
         raise FrameDecodeError(f"PLAN mode {mode} or flags {flags:#x} not defined")
     try:
         plan = Plan(code_length, rate_mhz / 1000.0, MODES[mode])
     except (CodeError, ConfigError) as exc:
         raise FrameDecodeError(f"PLAN payload is not a valid plan: {exc}") from exc
     return PlanAnnouncement(plan, bool(flags & PLAN_FLAG_PROPOSAL),
-                            bool(flags & PLAN_FLAG_CONFLICT), nonce)
+                            bool(flags & PLAN_FLAG_CONFLICT), nonce,
+                            bool(flags & PLAN_FLAG_ESTABLISHED))
 
 
 def decode_sync(data: bytes) -> tuple[int, int, int]:

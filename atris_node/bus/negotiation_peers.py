@@ -33,8 +33,11 @@ class Peer:
         code_row: the row it claims (1-based), None when it has none.
         cannot_claim: it said it has no code.
         conflict: it cannot adopt the winning plan (it claims nothing in ours).
+        established: it owns a code under its plan (a running fleet a joiner adopts).
         nonce: the random instance number in its PLAN frames.
         quarantined_until_s: frames before this time are dropped (babbling).
+        recent_s / changes_s: receipt times of its frames / of its claim and plan changes
+            in the last second.
     """
 
     identity: Identity
@@ -44,9 +47,11 @@ class Peer:
     code_row: int | None = None
     cannot_claim: bool = False
     conflict: bool = False
+    established: bool = False
     nonce: int | None = None
     quarantined_until_s: float = 0.0
     recent_s: deque[float] = field(default_factory=deque)
+    changes_s: deque[float] = field(default_factory=deque)
 
     def label(self) -> str:
         """NAME in hex (or the identity when the NAME is not known yet), for logs."""
@@ -61,13 +66,17 @@ class PeerTable:
     Args:
         max_peers: most identities remembered at once.
         babble_limit: frames per second above which an identity is quarantined.
-        quarantine_s: how long a babbling identity's frames are dropped.
+        max_changes: claim or plan changes per second above which it is quarantined (an
+            honest unit changes its claim at most once per lower NAME it meets).
+        quarantine_s: how long a babbling identity's frames are dropped; extended while it
+            keeps sending above ``babble_limit``.
     """
 
-    def __init__(self, max_peers: int = 64, babble_limit: int = 100,
+    def __init__(self, max_peers: int = 64, babble_limit: int = 100, max_changes: int = 20,
                  quarantine_s: float = 2.0) -> None:
         self.max_peers = max_peers
         self.babble_limit = babble_limit
+        self.max_changes = max_changes
         self.quarantine_s = quarantine_s
         self.peers: dict[int, Peer] = {}
         self.dropped_frames = 0
@@ -82,25 +91,33 @@ class PeerTable:
                 return None
             peer = self.peers[identity.bits] = Peer(identity, now)
         peer.last_seen_s = now
-        if self._babbling(peer, now):
+        too_many = _count(peer.recent_s, now) > self.babble_limit
+        if too_many and now >= peer.quarantined_until_s:
+            self._quarantine(peer, now, f"more than {self.babble_limit} frames/s")
+        elif too_many:
+            peer.quarantined_until_s = now + self.quarantine_s
+        if now < peer.quarantined_until_s:
             self.dropped_frames += 1
             return None
         return peer
 
-    def _babbling(self, peer: Peer, now: float) -> bool:
-        if now < peer.quarantined_until_s:
+    def allow_change(self, peer: Peer, now: float) -> bool:
+        """Count a change of claim or plan; False (and quarantine) when there are too many."""
+        if _count(peer.changes_s, now) <= self.max_changes:
             return True
-        peer.recent_s.append(now)
-        while peer.recent_s and now - peer.recent_s[0] > BABBLE_WINDOW_S:
-            peer.recent_s.popleft()
-        if len(peer.recent_s) <= self.babble_limit:
-            return False
+        self._quarantine(peer, now, f"more than {self.max_changes} claim/plan changes/s")
+        return False
+
+    def _quarantine(self, peer: Peer, now: float, why: str) -> None:
         peer.quarantined_until_s = now + self.quarantine_s
-        peer.recent_s.clear()
+        peer.changes_s.clear()
         self.babblers += 1
-        logger.warning("unit %s sends more than %d frames/s: ignored for %.1f s",
-                       peer.label(), self.babble_limit, self.quarantine_s)
-        return True
+        logger.warning("unit %s babbles (%s): its claims are ignored for %.1f s", peer.label(),
+                       why, self.quarantine_s)
+
+    def forget(self, peer: Peer) -> None:
+        """Remove ``peer`` (it said it leaves)."""
+        self.peers.pop(peer.identity.bits, None)
 
     def expire(self, now: float, silence_timeout_s: float) -> list[Peer]:
         """Remove and return the peers silent for longer than ``silence_timeout_s``."""
@@ -116,3 +133,11 @@ class PeerTable:
     def clear(self) -> None:
         """Forget everyone (stop)."""
         self.peers.clear()
+
+
+def _count(times: deque[float], now: float) -> int:
+    """Append ``now`` to ``times``, drop entries older than one second, return the count."""
+    times.append(now)
+    while times and now - times[0] > BABBLE_WINDOW_S:
+        times.popleft()
+    return len(times)

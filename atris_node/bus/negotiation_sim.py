@@ -107,18 +107,31 @@ class Fleet:
                  echo: bool = False, plans: Sequence[Plan] | None = None,
                  **negotiator_args: Any) -> None:
         self.clock = FakeClock()
+        self.channel = channel
         self.tick_s = tick_s
-        self.buses = [ShimBus(channel, self.clock, echo) for _ in names]
-        self.units = [Negotiator(bus, name, (plans or [plan] * len(names))[i], i,
-                                 clock=self.clock, poll_bus=True, **negotiator_args)
-                      for i, (bus, name) in enumerate(zip(self.buses, names, strict=True))]
+        self.echo = echo
+        self.negotiator_args = negotiator_args
+        self.buses: list[ShimBus] = []
+        self.units: list[Negotiator] = []
+        self._running: list[bool] = []
         self._events: list[_Event] = []
         self._order = itertools.count()
-        self._running = [False] * len(names)
+        for i, name in enumerate(names):
+            self.add(name, (plans or [plan] * len(names))[i], unit_id=i)
+
+    def add(self, name: int, plan: Plan, unit_id: int) -> int:
+        """Add a unit (not started) with its own bus; returns its index."""
+        bus = ShimBus(self.channel, self.clock, self.echo)
+        self.buses.append(bus)
+        self.units.append(Negotiator(bus, name, plan, unit_id, clock=self.clock, poll_bus=True,
+                                     **self.negotiator_args))
+        self._running.append(False)
+        return len(self.units) - 1
 
     def at(self, time_s: float, action: Callable[[], None]) -> None:
-        """Run ``action`` at ``time_s`` (fake clock)."""
-        heapq.heappush(self._events, _Event(time_s, next(self._order), action))
+        """Run ``action`` at ``time_s`` (fake clock; never earlier than now)."""
+        when = max(time_s, self.clock.now)
+        heapq.heappush(self._events, _Event(when, next(self._order), action))
 
     def start(self, index: int, time_s: float) -> None:
         """Start unit ``index`` at ``time_s`` and tick it every ``tick_s`` from then on."""
@@ -145,6 +158,7 @@ class Fleet:
         """Unit ``index`` falls silent at ``time_s`` without a word (power loss)."""
         def cut() -> None:
             self._running[index] = False
+            self.units[index].timeline.append((self.clock.now, False, None))  # power is gone
         self.at(time_s, cut)
 
     def _tick(self, index: int) -> None:
@@ -163,7 +177,7 @@ class Fleet:
         """
         rng = random.Random(seed)
         for index, unit in enumerate(self.units):
-            first = rng.uniform(0.0, unit.plan.cycle_s)
+            first = self.clock.now + rng.uniform(0.0, unit.plan.cycle_s)
             self.at(first, functools.partial(self._cycle, index, rng, jitter_chips))
 
     def _cycle(self, index: int, rng: random.Random, jitter_chips: float) -> None:
