@@ -33,6 +33,7 @@ from drivers.depthai_frames import FrameReader
 from drivers.depthai_script import (
     CONTROL_INPUT,
     EVENT_INPUT,
+    check_chips,
     check_intensity,
     state_message,
     strobe_script,
@@ -164,7 +165,7 @@ class DepthaiProjector(Projector):
 
     def set_code(self, chips: Sequence[int]) -> None:
         """Load a whole code (chip for ``sequence % N``) at once and start strobing it."""
-        self.code = [int(c) for c in chips]
+        self.code = check_chips(chips)
         self.enabled = True
         self._send_state()
         self._lit = True
