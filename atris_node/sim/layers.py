@@ -1,0 +1,106 @@
+"""Per-pixel surfaces and electron rates of each light source, on a grid of camera rays.
+
+The simulator computes these once for the static scene (whole image) and, per sub-frame,
+for the patch of image a moving shape covers. Rates are float32 electrons per second:
+the sub-frame's electrons are a weighted sum of them (see :mod:`atris_node.sim.render`).
+Laser light of interferers is assumed to pass the camera's narrow-band filter (same
+wavelength band as the own projector).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.mounting import Mounting
+from atris_node.sim import optics
+from atris_node.sim.raycast import Shape, cast
+from atris_node.sim.scene import CameraSpec, LinePattern, Scene
+
+FloatArray = npt.NDArray[np.float64]
+Float32Array = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Surface:
+    """What each ray of an (h, w) grid sees: ray parameter ``t`` (m, inf = nothing),
+    world ``points`` and ``normals`` (h, w, 3), ``shape`` index (h, w) (-1 = nothing),
+    ``albedo`` (h, w) and the ``hit`` mask."""
+
+    t: FloatArray
+    points: FloatArray
+    normals: FloatArray
+    shape: npt.NDArray[np.int64]
+    albedo: FloatArray
+    hit: npt.NDArray[np.bool_]
+
+
+def see(shapes: Sequence[Shape], origin: FloatArray, dirs: FloatArray,
+        time_s: float = 0.0) -> Surface:
+    """Cast the (h, w, 3) unit rays ``dirs`` from ``origin`` (3,) into ``shapes``."""
+    h, w = dirs.shape[:2]
+    hits = cast(shapes, origin, dirs.reshape(-1, 3), time_s)
+    hit = hits.shape >= 0
+    t = np.where(hit, hits.t, 0.0)
+    points = origin + dirs.reshape(-1, 3) * t[:, None]
+    albedo = np.array([s.albedo for s in shapes] + [0.0])[hits.shape]
+    return Surface(hits.t.reshape(h, w), points.reshape(h, w, 3),
+                   hits.normal.reshape(h, w, 3), hits.shape.reshape(h, w),
+                   albedo.reshape(h, w), hit.reshape(h, w))
+
+
+def composite(a: Surface, b: Surface) -> Surface:
+    """Per ray, the nearer of two surfaces over the same grid."""
+    near = b.t < a.t
+    pick = near[..., None]
+    return Surface(np.where(near, b.t, a.t), np.where(pick, b.points, a.points),
+                   np.where(pick, b.normals, a.normals), np.where(near, b.shape, a.shape),
+                   np.where(near, b.albedo, a.albedo), a.hit | b.hit)
+
+
+def ambient_rates(scene: Scene, surface: Surface, shapes: Sequence[Shape],
+                  time_s: float = 0.0) -> tuple[Float32Array, Float32Array]:
+    """(steady, lamp) electron rates (h, w) e⁻/s: sun and sky (plus the sky seen directly
+    where no surface is hit), and the lamp that may flicker."""
+    camera, ambient = scene.camera, scene.ambient
+    ff = scene.projector.filter_factor
+    k = optics.electrons_per_radiance(camera, optics.AMBIENT_WAVELENGTH_NM)
+    normals = surface.normals.reshape(-1, 3)
+    sky, lamp = optics.diffuse_irradiance(ambient, normals, ff)
+    steady = sky
+    if ambient.sun is not None and ambient.sun.lux > 0:
+        steady = steady + optics.sun_irradiance(ambient.sun, shapes,
+                                                surface.points.reshape(-1, 3), normals, ff)
+    albedo = surface.albedo.reshape(-1)
+    steady_e = albedo * steady * k / math.pi
+    hit = surface.hit.reshape(-1)
+    steady_e[~hit] = optics.lux_to_w_m2(ambient.sky_lux, ff) / math.pi * k
+    lamp_e = np.where(hit, albedo * lamp * k / math.pi, 0.0)
+    shape = surface.hit.shape
+    return steady_e.reshape(shape).astype(np.float32), lamp_e.reshape(shape).astype(np.float32)
+
+
+def sheet_rates(camera: CameraSpec, pose: Mounting, pattern: LinePattern, surface: Surface,
+                shapes: Sequence[Shape], *, time_s: float = 0.0) -> Float32Array:
+    """Electron rate (h, w) e⁻/s of a line pattern at full power, shadows included."""
+    irr = optics.sheet_irradiance(pose, pattern, shapes, points=surface.points,
+                                  normals=surface.normals, hit=surface.hit,
+                                  psf_sigma_px=camera.psf_sigma_px, time_s=time_s)
+    k = optics.electrons_per_radiance(camera, pattern.wavelength_nm)
+    return (surface.albedo * irr * (k / math.pi)).astype(np.float32)
+
+
+def camera_rays(camera: CameraSpec, mounting: Mounting) -> tuple[FloatArray, FloatArray]:
+    """Unit rays through every observed pixel centre: camera frame and vehicle frame,
+    both (H, W, 3) float64. Lens distortion is undone per pixel."""
+    from atris_node.geometry import undistort_pixels
+
+    rows, cols = np.mgrid[0:camera.height_px, 0:camera.width_px].astype(np.float64)
+    u, v = undistort_pixels(rows, cols, camera.model)
+    dirs = np.stack([v / camera.focal_px, u / camera.focal_px, np.ones_like(u)], axis=-1)
+    dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+    return dirs, dirs @ mounting.rotation.T

@@ -1,0 +1,175 @@
+"""Radiometry: from light sources to electrons per second in each pixel.
+
+Laws used (all surfaces Lambertian, radiance ``L = albedo · E / π``):
+
+- Camera: image irradiance ``π L / (4 N²)`` (f-number N, cos⁴ fall-off neglected), so a
+  pixel of pitch p collects ``L · π p² QE λ / (4 N² h c)`` electrons per second.
+- Laser sheet (own projector and interferers): a diffractive element fans the beam from a
+  near-point source over ``fan`` radians along the line and a Gaussian of σ across it, so
+  its radiant intensity is ``I = P_k / (fan · σ · √(2π)) · exp(-Δθ² / 2σ²)`` W/sr and the
+  irradiance falls with the inverse square of the distance, ``E = I · cos i / r²``. A DOE
+  line diverges in both directions, so neither the 1/r of a fixed-thickness sheet nor a
+  collimated beam applies beyond a few centimetres from the aperture.
+- Pixel footprint: the sheet profile is averaged over the angle ``w`` a pixel spans as seen
+  from the source and blurred by the lens PSF: ``σ_eff² = σ² + w²/12 + (σ_psf · w)²``,
+  peak scaled by ``σ / σ_eff`` (energy kept). This keeps a sheet thinner than a pixel
+  visible and its centre sub-pixel exact.
+- Ambient: lux → W/m² with a daylight luminous efficacy of ``LUMINOUS_EFFICACY_LM_PER_W``
+  over the sensor's band, times the narrow-band ``filter_factor``, photons at
+  ``AMBIENT_WAVELENGTH_NM``. Sun ``E_sun · max(0, n·s)`` where the sun is not shadowed
+  (and passes the window, if any); sky and lamp ``E · (1 + n_z) / 2`` (the visible part
+  of a uniform upper hemisphere); a pixel that sees no surface sees the sky, ``E_sky / π``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.mounting import Mounting
+from atris_node.sim.raycast import Shape, occluded
+from atris_node.sim.scene import Ambient, CameraSpec, LinePattern, Sun
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+PLANCK_J_S = 6.62607015e-34
+LIGHT_M_PER_S = 299792458.0
+#: lumens per watt of daylight over the band a silicon sensor sees (about 400-1000 nm)
+LUMINOUS_EFFICACY_LM_PER_W = 105.0
+#: mean photon wavelength assumed for ambient light, nm
+AMBIENT_WAVELENGTH_NM = 600.0
+#: largest pixel footprint used for a sheet, rad (at depth edges the gradient is meaningless)
+MAX_FOOTPRINT_RAD = 0.02
+#: sheets below this fraction of their peak profile are not shadow-tested (treated as dark)
+PROFILE_CUTOFF = 1e-4
+
+
+def electrons_per_radiance(camera: CameraSpec, wavelength_nm: float) -> float:
+    """Electrons per second in one pixel per unit scene radiance (W m⁻² sr⁻¹)."""
+    pitch_m = camera.pixel_pitch_um * 1e-6
+    photon_j = PLANCK_J_S * LIGHT_M_PER_S / (wavelength_nm * 1e-9)
+    return math.pi * pitch_m**2 * camera.quantum_efficiency / (
+        4.0 * camera.f_number**2 * photon_j)
+
+
+def lux_to_w_m2(lux: float, filter_factor: float) -> float:
+    """In-band irradiance (W/m²) of ``lux`` passed by a filter of ``filter_factor``."""
+    return lux / LUMINOUS_EFFICACY_LM_PER_W * filter_factor
+
+
+def hemisphere_factor(normals: FloatArray) -> FloatArray:
+    """``(1 + n_z) / 2``: how much of a uniform upper hemisphere a surface sees."""
+    return 0.5 * (1.0 + normals[..., 2])
+
+
+def _through_window(sun: Sun, points: FloatArray) -> tuple[BoolArray, FloatArray]:
+    """Which points the sun reaches through the window, and the distance to it (m)."""
+    if sun.window is None:
+        return np.ones(points.shape[0], bool), np.full(points.shape[0], np.inf)
+    w = sun.window
+    a, b, c = (np.asarray(v) for v in (w.half_a_m, w.half_b_m, w.center_m))
+    normal = np.cross(a, b)
+    s = sun.direction
+    denom = float(s @ normal)
+    if abs(denom) < 1e-12:
+        return np.zeros(points.shape[0], bool), np.full(points.shape[0], np.inf)
+    t = ((c - points) @ normal) / denom
+    rel = points + np.outer(t, s) - c
+    inside = (np.abs(rel @ a) <= a @ a) & (np.abs(rel @ b) <= b @ b) & (t > 0)
+    return inside, t
+
+
+def sun_irradiance(sun: Sun, shapes: Sequence[Shape], points: FloatArray,
+                   normals: FloatArray, filter_factor: float) -> FloatArray:
+    """Direct-sun irradiance (n,) W/m² at surface points (n, 3) with normals (n, 3)."""
+    s = sun.direction
+    cos_i = np.clip(normals @ s, 0.0, None)
+    lit, distance = _through_window(sun, points)
+    candidates = np.flatnonzero(lit & (cos_i > 0))
+    if candidates.size:
+        shadow = occluded(shapes, points[candidates], s, distance[candidates])
+        lit[candidates[shadow]] = False
+    return np.where(lit, cos_i, 0.0) * lux_to_w_m2(sun.lux, filter_factor)
+
+
+def diffuse_irradiance(ambient: Ambient, normals: FloatArray,
+                       filter_factor: float) -> tuple[FloatArray, FloatArray]:
+    """Sky and lamp irradiance (n,) W/m² each (the lamp part is the one that flickers)."""
+    hemi = hemisphere_factor(normals)
+    lamp_lux = ambient.lamp.lux if ambient.lamp else 0.0
+    return (hemi * lux_to_w_m2(ambient.sky_lux, filter_factor),
+            hemi * lux_to_w_m2(lamp_lux, filter_factor))
+
+
+def footprint_rad(theta: FloatArray) -> FloatArray:
+    """Angle (H, W) a pixel spans in the sheet coordinate ``theta`` (H, W), radians.
+
+    The smaller one-sided difference per axis is used, so a depth edge does not widen
+    the pixels on either side of it. Pixels without a surface hold NaN in ``theta``.
+    """
+    def one_axis(axis: int) -> FloatArray:
+        d = np.abs(np.diff(theta, axis=axis))
+        d = np.where(np.isfinite(d), d, np.inf)
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (1, 0)
+        before = np.pad(d, pad, constant_values=np.inf)
+        pad[axis] = (0, 1)
+        after = np.pad(d, pad, constant_values=np.inf)
+        return np.minimum(before, after)
+    w = np.hypot(np.minimum(one_axis(0), MAX_FOOTPRINT_RAD),
+                 np.minimum(one_axis(1), MAX_FOOTPRINT_RAD))
+    return np.minimum(w, MAX_FOOTPRINT_RAD)
+
+
+def sheet_angles(pose: Mounting, pattern: LinePattern,
+                 points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Source-frame angles of world points (..., 3): θ (plane family angle), φ (along the
+    fan), distance r (m) and unit world directions (..., 3) from the source."""
+    d = pose.vehicle_to_camera(points) - np.array([0.0, -pattern.baseline_m, 0.0])
+    r = np.linalg.norm(d, axis=-1)
+    theta = np.arctan2(d[..., 2], d[..., 1])
+    phi = np.arctan2(d[..., 0], np.hypot(d[..., 1], d[..., 2]))
+    dirs = (d / np.maximum(r, 1e-12)[..., None]) @ pose.rotation.T
+    return theta, phi, r, dirs
+
+
+def sheet_profile(theta: FloatArray, pattern: LinePattern,
+                  footprint: FloatArray, psf_sigma_px: float) -> FloatArray:
+    """Σ_k of the pixel-averaged Gaussian profile of every line, peak 1 for a thin pixel."""
+    sigma = pattern.line_sigma_rad
+    var = sigma**2 + footprint**2 * (1.0 / 12.0 + psf_sigma_px**2)
+    total = np.zeros_like(theta)
+    for alpha in pattern.alpha_rad:
+        total += np.exp(-((theta - alpha) ** 2) / (2.0 * var))
+    return np.nan_to_num(total * (sigma / np.sqrt(var)))
+
+
+def sheet_irradiance(pose: Mounting, pattern: LinePattern, shapes: Sequence[Shape], *,
+                     points: FloatArray, normals: FloatArray, hit: BoolArray,
+                     psf_sigma_px: float, time_s: float = 0.0) -> FloatArray:
+    """Irradiance (H, W) W/m² of a line pattern at surface points (H, W, 3), with shadows.
+
+    ``hit`` (H, W) marks pixels that see a surface; others get 0.
+    """
+    theta, phi, r, dirs = sheet_angles(pose, pattern, points)
+    theta = np.where(hit, theta, np.nan)
+    profile = sheet_profile(theta, pattern, footprint_rad(theta), psf_sigma_px)
+    in_fan = hit & (np.abs(phi) <= pattern.fan_rad / 2.0) & (theta > 0.0)
+    cos_i = np.clip(-np.einsum("...i,...i->...", normals, dirs), 0.0, None)
+    peak = pattern.power_w / len(pattern.alpha_rad) / (
+        pattern.fan_rad * pattern.line_sigma_rad * math.sqrt(2.0 * math.pi))
+    irr = np.where(in_fan, peak * profile * cos_i / np.maximum(r, 1e-3) ** 2, 0.0)
+    lit = np.flatnonzero(irr.ravel() > 0.0)
+    lit = lit[profile.ravel()[lit] > PROFILE_CUTOFF]
+    flat = irr.ravel()
+    dark = np.setdiff1d(np.flatnonzero(flat > 0.0), lit, assume_unique=True)
+    flat[dark] = 0.0
+    if lit.size:
+        pts = points.reshape(-1, 3)[lit]
+        shadow = occluded(shapes, pts, -dirs.reshape(-1, 3)[lit], r.ravel()[lit], time_s)
+        flat[lit[shadow]] = 0.0
+    return flat.reshape(irr.shape)

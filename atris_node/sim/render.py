@@ -1,0 +1,328 @@
+"""The simulator: a scene in, :class:`atris_node.types.SubFrame` objects out.
+
+Sub-frame ``sequence`` is exposed from ``t0 = sequence / rate_hz`` for ``exposure_us``;
+its device (and host) time is the exposure mid-time on this simulated clock. Its mean
+electrons are a weighted sum of per-pixel rates computed once for the static scene:
+
+    e = (steady + chip · laser + flicker(t0, t1) · lamp + Σ_j on_j(t0, t1) · interferer_j)
+        · exposure
+
+where ``on_j`` is the fraction of the window interferer j was lit (integrated, so a
+different chip rate or a fractional phase acts as on a real sensor). Shapes with a velocity
+are re-cast per sub-frame only inside their image bounding box, and they shadow the laser
+on the static scene; they do not shadow sun or interferers (documented simplification).
+
+Work a scene does not need is skipped: with no flicker, interferer or motion the mean image
+of each chip is prepared once (noise-free pixels are cached outright); ``calls`` counts
+each stage so tests can see what ran. Noise of sub-frame ``sequence`` comes from its own
+generator seeded by ``(seed, unit, sequence)``, so a fixed seed gives bit-identical
+sub-frames in any order.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.calibration import Calibration, LaserCalibration
+from atris_node.codes import walsh_chips
+from atris_node.errors import ConfigError
+from atris_node.geometry import distort_pixels
+from atris_node.mounting import Mounting
+from atris_node.sectors import SectorLayout
+from atris_node.sim import layers
+from atris_node.sim.optics import sheet_angles
+from atris_node.sim.raycast import Shape, occluded
+from atris_node.sim.scene import LinePattern, Scene
+from atris_node.sim.sensor import Pixels, Sensor
+from atris_node.sim.strobe import Strobe, always_on, code_strobe, flicker_factor
+from atris_node.sim.truth import Truth, compute_truth
+from atris_node.types import SubFrame
+
+logger = logging.getLogger(__name__)
+Float32Array = npt.NDArray[np.float32]
+#: pixels added around a moving shape's projected bounding box
+BOX_MARGIN_PX = 3
+
+
+@dataclass(frozen=True)
+class Source:
+    """An interfering line projector: pose (its camera frame), pattern, strobe."""
+
+    pose: Mounting
+    pattern: LinePattern
+    strobe: Strobe
+    name: str = ""
+
+
+@dataclass
+class _Static:
+    """Rates of the static scene (e⁻/s, float32 (H, W)) and laser-lit pixels."""
+
+    surface: layers.Surface
+    steady: Float32Array
+    lamp: Float32Array
+    laser: Float32Array
+    interferers: list[Float32Array] = field(default_factory=list)
+    lit: npt.NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
+
+
+def _source_of(spec: object) -> Source:
+    from atris_node.sim.scene import InterfererSpec
+
+    assert isinstance(spec, InterfererSpec)
+    if spec.strobe == "cw":
+        return Source(spec.pose, spec.pattern, always_on, spec.name)
+    chips = [int(c) for c in walsh_chips(spec.code_length, spec.code_row)]
+    strobe = code_strobe(chips, spec.chip_rate_hz, spec.phase_sub_frames,
+                         spec.exposure_us * 1e-6)
+    return Source(spec.pose, spec.pattern, strobe, spec.name)
+
+
+class Simulator:
+    """Renders sub-frames and ground truth of ``scene`` for unit ``unit``'s mounting.
+
+    ``chips`` is the own code used when :meth:`render` gets no chip (default: the
+    scene's ``[code]``); ``seed`` overrides the scene's noise seed.
+    """
+
+    def __init__(self, scene: Scene, chips: npt.ArrayLike | None = None,
+                 seed: int | None = None, unit: int = 0) -> None:
+        if not 0 <= unit < len(scene.mountings):
+            raise ConfigError(f"unit {unit} has no mounting in scene {scene.name!r}; "
+                              f"accepted: 0..{len(scene.mountings) - 1}")
+        self.scene, self.camera, self.unit = scene, scene.camera, unit
+        self.mounting = scene.mountings[unit]
+        default = walsh_chips(scene.code_length, scene.code_row)
+        self.chips = np.asarray(default if chips is None else chips, dtype=np.uint8)
+        self.seed = scene.seed if seed is None else int(seed)
+        self.noise = scene.noise
+        self.rate_hz = scene.camera.rate_hz
+        self.exposure_us = scene.camera.exposure_us
+        self.sensor = Sensor(scene.camera)
+        self.calls: collections.Counter[str] = collections.Counter()
+        self.sources = [_source_of(spec) for spec in scene.interferers]
+        self.static_shapes = tuple(s for s in scene.shapes if not s.moving)
+        self.moving_shapes = tuple(s for s in scene.shapes if s.moving)
+        self._dirs_cam, self._dirs = layers.camera_rays(scene.camera, self.mounting)
+        self._static: _Static | None = None
+        self._prepared: dict[int, tuple[object, ...]] = {}
+
+    # ------------------------------------------------------------------ set-up
+    @property
+    def flickers(self) -> bool:
+        """True when the scene has a lamp with flicker."""
+        lamp = self.scene.ambient.lamp
+        return lamp is not None and lamp.lux > 0 and lamp.flicker_hz > 0 and (
+            lamp.flicker_depth > 0)
+
+    @property
+    def dynamic(self) -> bool:
+        """True when sub-frames differ by more than chip and noise."""
+        return self.flickers or bool(self.sources) or bool(self.moving_shapes)
+
+    def _sheet(self, pose: Mounting, pattern: LinePattern) -> Float32Array:
+        static = self._static_layer()
+        return layers.sheet_rates(self.camera, pose, pattern, static.surface,
+                                  self.static_shapes)
+
+    def _static_layer(self) -> _Static:
+        if self._static is None:
+            self.calls["static_render"] += 1
+            surface = layers.see(self.static_shapes, self.mounting.translation, self._dirs)
+            steady, lamp = layers.ambient_rates(self.scene, surface, self.static_shapes)
+            if not self.flickers:
+                steady += lamp
+            laser = layers.sheet_rates(self.camera, self.mounting, self.scene.projector,
+                                       surface, self.static_shapes)
+            self._static = _Static(surface, steady, lamp, laser,
+                                   lit=np.flatnonzero(laser.reshape(-1) > 0))
+            self._static.interferers = [self._sheet(s.pose, s.pattern) for s in self.sources]
+        return self._static
+
+    def add_interferer(self, pose: Mounting, pattern: LinePattern, strobe: Strobe,
+                       name: str = "") -> None:
+        """Attach a strobing line projector at ``pose`` (its camera frame, vehicle frame
+        coordinates); ``strobe(t0_s, t1_s)`` is the fraction of the window it was ON."""
+        self.sources.append(Source(pose, pattern, strobe, name))
+        if self._static is not None:
+            self._static.interferers.append(self._sheet(pose, pattern))
+        self._prepared.clear()
+
+    def set_exposure_us(self, exposure_us: float) -> None:
+        """Change the exposure (µs, > 0, at most one sub-frame period)."""
+        period_us = 1e6 / self.rate_hz
+        if not (math.isfinite(exposure_us) and 0 < exposure_us <= period_us):
+            raise ConfigError(f"exposure_us must be in (0, {period_us:.1f}], got {exposure_us}")
+        self.exposure_us = float(exposure_us)
+        self._prepared.clear()
+
+    # ------------------------------------------------------------------ render
+    def window(self, sequence: int) -> tuple[float, float]:
+        """Exposure window ``(t0_s, t1_s)`` of sub-frame ``sequence`` on the simulated clock."""
+        t0 = sequence / self.rate_hz
+        return t0, t0 + self.exposure_us * 1e-6
+
+    def rng(self, sequence: int) -> np.random.Generator:
+        """The noise generator of sub-frame ``sequence`` (independent of render order)."""
+        key = np.random.SeedSequence([self.seed, self.unit, sequence % (1 << 63)])
+        return np.random.Generator(np.random.SFC64(key))
+
+    def render(self, sequence: int, chip: int | None = None) -> SubFrame:
+        """Sub-frame ``sequence`` with the own projector emitting ``chip`` (0 or 1; None =
+        ``chips[sequence % N]``). Pixels are a fresh array each call."""
+        if chip is None:
+            chip = int(self.chips[sequence % self.chips.size])
+        if chip not in (0, 1):
+            raise ValueError(f"chip must be 0 or 1, got {chip!r}")
+        t0, t1 = self.window(sequence)
+        if self.dynamic:
+            pixels = self._finish(self._electrons(chip, t0, t1), sequence)
+        else:
+            pixels = self._static_pixels(chip, sequence)
+        mid = 0.5 * (t0 + t1)
+        return SubFrame(pixels, sequence, mid, mid, self.exposure_us, self.camera.bits, chip)
+
+    def _mean_electrons(self, chip: int) -> Float32Array:
+        static = self._static_layer()
+        exposure_s = np.float32(self.exposure_us * 1e-6)
+        return (static.steady + static.laser * chip) * exposure_s
+
+    def _static_pixels(self, chip: int, sequence: int) -> Pixels:
+        if chip not in self._prepared:
+            mean = self._mean_electrons(chip)
+            self._prepared[chip] = (self.sensor.prepare(mean) if self.noise
+                                    else (self.sensor.quantise(mean),))
+        prepared = self._prepared[chip]
+        if not self.noise:
+            pixels = prepared[0]
+            assert isinstance(pixels, np.ndarray)
+            return pixels.copy()
+        self.calls["noise"] += 1
+        return self.sensor.noisy(self.rng(sequence), *prepared)  # type: ignore[arg-type]
+
+    def _finish(self, electrons: Float32Array, sequence: int) -> Pixels:
+        if not self.noise:
+            return self.sensor.quantise(electrons)
+        self.calls["noise"] += 1
+        return self.sensor.noisy(self.rng(sequence), *self.sensor.prepare(electrons))
+
+    def _electrons(self, chip: int, t0: float, t1: float) -> Float32Array:
+        static = self._static_layer()
+        exposure_s = np.float32(self.exposure_us * 1e-6)
+        e = static.steady.copy()
+        if self.flickers:
+            self.calls["flicker"] += 1
+            lamp = self.scene.ambient.lamp
+            assert lamp is not None
+            e += static.lamp * np.float32(flicker_factor(lamp.flicker_hz, lamp.flicker_depth,
+                                                         t0, t1))
+        if chip:
+            e += self._laser(0.5 * (t0 + t1)) if self.moving_shapes else static.laser
+        for source, rates in zip(self.sources, static.interferers, strict=True):
+            self.calls["interferer"] += 1
+            on = source.strobe(t0, t1)
+            if on > 0.0:
+                e += rates * np.float32(on)
+        e *= exposure_s
+        if self.moving_shapes:
+            self._paint_moving(e, chip, t0, t1)
+        return e
+
+    # ------------------------------------------------------------------ motion
+    def _laser(self, time_s: float) -> Float32Array:
+        """Own-laser rates with the shadows the moving shapes cast at ``time_s``."""
+        static = self._static_layer()
+        points = static.surface.points.reshape(-1, 3)[static.lit]
+        _, _, r, dirs = sheet_angles(self.mounting, self.scene.projector, points)
+        shadow = occluded(self.moving_shapes, points, -dirs, r, time_s)
+        laser = static.laser.copy()
+        laser.reshape(-1)[static.lit[shadow]] = 0.0
+        return laser
+
+    def _box(self, shape: Shape, time_s: float) -> tuple[int, int, int, int] | None:
+        """Observed pixel box (r0, r1, c0, c1) that may show ``shape``; None if off-image."""
+        centre, radius = shape.bounding_sphere(time_s)
+        x, y, z = self.mounting.vehicle_to_camera(centre)
+        cam, h, w = self.camera, self.camera.height_px, self.camera.width_px
+        if z - radius <= 0.05:
+            return 0, h, 0, w
+        lo_v, hi_v = [cam.focal_px * min((x - radius) / (z - radius), (x - radius) / (z + radius)),
+                      cam.focal_px * max((x + radius) / (z - radius), (x + radius) / (z + radius))]
+        lo_u, hi_u = [cam.focal_px * min((y - radius) / (z - radius), (y - radius) / (z + radius)),
+                      cam.focal_px * max((y + radius) / (z - radius), (y + radius) / (z + radius))]
+        edge = np.linspace(0.0, 1.0, 9)
+        us = np.concatenate([lo_u + (hi_u - lo_u) * edge, np.full(9, lo_u), np.full(9, hi_u),
+                             lo_u + (hi_u - lo_u) * edge])
+        vs = np.concatenate([np.full(9, lo_v), lo_v + (hi_v - lo_v) * edge,
+                             lo_v + (hi_v - lo_v) * edge, np.full(9, hi_v)])
+        rows, cols = distort_pixels(us + cam.cy_px, vs + cam.cx_px, cam.model)
+        r0 = max(int(np.floor(rows.min())) - BOX_MARGIN_PX, 0)
+        r1 = min(int(np.ceil(rows.max())) + BOX_MARGIN_PX + 1, h)
+        c0 = max(int(np.floor(cols.min())) - BOX_MARGIN_PX, 0)
+        c1 = min(int(np.ceil(cols.max())) + BOX_MARGIN_PX + 1, w)
+        return (r0, r1, c0, c1) if r1 > r0 and c1 > c0 else None
+
+    def _paint_moving(self, e: Float32Array, chip: int, t0: float, t1: float) -> None:
+        """Replace, inside each moving shape's box, the pixels it covers at mid-exposure."""
+        self.calls["motion"] += 1
+        time_s = 0.5 * (t0 + t1)
+        for shape in self.moving_shapes:
+            box = self._box(shape, time_s)
+            if box is not None:
+                self._paint_box(e, box, chip, t0, t1)
+
+    def _paint_box(self, e: Float32Array, box: tuple[int, int, int, int], chip: int,
+                   t0: float, t1: float) -> None:
+        r0, r1, c0, c1 = box
+        time_s = 0.5 * (t0 + t1)
+        static = self._static_layer()
+        moving = layers.see(self.moving_shapes, self.mounting.translation,
+                            self._dirs[r0:r1, c0:c1], time_s)
+        near = moving.t < static.surface.t[r0:r1, c0:c1]
+        if not near.any():
+            return
+        part = layers.composite(_crop(static.surface, box), moving)
+        shapes = self.scene.shapes
+        steady, lamp = layers.ambient_rates(self.scene, part, shapes, time_s=time_s)
+        rates = steady if self.flickers else steady + lamp
+        if self.flickers:
+            lamp_spec = self.scene.ambient.lamp
+            assert lamp_spec is not None
+            rates += lamp * np.float32(flicker_factor(lamp_spec.flicker_hz,
+                                                      lamp_spec.flicker_depth, t0, t1))
+        if chip:
+            rates += layers.sheet_rates(self.camera, self.mounting, self.scene.projector,
+                                        part, shapes, time_s=time_s)
+        for source in self.sources:
+            on = source.strobe(t0, t1)
+            if on > 0.0:
+                rates += layers.sheet_rates(self.camera, source.pose, source.pattern, part,
+                                            shapes, time_s=time_s) * np.float32(on)
+        window = e[r0:r1, c0:c1]
+        window[near] = rates[near] * np.float32(self.exposure_us * 1e-6)
+
+    # ------------------------------------------------------------------ truth
+    def truth(self, sequence: int, layout: SectorLayout) -> Truth:
+        """Ground truth at the exposure mid-time of sub-frame ``sequence``."""
+        t0, t1 = self.window(sequence)
+        return compute_truth(self.scene, self.mounting, self._dirs_cam, self._dirs,
+                             sequence=sequence, time_s=0.5 * (t0 + t1), layout=layout)
+
+    def calibration(self) -> Calibration:
+        """The true camera model and light planes of this unit."""
+        laser = self.scene.projector
+        return Calibration(self.camera.model,
+                           LaserCalibration(laser.baseline_m, laser.alpha_rad))
+
+
+def _crop(surface: layers.Surface, box: tuple[int, int, int, int]) -> layers.Surface:
+    r0, r1, c0, c1 = box
+    return layers.Surface(surface.t[r0:r1, c0:c1], surface.points[r0:r1, c0:c1],
+                          surface.normals[r0:r1, c0:c1], surface.shape[r0:r1, c0:c1],
+                          surface.albedo[r0:r1, c0:c1], surface.hit[r0:r1, c0:c1])
