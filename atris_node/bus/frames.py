@@ -3,7 +3,9 @@
 Messages are looked up by name (encode) or by arbitration ID (decode), so messages added
 to ``atris.dbc`` (the code-negotiation frames) work without code here. A message with an
 ``E2EDataID`` attribute is E2E protected (:mod:`atris_node.bus.e2e`): its ``CRC`` and
-``Counter`` signals are filled in by :meth:`FrameCodec.encode`.
+``Counter`` signals are filled in by :meth:`FrameCodec.encode`. A message with a non-zero
+``IdMask`` attribute stands for every frame whose ID ANDed with the mask equals the
+message's ID (frames that carry the sender's identity in the low ID bits).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ logger = logging.getLogger(__name__)
 
 DBC_NAME = "atris.dbc"
 E2E_ATTRIBUTE = "E2EDataID"
+MASK_ATTRIBUTE = "IdMask"
 SignalValue = int | float | str
 
 
@@ -41,11 +44,20 @@ def load_database() -> Database:
     return db
 
 
+def _attribute(message: Message, name: str) -> int | None:
+    attributes = message.dbc.attributes if message.dbc is not None else {}
+    attribute = attributes.get(name)
+    return None if attribute is None else int(attribute.value)
+
+
 def e2e_data_id(message: Message) -> int | None:
     """E2E data ID of ``message`` from its DBC attribute, or None when unprotected."""
-    attributes = message.dbc.attributes if message.dbc is not None else {}
-    attribute = attributes.get(E2E_ATTRIBUTE)
-    return None if attribute is None else int(attribute.value)
+    return _attribute(message, E2E_ATTRIBUTE)
+
+
+def id_mask(message: Message) -> int:
+    """``IdMask`` attribute of ``message``; 0 means its ID must match exactly."""
+    return _attribute(message, MASK_ATTRIBUTE) or 0
 
 
 @dataclass(frozen=True)
@@ -71,6 +83,7 @@ class FrameCodec:
     def __init__(self, database: Database | None = None) -> None:
         self.database = database if database is not None else load_database()
         self._by_id = {(m.frame_id, m.is_extended_frame): m for m in self.database.messages}
+        self._masked = [(id_mask(m), m) for m in self.database.messages if id_mask(m)]
 
     def message(self, name: str) -> Message:
         """The DBC message called ``name``; FrameDecodeError when there is none."""
@@ -100,7 +113,7 @@ class FrameCodec:
     def decode(self, arbitration_id: int, data: bytes,
                is_extended_id: bool = False) -> DecodedFrame:
         """Decode one frame; FrameDecodeError for unknown IDs or malformed data."""
-        message = self._by_id.get((arbitration_id, is_extended_id))
+        message = self._lookup(arbitration_id, is_extended_id)
         if message is None:
             kind = "extended" if is_extended_id else "standard"
             raise FrameDecodeError(f"{kind} ID 0x{arbitration_id:X} is not in the CAN database")
@@ -116,6 +129,16 @@ class FrameCodec:
     def decode_message(self, msg: can.Message) -> DecodedFrame:
         """:meth:`decode` of a python-can message."""
         return self.decode(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
+
+    def _lookup(self, arbitration_id: int, is_extended_id: bool) -> Message | None:
+        message = self._by_id.get((arbitration_id, is_extended_id))
+        if message is not None:
+            return message
+        for mask, candidate in self._masked:
+            if (candidate.is_extended_frame == is_extended_id
+                    and arbitration_id & mask == candidate.frame_id):
+                return candidate
+        return None
 
     @staticmethod
     def _encode(message: Message, values: dict[str, SignalValue], scaling: bool) -> bytes:
