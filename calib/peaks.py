@@ -7,7 +7,8 @@ sub-pixel row by the 3-point Gaussian (parabola through the logarithms). A colum
 fewer than ``count`` lines stand out is marked invalid for every line, so the index k
 (top of the image first) always means the same projected line. Lines are continuous
 across columns while glints and speckle are not: a column in which any line's row is more
-than ``max_jump_px`` from the running median of its neighbours is dropped as well.
+than ``max_jump_px`` from the running median of its neighbours, or whose neighbourhood is
+mostly invalid, is dropped as well.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ logger = logging.getLogger(__name__)
 
 #: columns over which a line's running median row is taken (glint rejection)
 CONTINUITY_WINDOW = 31
+CONTINUITY_PASSES = 2
 
 
 @dataclass(frozen=True)
@@ -76,7 +78,7 @@ def _gaussian_offset(values: npt.NDArray[np.float64], rows: npt.NDArray[np.int64
 def _continuous(rows: npt.NDArray[np.float64], valid: npt.NDArray[np.bool_],
                 max_jump_px: float, window: int = CONTINUITY_WINDOW) -> npt.NDArray[np.bool_]:
     """(W,) True for columns where every line is within ``max_jump_px`` of its running
-    median over ``window`` columns (median of the valid ones)."""
+    median over ``window`` columns, and more than half of that window is valid."""
     if not valid.any():
         return np.zeros(rows.shape[1], dtype=bool)
     half = window // 2
@@ -87,7 +89,8 @@ def _continuous(rows: npt.NDArray[np.float64], valid: npt.NDArray[np.bool_],
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows: no neighbours
         median = np.nanmedian(windows, axis=-1)
     close = np.abs(np.nan_to_num(rows - median, nan=np.inf)) <= max_jump_px
-    return np.all(close & valid, axis=0)
+    supported = np.all(np.isfinite(windows), axis=0).mean(axis=-1) > 0.5
+    return np.all(close & valid, axis=0) & supported
 
 
 def find_line_rows(distortion_map: npt.NDArray[np.generic], count: int,
@@ -105,7 +108,8 @@ def find_line_rows(distortion_map: npt.NDArray[np.generic], count: int,
     order = np.argsort(refined, axis=0)
     refined = np.take_along_axis(refined, order, axis=0)
     valid = np.broadcast_to(np.all(strong, axis=0), rows.shape).copy()
-    valid &= _continuous(refined, valid, max_jump_px)[None, :]
+    for _ in range(CONTINUITY_PASSES):  # the second pass drops islands left by the first
+        valid &= _continuous(refined, valid, max_jump_px)[None, :]
     logger.debug("%d of %d columns show all %d lines", int(valid[0].sum()), values.shape[1],
                  count)
     return LineRows(np.where(valid, refined, 0.0), valid)
