@@ -1,0 +1,110 @@
+"""Bus configuration in python-can's terms, and bus health from error frames."""
+
+from __future__ import annotations
+
+import time
+import uuid
+
+import can
+import pytest
+
+from atris_node.bus.busconfig import (
+    CAN_ERR_BUSOFF,
+    CAN_ERR_CRTL,
+    BusConfig,
+    BusHealth,
+    open_bus,
+    resolve,
+)
+from atris_node.bus.frames import FrameCodec
+from atris_node.bus.publisher import Publisher
+from atris_node.errors import BusError
+
+
+@pytest.fixture(autouse=True)
+def no_python_can_sources(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Keep the developer's own CAN_* variables out of these tests."""
+    for name in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
+        monkeypatch.delenv(name, raising=False)
+
+
+def test_virtual_is_the_embedded_default() -> None:
+    assert resolve(BusConfig()) == {"interface": "virtual", "channel": "atris"}
+
+
+def test_given_values_win() -> None:
+    config = BusConfig("socketcan", "vcan1", 250000, True)
+    assert resolve(config) == {"interface": "socketcan", "channel": "vcan1",
+                               "bitrate": 250000, "fd": True}
+
+
+def test_python_can_environment_fills_the_gaps(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", "from-env")
+    monkeypatch.setenv("CAN_BITRATE", "125000")
+    kwargs = resolve(BusConfig(), python_can_sources=True)
+    assert kwargs["channel"] == "from-env" and kwargs["bitrate"] == 125000
+    assert resolve(BusConfig(channel="given"), python_can_sources=True)["channel"] == "given"
+    assert resolve(BusConfig(), python_can_sources=False)["channel"] == "atris"
+
+
+def test_unknown_interface_is_a_bus_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    with pytest.raises(BusError, match="accepted interfaces"):
+        open_bus(BusConfig("no-such-interface", "x"))
+    monkeypatch.setenv("CAN_INTERFACE", "no-such-interface")
+    with pytest.raises(BusError, match="unknown CAN interface"):
+        resolve(BusConfig(), python_can_sources=True)
+
+
+def test_open_bus_opens_a_virtual_bus() -> None:
+    with open_bus(BusConfig(channel=f"cfg-{uuid.uuid4().hex}")) as bus:
+        assert isinstance(bus, can.BusABC)
+
+
+def _error_frame(error_class: int) -> can.Message:
+    return can.Message(arbitration_id=error_class, is_error_frame=True, is_extended_id=False,
+                       data=bytes(8))
+
+
+def test_health_counts_error_frames_and_bus_off() -> None:
+    health = BusHealth()
+    health.on_message_received(can.Message(arbitration_id=0x123, is_extended_id=False))
+    assert not health.take_error()
+    health.on_message_received(_error_frame(CAN_ERR_CRTL))
+    health.on_message_received(_error_frame(CAN_ERR_BUSOFF))
+    assert health.error_frames == 2 and health.bus_off_count == 1
+    assert health.take_error() and not health.take_error()
+
+
+def test_publisher_reports_error_frames_in_status() -> None:
+    channel = f"err-{uuid.uuid4().hex}"
+    health = BusHealth()
+    with can.Bus(interface="virtual", channel=channel) as bus, \
+            can.Bus(interface="virtual", channel=channel) as peer:
+        notifier = can.Notifier(bus, [health], timeout=0.02)
+        publisher = Publisher(bus, 3, period_s=0.02, health=health)
+        publisher.start()
+        peer.send(_error_frame(CAN_ERR_BUSOFF))
+        time.sleep(0.15)
+        publisher.stop()
+        notifier.stop()
+        codec = FrameCodec()
+        statuses = []
+        while (msg := peer.recv(timeout=0.0)) is not None:
+            frame = codec.decode_message(msg)
+            if frame.name == "Atris3_Status":
+                statuses.append(frame.signals["Fault_BusError"])
+    assert publisher.stats.bus_off_count == 1
+    assert 1 in statuses and statuses[-1] == 0
+
+
+def test_fd_frames_carry_the_same_payload() -> None:
+    channel = f"fd-{uuid.uuid4().hex}"
+    with can.Bus(interface="virtual", channel=channel) as bus, \
+            can.Bus(interface="virtual", channel=channel) as peer:
+        publisher = Publisher(bus, 0, period_s=0.05, fd=True)
+        publisher.start()
+        msg = peer.recv(timeout=1.0)
+        publisher.stop()
+    assert msg is not None and msg.is_fd and msg.bitrate_switch and len(msg.data) == 8
+    assert FrameCodec().decode_message(msg).crc_ok
