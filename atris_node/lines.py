@@ -125,29 +125,40 @@ class Extraction:
     dropped: int  # peaks above snr_min rejected (window off the image, failed fit)
     ambiguous: int  # peaks whose line could not be told from order and continuity
     rows_read: int  # map rows read (union of bands plus fit padding)
+    unassigned: int  # strong peaks inside the bands that belong to no line (foreign light)
     line_snr: tuple[float, ...]  # median SNR of the accepted samples per line, 0 if none
 
 
 # --------------------------------------------------------------------------- bands
 
 
+def _band(line: int, u_px: tuple[float, float], camera: CameraModel,
+          margin_px: float) -> Band:
+    """Observed rows of the undistorted row interval ``u_px`` (px from cy) of one line,
+    through the distortion at 17 columns; empty when the interval misses the image by
+    more than half its height (lines of α near 0 or π)."""
+    h, cy = camera.height_px, camera.cy_px
+    lo_u, hi_u = min(u_px) + cy, max(u_px) + cy
+    if hi_u < -h / 2 or lo_u > 1.5 * h:
+        return Band(line, 0, 0)
+    cols = np.linspace(0.0, camera.width_px - 1.0, 17)
+    rows = np.concatenate([distort_pixels(np.full_like(cols, r), cols, camera)[0]
+                           for r in np.clip([lo_u, hi_u], -h / 2, 1.5 * h)])
+    lo = max(int(np.floor(rows.min() - margin_px)), 0)
+    hi = min(int(np.ceil(rows.max() + margin_px)) + 1, h)
+    return Band(line, lo, max(hi, lo))
+
+
 def line_bands(camera: CameraModel, laser: LaserCalibration, z_min_m: float,
                z_max_m: float, margin_px: float) -> tuple[Band, ...]:
     """Observed row band of every line for ranges ``[z_min_m, z_max_m]``.
 
-    The band edges are the rows at z_min and z_max, pushed through the lens distortion
-    at 17 columns across the image, widened by ``margin_px`` and clipped to the image.
+    The band edges are the rows ``u = f·cot α_k - f·b/z`` at z_min and z_max, pushed
+    through the lens distortion, widened by ``margin_px`` and clipped to the image.
     """
-    cols = np.linspace(0.0, camera.width_px - 1.0, 17)
-    bands = []
-    for k in range(len(laser.alpha_rad)):
-        u = [line_row_at_range(k, z, camera, laser) for z in (z_min_m, z_max_m)]
-        rows = np.concatenate([distort_pixels(np.full_like(cols, ui + camera.cy_px), cols,
-                                              camera)[0] for ui in u])
-        lo = max(int(np.floor(rows.min() - margin_px)), 0)
-        hi = min(int(np.ceil(rows.max() + margin_px)) + 1, camera.height_px)
-        bands.append(Band(k, lo, max(hi, lo)))
-    return tuple(bands)
+    return tuple(_band(k, (line_row_at_range(k, z_min_m, camera, laser),
+                           line_row_at_range(k, z_max_m, camera, laser)), camera, margin_px)
+                 for k in range(len(laser.alpha_rad)))
 
 
 def read_padding(settings: ExtractorSettings) -> int:
@@ -293,11 +304,13 @@ def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]],
         r, c = np.nonzero(peak)
         rows.append(r + lo)
         cols.append(c)
+    out = np.full((per_column, values.shape[1]), -1, dtype=np.int64)
+    if not rows:
+        return out
     r, c = np.concatenate(rows), np.concatenate(cols)
     order = np.lexsort((r, c))
     r, c = r[order], c[order]
     pos = np.arange(r.size) - np.searchsorted(c, np.arange(values.shape[1]))[c]
-    out = np.full((per_column, values.shape[1]), -1, dtype=np.int64)
     keep = pos < per_column
     out[pos[keep], c[keep]] = r[keep]
     return out
@@ -392,6 +405,14 @@ def _refine(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArra
     return row, sigma, flat, inside & (flat | (ok & local_max))
 
 
+def _count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> int:
+    """Number of entries of ``peaks`` (row numbers, -1 = none) inside at least one band."""
+    inside = np.zeros(peaks.shape, dtype=np.bool_)
+    for b in bands:
+        inside |= (peaks >= b.row_lo) & (peaks < b.row_hi)
+    return int(inside.sum())
+
+
 def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float, ...]:
     """Median SNR of the samples of each of ``count`` lines, 0.0 for a line without any."""
     return tuple(float(np.median(snr[line == k])) if (line == k).any() else 0.0
@@ -418,6 +439,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     peaks = strong_maxima(values, spans, background + settings.snr_min * noise,
                           settings.min_separation_px, len(bands) + EXTRA_PEAKS)
     rows, ambiguous = identify_lines(peaks, bands, settings.min_separation_px)
+    unassigned = max(_count_in_bands(peaks, bands) - int((rows >= 0).sum()) - ambiguous, 0)
     line, cols = np.nonzero(rows >= 0)
     peak_rows = rows[line, cols]
     snr = (values[peak_rows, cols].astype(np.float64) - background) / noise
@@ -431,5 +453,5 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     return Extraction(samples, noise, background, tuple(spans),
                       weak=max(searched - int(strong.sum()) - ambiguous, 0),
                       dropped=int((~ok).sum()), ambiguous=ambiguous,
-                      rows_read=sum(hi - lo for lo, hi in spans),
+                      rows_read=sum(hi - lo for lo, hi in spans), unassigned=unassigned,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)))

@@ -77,7 +77,9 @@ class PipelineConfig:
     export_dir: Path | None = None
     export_every: int = 1
     sigma_u_px: float = 0.05  # calibration floor, added in quadrature to the fit's σ_u
-    foreign_limit: float = 0.05  # foreign/own energy above which interference is flagged
+    #: foreign light is flagged when the negative/positive map energy or the fraction of
+    #: peaks that belong to no line (per line and column) exceeds this
+    foreign_limit: float = 0.05
 
     def __post_init__(self) -> None:
         _check(self.peak_method in PEAK_METHODS, "peak_method", self.peak_method,
@@ -130,6 +132,7 @@ class Diagnostics:
     rows_read: int
     line_snr: tuple[float, ...]
     foreign_energy: float
+    unassigned_fraction: float
     interference: bool
     ground: GroundPlane
     timings_ms: dict[str, float] = field(default_factory=dict)
@@ -273,7 +276,9 @@ class Pipeline:
             saturated=int(extraction.samples.saturated.sum()),
             no_return=int((~valid).sum()), rows_read=extraction.rows_read,
             line_snr=extraction.line_snr, foreign_energy=energy,
-            interference=energy > self.config.foreign_limit, ground=self._ground,
+            unassigned_fraction=extraction.unassigned / slots,
+            interference=max(energy, extraction.unassigned / slots) > self.config.foreign_limit,
+            ground=self._ground,
             timings_ms=timings)
 
     def _objects(self, obstacle_points: FloatArray) -> tuple[objects_mod.ObjectBox, ...]:

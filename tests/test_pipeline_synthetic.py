@@ -60,6 +60,7 @@ def test_sector_distances_match_the_truth(name: str) -> None:
                                         cal.laser.baseline_m))
             assert abs(sector.distance_m - true_m) <= max(0.03 * true_m, 2 * sigma_z), (
                 name, sector, true_m)
+    assert not result.diagnostics.interference and result.diagnostics.ambiguous == 0
     seen = sum(t is not None for t in truth)
     valid = sum(s.state is SectorState.VALID for s in result.measurement.sectors)
     assert valid >= seen - 1, f"{name}: only {valid} of {seen} obstacle sectors valid"
