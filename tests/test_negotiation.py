@@ -15,7 +15,14 @@ import can
 import pytest
 
 from atris_node.bus.negotiation import NegotiationState, Negotiator
-from atris_node.bus.negotiation_frames import FrameKind, decode_name, parse_id
+from atris_node.bus.negotiation_frames import (
+    FrameKind,
+    Identity,
+    decode_name,
+    identity_of,
+    make_id,
+    parse_id,
+)
 from atris_node.bus.negotiation_plan import Plan, plan_code_rows
 from atris_node.bus.negotiation_sim import (
     Fleet,
@@ -211,16 +218,17 @@ def test_babbling_and_malformed_claimants_neither_crash_nor_starve_units(make_fl
     fleet.start_all(spread_s=0.01)
     babbler = ShimBus(fleet.channel, fleet.clock)
     rows = plan_code_rows(PLAN)
-    junk = [(0x18800000 | (3 << 16) | 0xABC5, b"\x01"),  # CLAIM with 1 byte
-            (0x18800000 | (1 << 16) | 0xABC5, bytes(8)),  # CLAIM of row 1
-            (0x19800000 | 0xABC5, bytes([16, 7, 0, 1, 0, 0, 0, 0])),  # PLAN: bad mode
-            (0x19800000 | 0xABC5, bytes([15, 0, 0, 1, 0, 1, 0, 0])),  # PLAN: N=15
-            (0x1A000000 | 0xABC5, b"\xff"),  # SYNC too short
-            (0x1C000000 | 0xABC5, bytes(8))]  # unknown kind
+    other = Identity(0x2BC, 6)
+    junk = [(make_id(FrameKind.CLAIM, other, 3), b"\x01"),  # CLAIM with 1 byte
+            (make_id(FrameKind.CLAIM, other, 1), bytes(8)),  # CLAIM of row 1
+            (make_id(FrameKind.PLAN, other), bytes([16, 7, 0, 1, 0, 0, 0, 0])),  # bad mode
+            (make_id(FrameKind.PLAN, other), bytes([15, 0, 0, 1, 0, 1, 0, 0])),  # N=15
+            (make_id(FrameKind.SYNC, other), b"\xff"),  # SYNC too short
+            (make_id(FrameKind.CANNOT_CLAIM, other, 9), bytes(8))]  # undefined field
 
     def babble(step: int) -> None:
         row = rows[step % len(rows)]
-        can_id = 0x18800000 | (row << 16) | 0x0015  # lowest NAME, identity fold 1, unit 5
+        can_id = make_id(FrameKind.CLAIM, Identity(1, 5), row)  # NAME 1, the lowest
         babbler.send(can.Message(arbitration_id=can_id, data=(1).to_bytes(8, "little"),
                                  is_extended_id=True))
         bad_id, bad_data = junk[step % len(junk)]
@@ -377,12 +385,14 @@ def test_a_lower_name_claim_stops_strobing_at_once_and_a_higher_one_is_answered(
     try:
         assert unit.may_strobe and unit.code_row == 2
         _drain(probe)
-        unit.on_frame(0x18820000 | 0x0AB2, (0x50).to_bytes(8, "little"), clock[0])
+        unit.on_frame(make_id(FrameKind.CLAIM, identity_of(0x50, 2), 2),
+                      (0x50).to_bytes(8, "little"), clock[0])
         assert unit.may_strobe and unit.code_row == 2
         unit.tick()
         answer = [m for m in _drain(probe) if parse_id(m.arbitration_id).kind is FrameKind.CLAIM]  # type: ignore[union-attr]
         assert [parse_id(m.arbitration_id).field for m in answer] == [2]  # type: ignore[union-attr]
-        unit.on_frame(0x18820000 | 0x0AB3, (0x30).to_bytes(8, "little"), clock[0])
+        unit.on_frame(make_id(FrameKind.CLAIM, identity_of(0x30, 3), 2),
+                      (0x30).to_bytes(8, "little"), clock[0])
         assert not unit.may_strobe and unit.code_row == 3
         assert unit.timeline[-1] == (clock[0], False, 3)
     finally:

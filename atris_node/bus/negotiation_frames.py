@@ -2,14 +2,15 @@
 
 Identifier (29 bits, extended frame)::
 
-    bits 28..26  priority, 0b110 (as J1939's default 6)
-    bits 25..23  kind: REQUEST 0, CLAIM 1, CANNOT_CLAIM 2, PLAN 3, SYNC 4
-    bits 22..16  field: the claimed 1-based Walsh row in CLAIM; 1 in a CANNOT_CLAIM sent
+    bits 28..24  0b11111: J1939 priority 7 with EDP = DP = 1, the data page J1939 leaves
+                 to ISO 15765-3, so no J1939 parameter group is mistaken for a claim
+    bits 23..21  kind: REQUEST 0, CLAIM 1, CANNOT_CLAIM 2, PLAN 3, SYNC 4
+    bits 20..14  field: the claimed 1-based Walsh row in CLAIM; 1 in a CANNOT_CLAIM sent
                  by a unit that stops (leaving); 0 otherwise
-    bits 15..4   NAME fold: the 64-bit NAME XOR-folded to 12 bits
+    bits 13..4   NAME fold: the 64-bit NAME XOR-folded to 10 bits
     bits  3..0   unit_id of the sender
 
-The low 16 bits are the sender's identity, so two units claiming at the same instant
+The low 14 bits are the sender's identity, so two units claiming at the same instant
 never send the same identifier (a real bus would turn that into a bit error). The DBC
 describes each kind at its base identifier (field and identity bits zero); a receiver
 masks the identifier with :data:`KIND_MASK` to find the message. Payloads are
@@ -18,7 +19,7 @@ little-endian, as J1939 puts the NAME on the wire.
 Example:
     >>> frame = encode_claim(0x1122334455667788, unit_id=3, code_row=5)
     >>> hex(frame.can_id), frame.data.hex()
-    ('0x18857ad3', '8877665544332211')
+    ('0x1f214283', '8877665544332211')
 """
 
 from __future__ import annotations
@@ -30,12 +31,14 @@ from dataclasses import dataclass
 from atris_node.bus.negotiation_plan import MODES, Plan
 from atris_node.errors import CodeError, ConfigError, FrameDecodeError
 
-PRIORITY_BITS = 0x18000000
-KIND_SHIFT = 23
-FIELD_SHIFT = 16
-KIND_MASK = 0x1F800000
-FIELD_MASK = 0x007F0000
-IDENTITY_MASK = 0x0000FFFF
+PREFIX_BITS = 0x1F000000
+PREFIX_MASK = 0x1F000000
+KIND_SHIFT = 21
+FIELD_SHIFT = 14
+FOLD_BITS = 10
+KIND_MASK = 0x1FE00000
+FIELD_MASK = 0x001FC000
+IDENTITY_MASK = 0x00003FFF
 MAX_FIELD = 0x7F
 MAX_NAME = 2**64 - 1
 
@@ -66,7 +69,7 @@ class FrameKind(enum.IntEnum):
     @property
     def base_id(self) -> int:
         """Identifier with field and identity bits zero (the DBC message's ID)."""
-        return PRIORITY_BITS | (self.value << KIND_SHIFT)
+        return PREFIX_BITS | (self.value << KIND_SHIFT)
 
 
 @dataclass(frozen=True)
@@ -79,14 +82,14 @@ class RawFrame:
 
 @dataclass(frozen=True)
 class Identity:
-    """Sender identity from the identifier's low 16 bits."""
+    """Sender identity from the identifier's low 14 bits."""
 
     name_fold: int
     unit_id: int
 
     @property
     def bits(self) -> int:
-        """The 16 identity bits."""
+        """The 14 identity bits."""
         return (self.name_fold << 4) | self.unit_id
 
 
@@ -111,10 +114,10 @@ class Header:
 
 
 def name_fold(name: int) -> int:
-    """The 64-bit NAME XOR-folded to the 12 identity bits of the identifier."""
+    """The 64-bit NAME XOR-folded to the 10 NAME bits of the identifier."""
     fold = 0
-    for shift in range(0, 64, 12):
-        fold ^= (name >> shift) & 0xFFF
+    for shift in range(0, 64, FOLD_BITS):
+        fold ^= (name >> shift) & ((1 << FOLD_BITS) - 1)
     return fold
 
 
@@ -136,12 +139,12 @@ def make_id(kind: FrameKind, identity: Identity, field: int = 0) -> int:
 
 def parse_id(can_id: int) -> Header | None:
     """Split a 29-bit identifier; None when it is not a negotiation frame."""
-    if can_id & ~0x1FFFFFFF or can_id & 0x1C000000 != PRIORITY_BITS:
+    if can_id & ~0x1FFFFFFF or can_id & PREFIX_MASK != PREFIX_BITS:
         return None
     kind_value = (can_id >> KIND_SHIFT) & 0x7
     if kind_value not in FrameKind._value2member_map_:
         return None
-    identity = Identity((can_id >> 4) & 0xFFF, can_id & 0xF)
+    identity = Identity((can_id >> 4) & ((1 << FOLD_BITS) - 1), can_id & 0xF)
     return Header(FrameKind(kind_value), (can_id & FIELD_MASK) >> FIELD_SHIFT, identity)
 
 
