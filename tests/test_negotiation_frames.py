@@ -60,7 +60,7 @@ def test_identifiers_round_trip_and_foreign_traffic_is_not_negotiation():
 def test_bad_values_are_refused_with_what_is_accepted():
     with pytest.raises(CodeError, match=r"2\.\.127"):
         nf.encode_claim(NAME, 0, 1)
-    with pytest.raises(ConfigError, match="0..15"):
+    with pytest.raises(ConfigError, match=r"0\.\.15"):
         nf.encode_request(NAME, 16)
     with pytest.raises(ConfigError, match="64-bit"):
         nf.encode_request(2**64, 0)
