@@ -35,7 +35,9 @@ Example:
 from __future__ import annotations
 
 import collections
+import functools
 import logging
+import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -94,39 +96,50 @@ def _check_chips(chips: Sequence[int] | npt.NDArray[np.integer]) -> npt.NDArray[
     return signs
 
 
+@functools.lru_cache(maxsize=8)
+def _strip_starts(width: int) -> tuple[int, ...]:
+    return tuple(sorted({min(int(p * width), max(width - STRIP_WIDTH, 0))
+                         for p in STRIP_POSITIONS}))
+
+
 def _strip_sample(image: Array) -> Array:
     """All rows of the sampled column strips, (H, <= 4 * STRIP_WIDTH), same dtype.
 
     Strips are short contiguous runs of each row, so reading them touches few cache lines;
     laser lines are horizontal, so every row is kept.
     """
-    width = image.shape[1]
-    starts = sorted({min(int(p * width), max(width - STRIP_WIDTH, 0)) for p in STRIP_POSITIONS})
-    return np.concatenate([image[:, s:s + STRIP_WIDTH] for s in starts], axis=1)
+    return np.concatenate([image[:, s:s + STRIP_WIDTH] for s in _strip_starts(image.shape[1])],
+                          axis=1)
 
 
 def strip_level(pixels: Array) -> float:
     """Mean raw level of the sampled strips of a sub-frame, in DN."""
-    return float(_strip_sample(pixels).mean())
+    starts = _strip_starts(pixels.shape[1])
+    total = sum(int(pixels[:, s:s + STRIP_WIDTH].sum(dtype=np.int64)) for s in starts)
+    return total / (pixels.shape[0] * min(STRIP_WIDTH, pixels.shape[1]) * len(starts))
 
 
 def measure_gain(values: Array, code_length: int) -> tuple[float, float, float, float]:
     """Processing gain and SNR of a distortion map (paper Eq. 5-6), measured on strips.
 
-    Signal pixels are those above ``max(6 sigma, max / 4, 1 DN)``, sigma from the median
-    absolute value; ``I_S`` is their mean, ``delta = I_B`` the RMS of the others (floored at
-    RESIDUAL_FLOOR_DN). Then ``l = 2 (I_S - delta) / N``, ``PG = I_S / l``,
-    ``SNR = I_S / delta``. Returns (PG, SNR, I_S, delta), all finite; PG = SNR = 0.0 when no
-    laser signal is found.
+    The background of a map is symmetric about 0 and the laser only adds, so the noise
+    scale is taken from the negative values: ``sigma^2 = 2 sum(x^2 | x < 0) / n``. Signal
+    pixels are those above ``max(6 sigma, max / 4, 1 DN)``; ``I_S`` is their mean,
+    ``delta = I_B`` the RMS of the others (floored at RESIDUAL_FLOOR_DN). Then
+    ``l = 2 (I_S - delta) / N``, ``PG = I_S / l``, ``SNR = I_S / delta``. Returns
+    (PG, SNR, I_S, delta), all finite; PG = SNR = 0.0 when no laser signal is found.
     """
-    sample = _strip_sample(values).ravel().astype(np.float64)
-    sigma = 1.4826 * float(np.median(np.abs(sample)))
+    sample = _strip_sample(values).ravel().astype(np.float32)
+    negative = np.minimum(sample, 0.0)
+    sigma = float(np.sqrt(2.0 * float(negative @ negative) / sample.size))
     threshold = max(6.0 * sigma, 0.25 * float(sample.max()), 1.0)
     signal = sample > threshold
-    background = sample[~signal]
-    delta = max(float(np.sqrt(np.mean(background**2))) if background.size else 0.0,
+    count = int(np.count_nonzero(signal))
+    background_energy = float(sample @ sample) - float(sample[signal] @ sample[signal])
+    background = sample.size - count
+    delta = max(np.sqrt(max(background_energy, 0.0) / background) if background else 0.0,
                 RESIDUAL_FLOOR_DN)
-    if not signal.any():
+    if not count:
         return 0.0, 0.0, 0.0, delta
     i_s = float(sample[signal].mean())
     laser = 2.0 * (i_s - delta) / code_length
@@ -173,13 +186,16 @@ class _PhaseLock:
         self._levels.clear()
         self.fresh = 0
 
-    def feed(self, sequence: int, level: float) -> int | None:
-        """Add the level of sub-frame ``sequence``; return the lag when the history shows it."""
+    def feed(self, sequence: int, level: float, decide: bool = True) -> int | None:
+        """Add the level of sub-frame ``sequence``; return the lag when the history shows it.
+
+        With ``decide=False`` the level is only stored (no correlation is computed).
+        """
         if self._levels and sequence != self._levels[-1][0] + 1:
             self._levels.clear()
         self._levels.append((sequence, level))
         self.fresh += 1
-        if len(self._levels) <= self.history:
+        if not decide or len(self._levels) <= self.history:
             return None
         return self._decide()
 
@@ -351,7 +367,10 @@ class _Demodulator:
         self._follow(sub)
         self._last = sub
         level = strip_level(sub.pixels)
-        decided = self._lock.feed(sub.sequence, level)
+        decided = None
+        if self._auto:
+            due = self._lag is None or self._lock.fresh >= self._lock.history
+            decided = self._lock.feed(sub.sequence, level, decide=due)
         if self._lag is None:
             return self._try_lock(sub, level, decided)
         self._track(decided)
@@ -421,9 +440,10 @@ class _Demodulator:
         return result
 
     def _track(self, decided: int | None) -> None:
-        if not self._auto or decided is None or decided == self._lag:
+        if not self._auto or decided is None:
             return
-        if self._lock.fresh < self._lock.history:
+        if decided == self._lag:
+            self._lock.fresh = 0  # confirmed; look again after a whole new history
             return
         logger.warning("strobe lag moved from %s to %d sub-frame(s): window restarted",
                        self._lag, decided)
@@ -466,7 +486,7 @@ class _Demodulator:
         fraction = 0.0 if saturated is None else np.count_nonzero(mask) / mask.size
         gain, snr, signal, residual = measure_gain(values, self._n)
         dropped, self._dropped_since_map = self._dropped_since_map, 0
-        ambient = float(np.mean([i.level for i in infos])) / self._full_scale
+        ambient = statistics.fmean(i.level for i in infos) / self._full_scale
         return DistortionMap(
             values=values, saturated=mask, code_length=self._n,  # type: ignore[arg-type]
             first_sequence=infos[0].sequence, last_sequence=infos[-1].sequence,
