@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Runs the vcan integration tests (tests/vcan, marker `vcan`) on real SocketCAN.
 #
-#   scripts/vcan-tests.sh            host: native when vcan0 and vcan1 exist, else one VM boot
-#   scripts/vcan-tests.sh --guest D  inside the VM: create vcan0/vcan1, run pytest, write to D
+#   scripts/vcan-tests.sh [ARGS]            host: native when vcan0 and vcan1 exist, else a VM
+#   scripts/vcan-tests.sh --guest D [ARGS]  inside the VM: create vcan0/vcan1, run pytest in D
+#
+# ARGS go to pytest (e.g. `-k publisher` while working on one test file).
 #
 # The VM is virtme-ng (PyPI) on qemu-system-x86 without KVM, booting a Debian kernel
 # (linux-image-amd64) over the host's root file system, read-only. Only the results directory
@@ -24,10 +26,11 @@ die() { echo "vcan-tests: error: $*" >&2; exit 1; }
 # pytest over tests/vcan only, no cache or bytecode writes (the repo is read-only in the VM)
 run_pytest() {
   local results=$1
+  shift
   PYTHONDONTWRITEBYTECODE=1 HYPOTHESIS_STORAGE_DIRECTORY="$results/.hypothesis" \
     ATRIS_VCAN_RESULTS="$results" \
     "$PY" -m pytest -m vcan tests/vcan -p no:cacheprovider -q -rA \
-    -o junit_family=xunit1 --junitxml="$results/junit.xml"
+    -o junit_family=xunit1 --junitxml="$results/junit.xml" "$@"
 }
 
 have_vcan() {
@@ -40,14 +43,14 @@ have_vcan() {
 # --- inside the VM ----------------------------------------------------------------------
 guest_main() {
   local results=$1 iface rc=0
+  shift
   modprobe vcan
   for iface in "${VCAN_IFACES[@]}"; do
     ip link add dev "$iface" type vcan
     ip link set "$iface" up
   done
   log "guest kernel $(uname -r), $(nproc) CPU(s), booted in $(cut -d' ' -f1 /proc/uptime) s"
-  run_pytest "$results" || rc=$?
-  echo "$rc" >"$results/pytest.rc"
+  run_pytest "$results" "$@" || rc=$?
   return "$rc"
 }
 
@@ -91,12 +94,13 @@ ensure_vm_tools() {
 
 run_in_vm() {
   local results=$1 kernel
+  shift
   ensure_vm_tools
   kernel=$(guest_kernel) || die "no kernel in /boot with a vcan module"
   log "booting $kernel without KVM (${VM_MEMORY}, 2 CPUs), results in $results"
   PATH="$PWD/$VENV/bin:$PATH" timeout "$VM_TIMEOUT_S" vng --run "$kernel" --disable-kvm \
     --memory "$VM_MEMORY" --cpus 2 --rwdir "$results" \
-    --exec "bash scripts/vcan-tests.sh --guest $results" </dev/null
+    --exec "bash scripts/vcan-tests.sh --guest $results ${*@Q}" </dev/null
 }
 
 # --- host: the verdict ----------------------------------------------------------------------
@@ -105,10 +109,10 @@ host_main() {
   results=$(mktemp -d "${TMPDIR:-/tmp}/atris-vcan.XXXXXX")
   if have_vcan; then
     log "host has ${VCAN_IFACES[*]}: running natively"
-    run_pytest "$results" || rc=$?
+    run_pytest "$results" "$@" || rc=$?
   else
     log "host has no ${VCAN_IFACES[*]}: running in a virtme-ng VM"
-    run_in_vm "$results" || rc=$?
+    run_in_vm "$results" "$@" || rc=$?
   fi
   log "finished in $((SECONDS - start)) s (exit code $rc)"
   "$PY" scripts/check_junit.py "$results/junit.xml" || rc=1
@@ -117,8 +121,9 @@ host_main() {
 }
 
 if [ "${1:-}" = "--guest" ]; then
-  [ $# -eq 2 ] || die "usage: $0 --guest RESULTS_DIR"
-  guest_main "$2"
+  [ $# -ge 2 ] || die "usage: $0 --guest RESULTS_DIR [PYTEST_ARGS]"
+  shift
+  guest_main "$@"
 else
-  host_main
+  host_main "$@"
 fi

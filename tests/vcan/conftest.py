@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from vcan_support import VCAN_DIR, UnitProcess
+from vcan_support import VCAN_DIR, UnitProcess, Zygote
 
 VCAN_IFACES = ("vcan0", "vcan1")
 HOW_TO = ("run scripts/vcan-tests.sh, or create them: sudo modprobe vcan; "
@@ -40,18 +40,24 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         item.add_marker(pytest.mark.skip(reason=f"no {', '.join(missing)}: {HOW_TO}"))
 
 
+@pytest.fixture(scope="session")
+def zygote() -> Iterator[Zygote]:
+    """The pre-loaded process every unit of the session is forked from."""
+    server = Zygote()
+    yield server
+    server.close()
+
+
 @pytest.fixture
-def spawn() -> Iterator[Any]:
+def spawn(zygote: Zygote) -> Iterator[Any]:
     """``spawn(role, *args)`` starts a ``UnitProcess``; all are ended after the test."""
     started: list[UnitProcess] = []
 
     def _spawn(role: str, *args: str) -> UnitProcess:
-        unit = UnitProcess(role, *args)
+        unit = UnitProcess(zygote, role, *args)
         started.append(unit)
         return unit
 
     yield _spawn
     for unit in started:
-        if unit.proc.poll() is None:
-            unit.proc.terminate()
         unit.close()

@@ -8,11 +8,15 @@ Times are ``time.time()`` seconds, the clock SocketCAN stamps received frames wi
 
 from __future__ import annotations
 
+import importlib
 import json
+import os
 import selectors
+import signal
 import struct
 import sys
 import time
+import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -111,9 +115,102 @@ def periodic(channel: str, arb_id: str, period_s: str) -> None:
     emit("done", sent=seq, errors=errors, periods=periods)
 
 
+def sector_distance_m(index: int, counter: int) -> float:
+    """The distance the publisher role reports for sector ``index`` of measurement ``counter``."""
+    return 2.0 + 0.25 * index + 0.001 * counter
+
+
+def measurement(counter: int, sector_count: int, newest_time_s: float) -> Any:
+    """A Measurement whose sector distances follow :func:`sector_distance_m`."""
+    from atris_node.types import Measurement, SectorDistance, SectorState
+
+    sectors = tuple(SectorDistance(i, 0.1 * (sector_count / 2 - i), SectorState.VALID,
+                                   sector_distance_m(i, counter), 0.9, 40)
+                    for i in range(sector_count))
+    return Measurement(counter, sectors, newest_time_s, 16 * counter, nearest=sectors[0])
+
+
+def publisher(channel: str, unit_id: str, period_s: str, update_s: str) -> None:
+    """A unit's Publisher fed a new measurement every ``update_s``, until stopped.
+
+    Emits ``measurement`` events with the wall-clock time of the measurement's newest
+    sub-frame, so the test can compare it with the kernel receive timestamps.
+    """
+    from atris_node.bus.publisher import Publisher
+    from atris_node.types import UnitState, UnitStatus
+
+    stop, counter = StdinWatch(), 0
+    status = UnitStatus(UnitState.RUNNING, 3, 16, 480.0, 0)
+    with open_bus(channel, 0x7FF) as bus:
+        pub = Publisher(bus, int(unit_id), period_s=float(period_s), sector_count=4)
+        pub.start()
+        emit("ready")
+        try:
+            while not stop.poll(float(update_s)):
+                wall_s, newest_s = time.time(), time.monotonic()
+                pub.update(measurement(counter, 4, newest_s), status)
+                emit("measurement", counter=counter, sub_frame_wall_s=wall_s)
+                counter += 1
+        finally:
+            pub.stop()
+    pub.check()
+    emit("done", frames_sent=pub.stats.frames_sent, send_errors=pub.stats.send_errors)
+
+
+#: modules the zygote imports once, so forked units start at once
+PRELOAD = ("numpy", "can.interfaces.socketcan", "cantools", "canopen", "atris_node.types",
+           "atris_node.bus.frames", "atris_node.bus.publisher", "atris_node.bus.canopen_device",
+           "atris_node.bus.negotiation")
+
+
+def zygote() -> None:
+    """Pre-loads PRELOAD, then forks one unit per JSON request line on stdin.
+
+    A request is ``{"role", "args", "stdin", "stdout"}`` (the last two are FIFO paths);
+    the answer is ``{"pid": ...}``. Children are reaped at once (SIGCHLD ignored).
+    """
+    for name in PRELOAD:
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            print(f"zygote: not preloaded: {name} ({exc})", file=sys.stderr)
+    signal.signal(signal.SIGCHLD, signal.SIG_IGN)
+    while line := sys.stdin.readline():
+        request = json.loads(line)
+        pid = os.fork()
+        if pid == 0:
+            run_child(request)
+        print(json.dumps({"pid": pid}), flush=True)
+
+
+def run_child(request: dict[str, Any]) -> None:
+    """In a forked unit: FIFOs become stdin/stdout, then the role runs; never returns."""
+    code = 1
+    try:
+        signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+        for fd, path, mode in ((0, request["stdin"], os.O_RDONLY),
+                               (1, request["stdout"], os.O_WRONLY)):
+            opened = os.open(path, mode)
+            os.dup2(opened, fd)
+            os.close(opened)
+        sys.stdin, sys.stdout = open(0, closefd=False), open(1, "w", closefd=False)  # noqa: SIM115
+        ROLES[request["role"]](*request["args"])
+        code = 0
+    except BaseException:
+        traceback.print_exc()
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
 ROLES: dict[str, Callable[..., None]] = {
     "sender": sender, "echo": echo, "babbler": babbler, "periodic": periodic,
+    "publisher": publisher,
 }
 
 if __name__ == "__main__":
-    ROLES[sys.argv[1]](*sys.argv[2:])
+    if sys.argv[1] == "zygote":
+        zygote()
+    else:
+        ROLES[sys.argv[1]](*sys.argv[2:])

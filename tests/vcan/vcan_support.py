@@ -1,16 +1,24 @@
-"""Helpers of the vcan tests: child processes speaking JSON lines, latency summaries."""
+"""Helpers of the vcan tests: unit processes speaking JSON lines, latency summaries.
+
+Without KVM, importing numpy, cantools and canopen costs tens of seconds per process, so
+units are forked from one pre-loaded process (``roles.py zygote``, started once per test
+session). Every unit is still its own process with its own sockets: killing one is a real
+crash, starting another is a real restart. Each unit talks to the test through two FIFOs.
+"""
 
 from __future__ import annotations
 
 import json
 import os
 import selectors
+import signal
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import pytest
 
@@ -19,28 +27,71 @@ REPO_ROOT = VCAN_DIR.parent.parent
 ROLES = VCAN_DIR / "roles.py"
 
 
-class UnitProcess:
-    """One child process running a role of ``roles.py``; it speaks JSON lines on stdout."""
+class Zygote:
+    """A pre-loaded process that forks one child per unit on request."""
 
-    def __init__(self, role: str, *args: str) -> None:
-        env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+    def __init__(self) -> None:
+        env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1", "OPENBLAS_NUM_THREADS": "1"}
+        self.proc = subprocess.Popen([sys.executable, str(ROLES), "zygote"], cwd=REPO_ROOT,
+                                     env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     text=True)
+        self.tmp = tempfile.TemporaryDirectory(prefix="atris-vcan-")
+        self.count = 0
+
+    def fork(self, role: str, args: tuple[str, ...]) -> tuple[int, Path, Path]:
+        """Starts ``role``; returns its pid and the paths of its stdin and stdout FIFOs."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.count += 1
+        fifo_in, fifo_out = (Path(self.tmp.name) / f"{self.count}.{d}" for d in ("in", "out"))
+        os.mkfifo(fifo_in)
+        os.mkfifo(fifo_out)
+        request = {"role": role, "args": list(args), "stdin": str(fifo_in),
+                   "stdout": str(fifo_out)}
+        self.proc.stdin.write(json.dumps(request) + "\n")
+        self.proc.stdin.flush()
+        answer = self.proc.stdout.readline()
+        if not answer:
+            pytest.fail(f"the unit zygote exited with {self.proc.wait(5)}")
+        return int(json.loads(answer)["pid"]), fifo_in, fifo_out
+
+    def close(self) -> None:
+        """Ends the zygote (closing its stdin) and removes the FIFOs."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.close()
+        self.proc.wait(30)
+        self.proc.stdout.close()
+        self.tmp.cleanup()
+
+
+class UnitProcess:
+    """One unit process running a role of ``roles.py``; it speaks JSON lines."""
+
+    def __init__(self, zygote: Zygote, role: str, *args: str) -> None:
         self.role = role
-        self.proc = subprocess.Popen(
-            [sys.executable, str(ROLES), role, *args], cwd=REPO_ROOT, env=env,
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        self.pid, fifo_in, fifo_out = zygote.fork(role, args)
+        self.stdin: IO[str] = open(fifo_in, "w")  # noqa: SIM115 (closed by close())
+        self.stdout: IO[str] = open(fifo_out)  # noqa: SIM115
+        self.events: list[dict[str, Any]] = []
         self._selector = selectors.DefaultSelector()
-        assert self.proc.stdout is not None
-        self._selector.register(self.proc.stdout, selectors.EVENT_READ)
+        self._selector.register(self.stdout, selectors.EVENT_READ)
+
+    def alive(self) -> bool:
+        """True while the process exists (the zygote reaps its children at once)."""
+        try:
+            os.kill(self.pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
 
     def read(self, timeout_s: float = 60.0) -> dict[str, Any]:
-        """The next JSON object the child printed; fails the test after ``timeout_s``."""
-        assert self.proc.stdout is not None
+        """The next JSON object the unit printed; fails the test after ``timeout_s``."""
         if not self._selector.select(timeout_s):
             pytest.fail(f"{self.role}: no output within {timeout_s} s")
-        line = self.proc.stdout.readline()
+        line = self.stdout.readline()
         if not line:
-            pytest.fail(f"{self.role}: exited with {self.proc.wait(5)} before answering")
-        return dict(json.loads(line))
+            pytest.fail(f"{self.role}: exited before answering")
+        self.events.append(dict(json.loads(line)))
+        return self.events[-1]
 
     def wait_for(self, event: str, timeout_s: float = 60.0) -> dict[str, Any]:
         """Reads lines until one whose ``event`` is ``event``; returns it."""
@@ -50,28 +101,32 @@ class UnitProcess:
             if msg.get("event") == event:
                 return msg
 
+    def of(self, event: str) -> list[dict[str, Any]]:
+        """Every line read so far whose ``event`` is ``event``."""
+        return [e for e in self.events if e.get("event") == event]
+
     def stop(self) -> dict[str, Any]:
-        """Asks the child to finish (closes its stdin) and returns its ``done`` report."""
-        assert self.proc.stdin is not None
-        self.proc.stdin.close()
+        """Asks the unit to finish (closes its stdin) and returns its ``done`` report."""
+        if not self.stdin.closed:
+            self.stdin.close()
         return self.wait_for("done")
 
     def kill(self) -> None:
-        """Ends the child at once (SIGKILL) and reaps it."""
-        self.proc.kill()
+        """Ends the unit at once (SIGKILL), as a crash would."""
+        os.kill(self.pid, signal.SIGKILL)
         self.close()
 
     def close(self) -> None:
-        """Reaps the child (killing it if it does not end in 10 s) and closes the pipes."""
-        try:
-            self.proc.wait(10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait(5)
+        """Waits for the unit to end (SIGKILL after 10 s) and closes the FIFOs."""
+        if not self.stdin.closed:
+            self.stdin.close()
+        deadline = time.monotonic() + 10.0
+        while self.alive() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if self.alive():
+            os.kill(self.pid, signal.SIGKILL)
         self._selector.close()
-        for pipe in (self.proc.stdin, self.proc.stdout):
-            if pipe is not None and not pipe.closed:
-                pipe.close()
+        self.stdout.close()
 
 
 def summary_ms(values_s: list[float]) -> dict[str, float]:

@@ -1,0 +1,174 @@
+"""A unit's Publisher in its own process on vcan0, read back as a controller would.
+
+Frames are decoded by cantools from the shipped DBC file and E2E-checked by the test's
+own Profile 1 model (``e2e_reference``); the latency from the measurement's newest
+sub-frame to the kernel receive timestamp of its frames is measured and recorded.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import can
+import cantools
+import pytest
+from e2e_reference import P01Receiver, crc_calculate_crc8
+from roles import sector_distance_m
+from vcan_support import REPO_ROOT, summary_ms
+
+pytestmark = pytest.mark.vcan
+
+DBC_PATH = REPO_ROOT / "atris_node" / "bus" / "atris.dbc"
+STATE_RUNNING = 2
+
+
+@dataclass
+class Received:
+    """One received unit frame: its message name, raw signals and kernel timestamp."""
+
+    name: str
+    signals: dict[str, Any]
+    timestamp: float
+    counter: int
+
+
+def listen(bus: can.BusABC, duration_s: float) -> list[can.Message]:
+    """Every frame that arrives on ``bus`` during ``duration_s``."""
+    frames, deadline = [], time.monotonic() + duration_s
+    while time.monotonic() < deadline:
+        msg = bus.recv(0.05)
+        if msg is not None:
+            frames.append(msg)
+    return frames
+
+
+def check_and_decode(db: Any, frames: list[can.Message],
+                     receivers: dict[int, P01Receiver]) -> list[Received]:
+    """Decodes ``frames`` with the DBC; every one must pass the reference E2E check."""
+    out = []
+    for msg in frames:
+        message = db.get_message_by_frame_id(msg.arbitration_id)
+        data_id = message.dbc.attributes["E2EDataID"].value
+        receiver = receivers.setdefault(msg.arbitration_id, P01Receiver(data_id, timeout_s=0.5))
+        assert receiver.check(bytes(msg.data), msg.timestamp) in ("ok", "initial"), message.name
+        signals = message.decode(bytes(msg.data), decode_choices=False, scaling=True)
+        out.append(Received(message.name, signals, msg.timestamp, msg.data[1] & 0x0F))
+    return out
+
+
+def cycles(frames: list[Received]) -> list[list[Received]]:
+    """Frames grouped into publish cycles, each starting with a Status frame."""
+    groups: list[list[Received]] = []
+    for frame in frames:
+        if frame.name.endswith("_Status") or not groups:
+            groups.append([])
+        groups[-1].append(frame)
+    return groups
+
+
+def running_cycles(groups: list[list[Received]]) -> list[list[Received]]:
+    """The complete cycles from the first one of a RUNNING unit on (start-up skipped)."""
+    states = [g[0].signals.get("State") for g in groups]
+    first = states.index(STATE_RUNNING) if STATE_RUNNING in states else len(groups)
+    return [g for g in groups[first:] if len(g) == 5]
+
+
+def unit_bus(unit_id: int) -> can.BusABC:
+    block = 0x500 + 0x10 * unit_id
+    return can.Bus(interface="socketcan", channel="vcan0",
+                   can_filters=[{"can_id": block, "can_mask": 0x7F0}])
+
+
+def test_reference_crc_is_sae_j1850() -> None:
+    assert crc_calculate_crc8(b"123456789", 0xFF, True) == 0x4B
+
+
+def test_unit_frames_decode_with_the_dbc_and_pass_independent_e2e(
+        spawn: Any, record_property: Any) -> None:
+    db = cantools.database.load_file(DBC_PATH)
+    with unit_bus(3) as bus:
+        unit = spawn("publisher", "vcan0", "3", "0.05", "0.1")
+        unit.wait_for("ready")
+        frames = listen(bus, 3.0)
+        assert unit.stop()["send_errors"] == 0
+    received = check_and_decode(db, frames, {})
+    full = running_cycles(cycles(received))
+    assert len(full) >= 30, f"only {len(full)} complete cycles in 3 s"
+    for cycle in full:
+        check_cycle(cycle)
+    latency = data_latency(full, unit.of("measurement"))
+    record_property("sub_frame_to_first_frame", summary_ms([a for a, _ in latency]))
+    record_property("sub_frame_to_last_frame", summary_ms([b for _, b in latency]))
+    assert len(latency) >= 20 and summary_ms([b for _, b in latency])["median_ms"] < 50.0
+
+
+def check_cycle(cycle: list[Received]) -> None:
+    """One cycle: Status (running), Quality, Nearest, two Sectors frames with our distances."""
+    assert [f.name for f in cycle] == ["Atris3_Status", "Atris3_Quality", "Atris3_Nearest",
+                                       "Atris3_Sectors", "Atris3_Sectors"]
+    status, quality, nearest = (f.signals for f in cycle[:3])
+    assert (status["State"], status["CodeRow"], status["CodeLength"]) == (STATE_RUNNING, 3, 16)
+    assert status["ChipRate"] == pytest.approx(480.0)
+    k = quality["MeasurementCounter"]
+    assert quality["SectorCount"] == 4
+    assert nearest["Valid"] == 1
+    assert nearest["Distance"] == pytest.approx(sector_distance_m(0, k), abs=1e-6)
+    for frame in cycle[3:]:
+        first = frame.signals["SectorIndex"]
+        assert frame.signals["Distance0"] == pytest.approx(sector_distance_m(first, k), abs=1e-6)
+        assert frame.signals["Distance1"] == pytest.approx(
+            sector_distance_m(first + 1, k), abs=1e-6)
+
+
+def data_latency(full: list[list[Received]],
+                 measurements: list[dict[str, Any]]) -> list[tuple[float, float]]:
+    """(first frame, last frame) kernel receive time minus sub-frame time, per measurement.
+
+    Only the first cycle that carries a measurement counts; the Status frame's DataAge
+    (10 ms steps, computed before sending) must agree with the measured age.
+    """
+    sub_frame_s = {m["counter"]: m["sub_frame_wall_s"] for m in measurements}
+    out, seen = [], set()
+    for cycle in full:
+        k = cycle[1].signals["MeasurementCounter"]
+        if k in seen or k not in sub_frame_s:
+            continue
+        seen.add(k)
+        first, last = cycle[0].timestamp - sub_frame_s[k], cycle[-1].timestamp - sub_frame_s[k]
+        assert 0.0 <= first <= last
+        assert cycle[0].signals["DataAge"] <= first + 0.011
+        out.append((first, last))
+    return out
+
+
+def test_restarted_unit_comes_back_with_a_fresh_e2e_sequence(
+        spawn: Any, record_property: Any) -> None:
+    db = cantools.database.load_file(DBC_PATH)
+    receivers: dict[int, P01Receiver] = {}
+    with unit_bus(5) as bus:
+        first = spawn("publisher", "vcan0", "5", "0.05", "0.1")
+        first.wait_for("ready")
+        frames = listen(bus, 1.5)
+        first.kill()
+        killed_at = time.time()
+        second = spawn("publisher", "vcan0", "5", "0.05", "0.1")
+        second.wait_for("ready")
+        frames += listen(bus, 2.0)
+        assert second.stop()["send_errors"] == 0
+    received = check_and_decode(db, frames, receivers)
+    before = [f for f in received if f.timestamp < killed_at]
+    after = [f for f in received if f.timestamp >= killed_at]
+    status = receivers[0x550]
+    assert status.timeouts == 1 and status.verdicts.count("initial") == 2
+    resumed = [f for f in after if f.name == "Atris5_Status"]
+    assert resumed[0].counter == 0
+    assert [f.signals["State"] for f in resumed][-1] == STATE_RUNNING
+    def counters(frames: list[Received]) -> list[int]:
+        return [f.signals["MeasurementCounter"] for f in frames if f.name == "Atris5_Quality"]
+
+    assert counters(before)[-1] >= 5, "the first unit never published its measurements"
+    assert counters(after)[0] == 0 and counters(after) == sorted(counters(after))
+    assert counters(after)[-1] >= 5
+    record_property("restart_silence_s", round(resumed[0].timestamp - killed_at, 3))
