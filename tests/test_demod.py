@@ -350,3 +350,19 @@ def test_gain_without_laser_or_noise_stays_finite() -> None:
     gain, snr, signal, residual = measure_gain(lines, 16)
     assert (signal, residual) == (160.0, 0.5)
     assert snr == 320.0 and gain == pytest.approx(160 / (2 * 159.5 / 16))
+
+
+# --- smoke: the benchmark's rows ------------------------------------------------------------
+
+def test_bench_rows_have_the_fields_other_tools_read() -> None:
+    from atris_node.bench import demod as bench
+
+    rows = bench.measure(64, 32, 10, 4, repeats=1, saturated=True)
+    assert [r["mode"] for r in rows] == ["block", "sliding"]
+    for row in rows:
+        assert set(row) == {"width", "height", "bits", "mode", "ms", "copy_ms", "ratio"}
+        assert (row["width"], row["height"], row["bits"]) == (64, 32, 10)
+        assert row["ms"] > 0 and row["ratio"] == pytest.approx(row["ms"] / row["copy_ms"],
+                                                                rel=0.05, abs=0.01)
+    frames = bench.scene(64, 32, 10, codes.walsh_chips(4, 2), saturated=True)
+    assert max(int(f.max()) for f in frames) == 1023
