@@ -268,9 +268,18 @@ class Unit:
         self._demod_key = key
         logger.info("unit %s: code row %d of N=%d", self.label, key[1], key[0])
 
+    def _check_sub_frame(self, sub: SubFrame) -> None:
+        """Reject a sub-frame that does not fit the calibrated camera."""
+        camera = self._pipeline.calibration.camera
+        expected = (camera.height_px, camera.width_px)
+        if sub.pixels.shape != expected:
+            raise DemodulationError(f"sub-frame {sub.sequence} is {sub.pixels.shape[::-1]} "
+                                    f"(w, h) but the calibration is for {expected[::-1]}")
+
     def _demodulate(self, sub: SubFrame) -> DistortionMap | None:
         assert self._demod is not None
         try:
+            self._check_sub_frame(sub)
             dmap = self._demod.push(sub)
         except DemodulationError as exc:
             self._on_bad_sub_frame(exc)

@@ -109,7 +109,8 @@ class SimCamera(Camera):
             if delay > 0:
                 self._sleep(delay)
         sub = self.simulator.render(sequence, self.projector.emit(sequence))
-        return replace(sub, host_time_s=sub.host_time_s + self._host_offset_s,
+        # host time = arrival on the host clock, as a real camera's driver stamps it
+        return replace(sub, host_time_s=self._clock(),
                        chip=self.projector.commanded_chip(sequence))
 
     def factory_calibration(self) -> Calibration:

@@ -9,6 +9,7 @@ change. Everything else is passed through from the wrapped camera unchanged.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -73,7 +74,8 @@ class FaultyCamera(Camera):
         if index in self.faults.wrong_size_at:
             return replace(sub, pixels=np.ascontiguousarray(sub.pixels[:-8, :-8]))
         if index in self.faults.wrong_dtype_at:
-            return replace(sub, pixels=sub.pixels.astype(np.float32))  # type: ignore[arg-type]
+            wrong: Any = sub.pixels.astype(np.float32)
+            return replace(sub, pixels=wrong)
         return sub
 
     def _close(self) -> None:
