@@ -72,7 +72,8 @@ class FaultyCamera(Camera):
 
     def _corrupt(self, sub: SubFrame, index: int) -> SubFrame:
         if index in self.faults.wrong_size_at:
-            return replace(sub, pixels=np.ascontiguousarray(sub.pixels[:-8, :-8]))
+            cropped: Any = np.ascontiguousarray(sub.pixels[:-8, :-8])
+            return replace(sub, pixels=cropped)
         if index in self.faults.wrong_dtype_at:
             wrong: Any = sub.pixels.astype(np.float32)
             return replace(sub, pixels=wrong)
