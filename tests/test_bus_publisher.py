@@ -87,9 +87,10 @@ def test_period_is_kept_and_frames_pass_e2e(channel: str, listener: can.BusABC) 
         frames = _collect(listener, 0.5)
         publisher.stop()
         publisher.check()
+        frames += _collect(listener, 0.05)  # sent between the window's end and stop()
     times = [t for t, f in frames if f.name == "Atris2_Status"]
     gaps = sorted(b - a for a, b in itertools.pairwise(times))
-    assert 15 <= len(times) <= 30
+    assert 15 <= len(times) <= 32
     assert 0.012 < gaps[len(gaps) // 2] < 0.035
     assert all(f.crc_ok for _, f in frames)
     assert publisher.stats.frames_sent == len(frames)

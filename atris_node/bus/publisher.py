@@ -137,13 +137,19 @@ class Publisher:
     def _loop(self) -> None:
         next_due = self.clock()
         while not self._stopping.is_set():
-            self._wake.wait(timeout=max(0.0, next_due - self.clock()))
+            woken = self._wake.wait(timeout=max(0.0, next_due - self.clock()))
             if self._stopping.is_set():
                 return
             self._wake.clear()
             now = self.clock()
             self._cycle(now)
-            next_due = now + self.period_s
+            next_due = self._next_due(next_due, now, immediate=woken)
+
+    def _next_due(self, due: float, now: float, immediate: bool) -> float:
+        """Fixed-rate schedule; an immediate send or a late cycle restarts it from now."""
+        if immediate or due + self.period_s <= now:
+            return now + self.period_s
+        return due + self.period_s
 
     def _cycle(self, now: float) -> None:
         late = self._last_cycle_s is not None and (
@@ -157,7 +163,7 @@ class Publisher:
             return
         with self._lock:
             measurement, status = self._measurement, self._status
-        self._send_all(self._compose(measurement, status, now, late))
+        self._send_all(self.compose(measurement, status, now, late))
 
     # -- composing frames ----------------------------------------------------------------
     def usable(self, measurement: Measurement | None, status: UnitStatus, now: float) -> bool:
@@ -173,8 +179,9 @@ class Publisher:
             faults |= FaultBits.BUS_ERROR
         return faults
 
-    def _compose(self, measurement: Measurement | None, status: UnitStatus, now: float,
-                 late: bool) -> list[can.Message]:
+    def compose(self, measurement: Measurement | None, status: UnitStatus, now: float,
+                late: bool = False) -> list[can.Message]:
+        """The frames of one cycle at ``now`` (each call advances the E2E counters)."""
         usable = self.usable(measurement, status, now)
         age = None if measurement is None else now - measurement.newest_time_s
         count = len(measurement.sectors) if measurement and measurement.sectors else (
