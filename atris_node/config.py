@@ -69,6 +69,10 @@ PARAMS: tuple[Param, ...] = (
     P("driver.seed", int, 1, "simulator noise seed", in_range(0, 2**32 - 1)),
     P("driver.lag_sub_frames", int, 0, "strobe lag the backend adds (sim)", in_range(0, 8)),
     P("driver.realtime", bool, False, "pace the simulator at the sub-frame rate"),
+    P("driver.projector_state_file", str, "", "publish the projector's watchdog lease here "
+      "(empty = off)"),
+    P("driver.projector_lease_s", float, 0.05, "watchdog: the laser goes dark this long after "
+      "the last strobe command, s", in_range(0.001, 1.0)),
     P("code.length", int, 16, "code length N (sub-frames per period)", power_of_two(4, 128)),
     P("code.mode", str, "async", "cyclic orthogonal set: async (log2 N) or sync (N-1)",
       one_of("async", "sync")),

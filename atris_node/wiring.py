@@ -22,6 +22,7 @@ from atris_node.pipeline import Pipeline, PipelineConfig
 from atris_node.sectors import SectorLayout
 from drivers import Camera, Projector
 from drivers import open_backend as registry_open_backend
+from drivers.watchdog import LeasedProjector
 
 #: default 64-bit NAME when none is configured: a fixed prefix and the unit id
 DEFAULT_NAME_PREFIX = 0x0A70_0000_0000_0000
@@ -46,6 +47,9 @@ def open_driver(config: Config, opener: Callable[..., tuple[Camera, Projector]] 
     """Open the configured camera and projector (laser off)."""
     name, settings = driver_settings(config)
     camera, projector = (opener or registry_open_backend)(name, **settings)
+    if config["driver.projector_state_file"]:
+        projector = LeasedProjector(projector, config["driver.projector_state_file"],
+                                    config["driver.projector_lease_s"])
     projector.off()
     return camera, projector
 
