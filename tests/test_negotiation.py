@@ -122,6 +122,17 @@ def test_units_starting_within_10ms_reach_unique_codes_within_1s(make_fleet, mod
     assert_safe(fleet, 3.0)
 
 
+def test_eight_async_units_fill_the_seven_codes_of_n128_and_the_highest_name_waits(make_fleet):
+    fleet = make_fleet(NAMES)
+    fleet.start_all(spread_s=0.010)
+    fleet.run_until(1.0)
+    highest = NAMES.index(max(NAMES))
+    assert all(u.plan == Plan(128, 480.0) for u in fleet.units)
+    assert fleet.units[highest].state is NegotiationState.NO_CODE
+    assert sorted(r for r in owners(fleet) if r) == [2, 3, 5, 9, 17, 33, 65]
+    assert_safe(fleet, 1.0)
+
+
 def test_more_units_than_codes_grows_n_and_reports_the_output_rate_cost(make_fleet, caplog):
     fleet = make_fleet(NAMES[:6])
     fleet.start_all(spread_s=0.01)
