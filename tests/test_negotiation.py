@@ -431,8 +431,10 @@ def test_real_time_units_with_notifiers_and_own_message_echo():
     ch = channel()
     buses = [can.Bus(interface="virtual", channel=ch, receive_own_messages=True)
              for _ in range(3)]
+    changes: list[tuple[NegotiationState, int | None, Plan]] = []
     units = [Negotiator(bus, name, PLAN, i, window_s=0.05, reannounce_s=0.2,
-                        silence_timeout_s=0.6, listen_s=0.02)
+                        silence_timeout_s=0.6, listen_s=0.02,
+                        on_change=lambda *change: changes.append(change))
              for i, (bus, name) in enumerate(zip(buses, [0x30, 0x10, 0x20], strict=True))]
     try:
         for unit in units:
@@ -445,8 +447,45 @@ def test_real_time_units_with_notifiers_and_own_message_echo():
         assert all(u.state is NegotiationState.OWNED and u.may_strobe for u in units)
         assert len({u.code_row for u in units}) == 3
         assert all(u.conflict_reason is None for u in units)
+        owned = [(row, plan) for state, row, plan in changes if state is NegotiationState.OWNED]
+        assert sorted(owned) == sorted((u.code_row, PLAN) for u in units)
     finally:
         for unit in units:
             unit.stop()
         for bus in buses:
             bus.shutdown()
+
+
+class _FailingBus(can.BusABC):
+    """A bus whose receive fails once (as a bus-off would), then stays quiet."""
+
+    def __init__(self) -> None:
+        super().__init__(channel="failing")
+        self.failed = False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        pass
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if not self.failed:
+            self.failed = True
+            raise can.CanOperationError("bus-off while receiving")
+        time.sleep(timeout or 0.0)
+        return None, False
+
+
+def test_a_receive_error_in_the_notifier_thread_is_not_lost():
+    bus = _FailingBus()
+    unit = Negotiator(bus, 0x10, PLAN, 0, listen_s=0.0)
+    try:
+        unit.start()
+        deadline = time.monotonic() + 1.0
+        while not bus.failed and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)
+        with pytest.raises(BusError, match="bus-off while receiving"):
+            unit.tick()
+        assert not unit.may_strobe
+    finally:
+        unit.stop()
+        bus.shutdown()
