@@ -4,7 +4,8 @@ A recording is a directory of three files::
 
     meta.json       {"format": "atris-subframes", "version": 1, "height": H, "width": W,
                      "dtype": "uint8" | "uint16", "bits": 8..16, "count": K,
-                     "rate_hz": sub-frame rate or 0.0, "source": backend name}
+                     "rate_hz": sub-frame rate or 0.0, "source": backend name,
+                     "code_length": N, "code_row": 1-based Walsh row (0 = not known)}
     subframes.npy   (K, H, W) pixels, a standard NumPy .npy file (memory-mappable)
     index.csv       one row per sub-frame, in order:
                     sequence,device_time_s,host_time_s,exposure_us,chip
@@ -74,10 +75,12 @@ class RecordingWriter:
     ``close()`` (or use ``with``) to finish the recording; it is safe to call twice.
     """
 
-    def __init__(self, directory: str | Path, rate_hz: float = 0.0, source: str = "") -> None:
+    def __init__(self, directory: str | Path, rate_hz: float = 0.0, source: str = "",
+                 code: tuple[int, int] = (0, 0)) -> None:
         self.directory = Path(directory)
         self.rate_hz = float(rate_hz)
         self.source = source
+        self.code = code  # (N, 1-based Walsh row) strobed while recording; (0, 0) if none
         self.count = 0
         self._first: SubFrame | None = None
         self._pixels: IO[bytes] | None = None
@@ -127,7 +130,8 @@ class RecordingWriter:
         return {"format": FORMAT_NAME, "version": FORMAT_VERSION, "height": int(height),
                 "width": int(width), "dtype": str(first.pixels.dtype) if first else "uint8",
                 "bits": first.bits if first else 8, "count": self.count,
-                "rate_hz": self.rate_hz, "source": self.source}
+                "rate_hz": self.rate_hz, "source": self.source,
+                "code_length": self.code[0], "code_row": self.code[1]}
 
     def close(self) -> None:
         """Finish the recording: final .npy header, index flushed, meta.json written."""
@@ -164,6 +168,8 @@ class RecordingMeta:
     count: int
     rate_hz: float = 0.0
     source: str = ""
+    code_length: int = 0
+    code_row: int = 0
 
 
 @dataclass(frozen=True)
@@ -200,7 +206,8 @@ def _checked_meta(path: Path, data: dict[str, Any]) -> RecordingMeta:
     try:
         meta = RecordingMeta(int(data["height"]), int(data["width"]), str(data["dtype"]),
                              int(data["bits"]), int(data["count"]),
-                             float(data.get("rate_hz", 0.0)), str(data.get("source", "")))
+                             float(data.get("rate_hz", 0.0)), str(data.get("source", "")),
+                             int(data.get("code_length", 0)), int(data.get("code_row", 0)))
     except (KeyError, TypeError, ValueError) as exc:
         raise _meta_error(path, f"missing or invalid field {exc}") from exc
     bits_ok = 1 <= meta.bits <= _DTYPES.get(meta.dtype, np.dtype(np.uint8)).itemsize * 8

@@ -189,14 +189,21 @@ def test_feature_cli_record_from_a_recording_and_errors(tmp_path: Path,
     assert "not empty" in capsys.readouterr().err
 
 
-def test_feature_cli_record_sim(tmp_path: Path) -> None:
+def test_feature_cli_record_sim_then_replay(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
     pytest.importorskip("drivers.sim")
-    pytest.importorskip("atris_node.codes")
-    argv = ["record", "--driver", "sim", "--scene", "indoor_lab", "--frames", "8",
-            "--out", str(tmp_path / "sim")]
+    pytest.importorskip("atris_node.demod")
+    argv = ["record", "--driver", "sim", "--scene", "indoor_lab", "--frames", "64",
+            "--code-length", "16", "--row", "3", "--out", str(tmp_path / "sim")]
     assert main(argv) == 0
     recording = Recording(tmp_path / "sim")
-    assert len(recording) == 8 and set(recording.index.chip[1:]) <= {0, 1}
+    assert len(recording) == 64 and set(recording.index.chip[1:]) == {0, 1}
+    assert (recording.meta.code_length, recording.meta.code_row) == (16, 3)
+    capsys.readouterr()
+    assert main(["replay", str(tmp_path / "sim"), "--json"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert rows and all(r["last_sequence"] - r["first_sequence"] == 15 for r in rows)
+    assert all(r["lag"] == 0 and r["snr"] > 2.0 for r in rows)
 
 
 class StripeCamera(Camera):

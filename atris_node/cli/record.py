@@ -24,7 +24,7 @@ logger = logging.getLogger(__name__)
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--driver", default=os.environ.get("ATRIS_DRIVER", "sim"),
                         choices=sorted(drivers.BACKENDS), help="camera backend (default sim)")
-    parser.add_argument("--scene", default=None, help="simulator scene (sim)")
+    parser.add_argument("--scene", default="indoor_lab", help="simulator scene (sim)")
     parser.add_argument("--seed", type=int, default=None, help="simulator noise seed (sim)")
     parser.add_argument("--path", default=None, help="recording to read (replay)")
     parser.add_argument("--rate-hz", type=float, default=None, help="sub-frame rate (depthai)")
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def backend_settings(args: argparse.Namespace) -> dict[str, Any]:
     """The keyword settings of the chosen backend that were given on the command line."""
-    wanted = {"sim": ("scene", "seed"), "replay": ("path",), "depthai": ("rate_hz",)}
+    wanted = {"sim": ("scene", "seed", "rate_hz"), "replay": ("path",), "depthai": ("rate_hz",)}
     given = {key: getattr(args, key) for key in wanted.get(args.driver, ())}
     return {key: value for key, value in given.items() if value is not None}
 
@@ -57,7 +57,9 @@ def run(args: argparse.Namespace) -> int:
     with camera, projector:
         if args.exposure_us is not None:
             camera.set_exposure_us(args.exposure_us)
-        with RecordingWriter(args.out, rate_hz=camera.rate_hz, source=args.driver) as writer:
+        code = (args.code_length, args.row) if chips is not None else (0, 0)
+        with RecordingWriter(args.out, rate_hz=camera.rate_hz, source=args.driver,
+                             code=code) as writer:
             count = record(camera, projector, writer, args.frames, chips=chips)
     print(f"recorded {count} sub-frames to {args.out}")
     return 0

@@ -5,7 +5,8 @@
 
 Each output line (or JSON object) gives the sequence range of the map, the lag the
 phase lock found, the SNR and the saturated fraction. Without ``--row`` the code is the
-shortest Walsh row whose ``chips[sequence % N]`` matches every recorded chip.
+one ``atris record`` wrote into meta.json, else the shortest Walsh row whose
+``chips[sequence % N]`` matches every recorded chip.
 """
 
 from __future__ import annotations
@@ -54,9 +55,12 @@ def infer_code(index: RecordingIndex, lengths: Sequence[int] = CODE_LENGTHS) -> 
 
 
 def _code(args: argparse.Namespace, camera: ReplayCamera) -> tuple[int, int]:
-    if args.row is None:
-        return infer_code(camera.recording.index)
-    return (args.code_length or 16), args.row
+    meta = camera.recording.meta
+    if args.row is not None:
+        return (args.code_length or meta.code_length or 16), args.row
+    if meta.code_row:
+        return meta.code_length, meta.code_row
+    return infer_code(camera.recording.index)
 
 
 def map_summary(dmap: DistortionMap) -> dict[str, Any]:
