@@ -489,3 +489,19 @@ def test_a_receive_error_in_the_notifier_thread_is_not_lost():
     finally:
         unit.stop()
         bus.shutdown()
+
+
+def test_a_bus_that_already_has_a_notifier_is_shared_or_refused_clearly():
+    bus = can.Bus(interface="virtual", channel=channel())
+    notifier = can.Notifier(bus, [])
+    try:
+        with pytest.raises(BusError, match="notifier="):
+            Negotiator(bus, 0x10, PLAN, 0).start()
+        shared = Negotiator(bus, 0x10, PLAN, 0, notifier=notifier)
+        shared.start()
+        assert len(notifier.listeners) == 1
+        shared.stop()
+        assert notifier.listeners == []
+    finally:
+        notifier.stop()
+        bus.shutdown()

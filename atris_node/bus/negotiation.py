@@ -249,7 +249,12 @@ class Negotiator:
         if self._poll:
             return
         if self._notifier is None:
-            self._notifier, self._own_notifier = can.Notifier(self.bus, [self._listener]), True
+            try:
+                self._notifier = can.Notifier(self.bus, [self._listener])
+            except ValueError as exc:  # python-can allows one active Notifier per bus
+                self._set_state(NegotiationState.IDLE, None, self.clock())
+                raise BusError(f"{exc}: pass the bus's Notifier as notifier=") from exc
+            self._own_notifier = True
         else:
             self._notifier.add_listener(self._listener)
 
