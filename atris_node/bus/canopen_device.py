@@ -205,7 +205,7 @@ class CanopenDevice:
         values = [raw["Distance"], NOT_AVAILABLE_I16, NOT_AVAILABLE_I16, NOT_AVAILABLE_U16,
                   int(valid)]
         if nearest is not None and measurement is not None:
-            values[1] = payloads.scaled(math.degrees(nearest.bearing_rad), 0.01, -18000, 18000)
+            values[1] = payloads.bearing_raw(nearest.bearing_rad)
             values[2] = _optional(measurement.closing_speed_mps, 0.01, -32767, 32767,
                                   NOT_AVAILABLE_I16)
             ttc = measurement.time_to_collision_s

@@ -59,9 +59,10 @@ def scaled(value: float, scale: float, lo: int, hi: int) -> int:
     """``round(value / scale)`` clamped to ``lo..hi``; NaN gives ``lo``."""
     if math.isnan(value):
         return lo
-    if math.isinf(value):
-        return hi if value > 0 else lo
-    return max(lo, min(hi, round(value / scale)))
+    steps = value / scale
+    if math.isinf(steps):  # infinite, or so large that the division overflowed
+        return hi if steps > 0 else lo
+    return max(lo, min(hi, round(steps)))
 
 
 def distance_raw(sector: SectorDistance | None) -> int:
@@ -124,9 +125,17 @@ def nearest_signals(measurement: Measurement | None, usable: bool) -> RawSignals
                 "Bearing": BEARING_NOT_AVAILABLE,
                 "ClosingSpeed": CLOSING_SPEED_NOT_AVAILABLE, "TimeToCollision": TTC_NOT_AVAILABLE}
     return {"Valid": 1, "Distance": distance_raw(nearest),
-            "Bearing": scaled(math.degrees(nearest.bearing_rad), 0.01, -18000, 18000),
+            "Bearing": bearing_raw(nearest.bearing_rad),
             "ClosingSpeed": _closing_speed_raw(measurement.closing_speed_mps),
             "TimeToCollision": _ttc_raw(measurement.time_to_collision_s)}
+
+
+def bearing_raw(bearing_rad: float) -> int:
+    """Raw bearing, 0.01 degree steps in -180..180; not available when not finite."""
+    if not math.isfinite(bearing_rad):
+        return BEARING_NOT_AVAILABLE
+    degrees = math.degrees(math.remainder(bearing_rad, math.tau))
+    return scaled(degrees, 0.01, -18000, 18000)
 
 
 def _closing_speed_raw(speed_mps: float | None) -> int:
