@@ -15,6 +15,7 @@ Example:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -82,6 +83,7 @@ def _table1_rows(code_length: int, mode: str) -> tuple[int, ...]:
     return tuple((1 << j) + 1 for j in range(code_length.bit_length() - 1))
 
 
+@functools.cache
 def code_rows(code_length: int, mode: str) -> tuple[int, ...]:
     """1-based Walsh rows a unit may claim for ``code_length`` and ``mode``, lowest first."""
     _check_code_length(code_length)
