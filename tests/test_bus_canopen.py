@@ -189,3 +189,29 @@ def test_atris_eds_prints_the_shipped_file(capsys: pytest.CaptureFixture[str]) -
 
     assert main(["eds"]) == 0
     assert capsys.readouterr().out == eds_text()
+
+
+def test_fuzz_update_never_fails() -> None:
+    """Any measurement and status fit the object dictionary's types."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from atris_node.types import FaultBits
+
+    device = CanopenDevice(canopen.Network(), NODE_ID)
+    floats = st.floats(allow_nan=True, allow_infinity=True)
+    sector = st.builds(SectorDistance, st.integers(-1, 20), floats,
+                       st.sampled_from(list(SectorState)), floats, floats)
+
+    @settings(max_examples=60, deadline=None)
+    @given(st.lists(sector, min_size=1, max_size=16), floats, st.integers(-5, 300), floats,
+           st.one_of(st.none(), floats))
+    def check(sectors: list[SectorDistance], newest: float, row: int, rate: float,
+              ttc: float | None) -> None:
+        measurement = Measurement(1, tuple(sectors), newest, 0, sectors[0], rate, ttc)
+        status = UnitStatus(UnitState.RUNNING, row, row, rate, row, FaultBits(row & 0xFF),
+                            rate, rate, rate, row)
+        device.update(measurement, status)
+        assert 0 <= device.node.sdo["Nearest"]["Distance_mm"].raw <= 0xFFFF
+
+    check()
