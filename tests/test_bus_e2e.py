@@ -55,7 +55,7 @@ def test_checker_sequence_states() -> None:
     assert states == [E2EState.INITIAL, E2EState.OK, E2EState.REPEATED,
                       E2EState.WRONG_SEQUENCE, E2EState.OK, E2EState.WRONG_SEQUENCE,
                       E2EState.OK]
-    assert checker.counts is not None and checker.counts[E2EState.OK] == 3
+    assert checker.counts[E2EState.OK] == 3
 
 
 def test_checker_wrong_crc_and_wrong_data_id() -> None:

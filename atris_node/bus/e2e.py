@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import enum
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from atris_node.errors import FrameDecodeError
 
@@ -109,10 +109,7 @@ class E2EChecker:
     max_delta_counter: int = 1
     last_counter: int | None = None
     last_time_s: float | None = None
-    counts: dict[E2EState, int] | None = None
-
-    def __post_init__(self) -> None:
-        self.counts = dict.fromkeys(E2EState, 0)
+    counts: dict[E2EState, int] = field(default_factory=lambda: dict.fromkeys(E2EState, 0))
 
     def check(self, data: bytes, now_s: float) -> E2EState:
         """Classify one received frame ``data`` that arrived at ``now_s`` (seconds)."""
@@ -143,7 +140,6 @@ class E2EChecker:
         return E2EState.OK if delta <= self.max_delta_counter else E2EState.WRONG_SEQUENCE
 
     def _count(self, state: E2EState) -> None:
-        assert self.counts is not None
         self.counts[state] += 1
         if not state.valid:
             logger.debug("E2E data ID 0x%04X: %s", self.data_id, state.value)

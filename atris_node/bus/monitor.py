@@ -163,7 +163,7 @@ class BusMonitor(can.Listener):
             if owner is None or owner[0] != unit_id:
                 continue
             state = checker.poll(now) or self.last_e2e[arbitration_id]
-            counts = {s.value: n for s, n in (checker.counts or {}).items() if n}
+            counts = {s.value: n for s, n in checker.counts.items() if n}
             summary[owner[1].suffix] = {"state": state.value, "counts": counts}
         return summary
 
