@@ -66,7 +66,12 @@ PARAMS: tuple[Param, ...] = (
     P("driver.name", str, "sim", "camera/projector backend", one_of("sim", "depthai", "replay")),
     P("driver.scene", str, "indoor_lab", "simulator scene: shipped name or TOML path"),
     P("driver.path", str, "", "recording directory for the replay backend"),
+    P("driver.loop", bool, False, "replay: start again at the end of the recording"),
     P("driver.seed", int, 1, "simulator noise seed", in_range(0, 2**32 - 1)),
+    P("driver.unit", int, 0, "simulator: which of the scene's unit mountings this unit uses",
+      in_range(0, 15)),
+    P("driver.rate_hz", float, 0.0, "simulator sub-frame rate, Hz; 0 = the scene's",
+      in_range(0.0, 10000.0)),
     P("driver.lag_sub_frames", int, 0, "strobe lag the backend adds (sim)", in_range(0, 8)),
     P("driver.realtime", bool, False, "pace the simulator at the sub-frame rate"),
     P("driver.projector_state_file", str, "", "publish the projector's watchdog lease here "

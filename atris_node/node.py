@@ -266,6 +266,9 @@ class Unit:
         kind = SlidingDemodulator if self.config["code.demod"] == "sliding" else BlockDemodulator
         self._demod = kind(chips, bits=bits, lag=lag)
         self._demod_key = key
+        set_code = getattr(self._projector, "set_code", None)
+        if set_code is not None:  # backends that strobe on the device (depthai Script)
+            set_code(chips)
         logger.info("unit %s: code row %d of N=%d", self.label, key[1], key[0])
 
     def _check_sub_frame(self, sub: SubFrame) -> None:

@@ -85,6 +85,33 @@ def run_unit(config: Config, duration_s: float | None = None,
     return unit
 
 
+def _shifted(strobe: Callable[[float, float], float], shift_s: float
+             ) -> Callable[[float, float], float]:
+    return lambda t0, t1: strobe(t0 + shift_s, t1 + shift_s)
+
+
+def couple_simulated_units(units: list[Unit]) -> int:
+    """Let every simulated unit see the other units' projectors, as they really strobe.
+
+    Each camera renders the others' line sheets with their recorded strobe timelines
+    (shifted from their simulated clocks to this one's), so a code collision between
+    units shows in the distortion maps. Returns the number of couplings made.
+    """
+    sims: list[Any] = [u.camera for u in units if hasattr(u.camera, "simulator")]
+    made = 0
+    for target in sims:
+        for source in sims:
+            if source is target:
+                continue
+            shift = target.time_origin_s - source.time_origin_s
+            strobe = _shifted(source.projector.strobe_function(), shift)
+            target.simulator.add_interferer(
+                source.simulator.mounting, source.simulator.scene.projector,
+                strobe, name=f"unit {source.simulator.unit}")
+            made += 1
+    return made
+
+
 @dataclass
 class FleetRun:
     """Units of a launch file running as threads on one in-process bus."""
@@ -101,6 +128,7 @@ class FleetRun:
             self.units.append(Unit(config, bus))
         for unit in self.units:
             unit.configure()
+        couple_simulated_units(self.units)
         for unit in self.units:
             unit.activate(threaded=True)
 

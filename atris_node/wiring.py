@@ -34,12 +34,15 @@ def driver_settings(config: Config) -> tuple[str, dict[str, Any]]:
     if name == "sim":
         return name, {"scene": config["driver.scene"], "seed": config["driver.seed"],
                       "lag_sub_frames": config["driver.lag_sub_frames"],
-                      "realtime": config["driver.realtime"]}
+                      "realtime": config["driver.realtime"], "unit": config["driver.unit"],
+                      "rate_hz": config["driver.rate_hz"] or None}
     if name == "replay":
         if not config["driver.path"]:
             raise ConfigError("driver.path: the replay driver needs a recording directory")
-        return name, {"path": config["driver.path"], "realtime": config["driver.realtime"]}
-    return name, {}
+        return name, {"path": config["driver.path"], "realtime": config["driver.realtime"],
+                      "loop": config["driver.loop"]}
+    return name, {"rate_hz": config["driver.rate_hz"] or 120.0,
+                  "code_length": config["code.length"]}
 
 
 def open_driver(config: Config, opener: Callable[..., tuple[Camera, Projector]] | None = None

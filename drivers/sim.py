@@ -113,6 +113,11 @@ class SimCamera(Camera):
         return replace(sub, host_time_s=self._clock(),
                        chip=self.projector.commanded_chip(sequence))
 
+    @property
+    def time_origin_s(self) -> float:
+        """Host ``time.monotonic()`` at simulated time 0 (sub-frame 0's exposure start)."""
+        return self._host_offset_s
+
     def factory_calibration(self) -> Calibration:
         """The simulator's true calibration."""
         return self.simulator.calibration()
