@@ -54,9 +54,9 @@ Array = npt.NDArray[np.generic]
 #: accumulator bytes processed per chunk (fits the L2 cache with its sub-frame rows)
 CHUNK_BYTES = 128 * 1024
 #: columns sampled for lock, ambient level and gain statistics: strips of this width ...
-STRIP_WIDTH = 8
+STRIP_WIDTH = 16
 #: ... at these fractions of the frame width (laser lines are horizontal: every row counts)
-STRIP_POSITIONS = (0.125, 0.375, 0.625, 0.875)
+STRIP_POSITIONS = (0.25, 0.75)
 #: a lock needs the best lag this many noise standard deviations above every other lag
 LOCK_SIGMAS = 6.0
 #: sub-frames (rounded up to whole code periods) a lock decision looks at
@@ -102,8 +102,8 @@ def _strip_starts(width: int) -> tuple[int, ...]:
                          for p in STRIP_POSITIONS}))
 
 
-def _strip_sample(image: Array) -> Array:
-    """All rows of the sampled column strips, (H, <= 4 * STRIP_WIDTH), same dtype.
+def strip_sample(image: Array) -> Array:
+    """All rows of the sampled column strips, (H, <= 2 * STRIP_WIDTH), same dtype.
 
     Strips are short contiguous runs of each row, so reading them touches few cache lines;
     laser lines are horizontal, so every row is kept.
@@ -129,7 +129,7 @@ def measure_gain(values: Array, code_length: int) -> tuple[float, float, float, 
     ``l = 2 (I_S - delta) / N``, ``PG = I_S / l``, ``SNR = I_S / delta``. Returns
     (PG, SNR, I_S, delta), all finite; PG = SNR = 0.0 when no laser signal is found.
     """
-    sample = _strip_sample(values).ravel().astype(np.float32)
+    sample = strip_sample(values).ravel().astype(np.float32)
     negative = np.minimum(sample, 0.0)
     sigma = float(np.sqrt(2.0 * float(negative @ negative) / sample.size))
     threshold = max(6.0 * sigma, 0.25 * float(sample.max()), 1.0)
