@@ -60,3 +60,23 @@ def time_per_item(fn: Callable[[], object], items: int, repeats: int = 7,
         fn()
         samples.append((time.perf_counter() - start) / max(items, 1))
     return Timing(min(samples), statistics.median(samples), repeats)
+
+
+def time_interleaved(work: dict[str, tuple[Callable[[], object], int]], repeats: int = 7,
+                     warmup: int = 1) -> dict[str, Timing]:
+    """Time several ``(fn, items)`` in turn within each repeat; per-item Timing by name.
+
+    Interleaving exposes every candidate to the same load on a shared machine, so ratios
+    between them stay meaningful when absolute times drift.
+    """
+    _check_repeats(repeats)
+    for fn, _ in work.values():
+        for _ in range(warmup):
+            fn()
+    samples: dict[str, list[float]] = {name: [] for name in work}
+    for _ in range(repeats):
+        for name, (fn, items) in work.items():
+            start = time.perf_counter()
+            fn()
+            samples[name].append((time.perf_counter() - start) / max(items, 1))
+    return {name: Timing(min(s), statistics.median(s), repeats) for name, s in samples.items()}

@@ -5,7 +5,8 @@ distinct synthetic sub-frames (ambient gradient, noise, strobed horizontal lines
 through :class:`~atris_node.demod.BlockDemodulator` and
 :class:`~atris_node.demod.SlidingDemodulator` (every ``push``: validation, sequence
 tracking, the update, the full-scale check, and for each map the statistics), and the
-same frames are copied with ``np.copyto`` in the same run. Rows (JSON fields relied on by
+same frames are copied with ``np.copyto`` in the same run, interleaved repeat by repeat
+so that both see the same machine load. Rows (JSON fields relied on by
 other tools): ``width``, ``height``, ``bits``, ``mode`` ("block" or "sliding"), ``ms``
 (median ms per sub-frame), ``copy_ms`` and ``ratio`` (``ms / copy_ms``).
 """
@@ -15,14 +16,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from atris_node import codes
-from atris_node.bench._timing import time_per_item
+from atris_node.bench._timing import time_interleaved, time_per_item
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.types import SubFrame
 
@@ -74,9 +75,9 @@ def _stream(frames: list[Pixels], bits: int) -> Iterator[SubFrame]:
         sequence += 1
 
 
-def _time_mode(mode: str, frames: list[Pixels], chips: npt.NDArray[np.uint8], bits: int,
-               repeats: int) -> float:
-    """Median ms per sub-frame of ``push`` on a primed demodulator."""
+def _mode_work(mode: str, frames: list[Pixels], chips: npt.NDArray[np.uint8],
+               bits: int) -> tuple[Callable[[], object], int]:
+    """``push`` of 2N sub-frames on a primed demodulator, and that count."""
     demod = MODES[mode](chips, bits, lag=0)
     stream = _stream(frames, bits)
     for _ in range(chips.size):
@@ -87,18 +88,18 @@ def _time_mode(mode: str, frames: list[Pixels], chips: npt.NDArray[np.uint8], bi
         for _ in range(count):
             demod.push(next(stream))
 
-    return time_per_item(work, count, repeats).median_ms
+    return work, count
 
 
-def _time_copy(frames: list[Pixels], repeats: int) -> float:
-    """Median ms per sub-frame of ``np.copyto`` of the same frames."""
+def _copy_work(frames: list[Pixels]) -> tuple[Callable[[], object], int]:
+    """``np.copyto`` of the same frames into one target, and their count."""
     target = np.empty_like(frames[0])
 
     def work() -> None:
         for frame in frames:
             np.copyto(target, frame)
 
-    return time_per_item(work, len(frames), repeats).median_ms
+    return work, len(frames)
 
 
 def reference_passes(frames: list[Pixels], repeats: int) -> dict[str, float]:
@@ -119,10 +120,13 @@ def measure(width: int, height: int, bits: int, length: int, *, repeats: int,
     """The rows of one frame format: one per mode."""
     chips = codes.walsh_chips(length, codes.code_set(length)[-1])
     frames = scene(width, height, bits, chips, saturated=saturated)
-    copy_ms = _time_copy(frames, repeats)
+    work = {"copy": _copy_work(frames)}
+    work.update({mode: _mode_work(mode, frames, chips, bits) for mode in MODES})
+    timings = time_interleaved(work, repeats)
+    copy_ms = timings["copy"].median_ms
     rows = []
     for mode in MODES:
-        ms = _time_mode(mode, frames, chips, bits, repeats)
+        ms = timings[mode].median_ms
         rows.append({"width": width, "height": height, "bits": bits, "mode": mode,
                      "ms": round(ms, 6), "copy_ms": round(copy_ms, 6),
                      "ratio": round(ms / copy_ms, 3)})
