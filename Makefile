@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml scripts/system-deps.sh
 
 ## run the main job: simulated units on an in-process virtual CAN bus
 run: $(STAMP)
-	$(VENV)/bin/atris codes --length 16
+	$(VENV)/bin/atris launch sim_fleet
 
 ## every test: lint and types (inside pytest), host tests
 test: $(STAMP)
