@@ -58,17 +58,28 @@ BASELINE_RANGE_M = (0.002, 5.0)
 MAX_DISTORTION_COEFFS = 14
 
 _CAMERA_KEYS = {"width_px", "height_px", "focal_px", "cx_px", "cy_px", "distortion",
-                "rms_px"}
+                "rms_px", "focal_sigma_px", "cx_sigma_px", "cy_sigma_px"}
 _LASER_KEYS = {"baseline_m", "baseline_sigma_m", "alpha_rad", "alpha_sigma_rad",
                "residual_rms_px", "residual_rms_mm"}
 
 
 @dataclass(frozen=True)
+class IntrinsicsSigma:
+    """Standard deviations of the focal length and the principal point, pixels."""
+
+    focal_px: float = 0.0
+    cx_px: float = 0.0
+    cy_px: float = 0.0
+
+
+@dataclass(frozen=True)
 class CameraFile:
-    """What a camera file holds: the model, its RMS reprojection error (px) and metadata."""
+    """What a camera file holds: the model, its RMS reprojection error (px), the standard
+    deviations of f, cx, cy (px) and metadata."""
 
     camera: CameraModel
     rms_px: float
+    sigma: IntrinsicsSigma = field(default_factory=IntrinsicsSigma)
     meta: dict[str, MetaValue] = field(default_factory=dict)
     board: dict[str, MetaValue] = field(default_factory=dict)
 
@@ -99,11 +110,13 @@ def toml_table(name: str, table: Mapping[str, object]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _camera_table(camera: CameraModel, rms_px: float) -> dict[str, object]:
+def _camera_table(camera: CameraModel, rms_px: float,
+                  sigma: IntrinsicsSigma) -> dict[str, object]:
     return {"width_px": camera.width_px, "height_px": camera.height_px,
             "focal_px": float(camera.focal_px), "cx_px": float(camera.cx_px),
             "cy_px": float(camera.cy_px), "distortion": [float(d) for d in camera.distortion],
-            "rms_px": float(rms_px)}
+            "rms_px": float(rms_px), "focal_sigma_px": float(sigma.focal_px),
+            "cx_sigma_px": float(sigma.cx_px), "cy_sigma_px": float(sigma.cy_px)}
 
 
 def _laser_table(laser: LaserCalibration, meta: Mapping[str, object]) -> dict[str, object]:
@@ -134,20 +147,25 @@ def _with_date(meta: Mapping[str, object]) -> dict[str, object]:
 
 
 def save_camera_file(path: str | Path, camera: CameraModel, rms_px: float,
-                     board: Mapping[str, object], meta: Mapping[str, object]) -> Path:
-    """Write a camera file (intrinsics, RMS reprojection error in px, board, date)."""
+                     board: Mapping[str, object], meta: Mapping[str, object], *,
+                     sigma: IntrinsicsSigma | None = None) -> Path:
+    """Write a camera file (intrinsics with their standard deviations, RMS reprojection
+    error in px, board, date)."""
     tables = {"meta": _with_date(meta), "board": dict(board),
-              "camera": _camera_table(camera, rms_px)}
+              "camera": _camera_table(camera, rms_px, sigma or IntrinsicsSigma())}
     return _write(path, "camera", tables)
 
 
 def save_calibration(path: str | Path, calibration: Calibration,
-                     meta: Mapping[str, object]) -> Path:
+                     meta: Mapping[str, object], *, sigma: IntrinsicsSigma | None = None
+                     ) -> Path:
     """Write a unit calibration file; ``meta`` may carry ``rms_px`` (intrinsics) and the
-    laser fit's ``residual_rms_px`` / ``residual_rms_mm``, stored beside the values."""
+    laser fit's ``residual_rms_px`` / ``residual_rms_mm``, stored beside the values;
+    ``sigma`` are the intrinsics' standard deviations."""
     rms_px = float(meta.get("rms_px", 0.0))  # type: ignore[arg-type]
     other = {k: v for k, v in meta.items() if k != "rms_px"}
-    tables = {"meta": _with_date(other), "camera": _camera_table(calibration.camera, rms_px),
+    camera = _camera_table(calibration.camera, rms_px, sigma or IntrinsicsSigma())
+    tables = {"meta": _with_date(other), "camera": camera,
               "laser": _laser_table(calibration.laser, meta)}
     return _write(path, "unit", tables)
 
@@ -209,6 +227,11 @@ def _numbers(table: Mapping[str, object], key: str, where: str,
     if not isinstance(values, list):
         raise CalibrationError(f"{where}.{key} must be a list of numbers, got {values!r}")
     return [_number({key: v}, key, where, bounds) for v in values]
+
+
+def _parse_sigma(table: Mapping[str, object], where: str) -> IntrinsicsSigma:
+    return IntrinsicsSigma(*(_number(table, f"{name}_sigma_px", where, (0.0, 1000.0),
+                                     default=0.0) for name in ("focal", "cx", "cy")))
 
 
 def _parse_camera(table: Mapping[str, object], where: str) -> tuple[CameraModel, float]:
@@ -281,8 +304,9 @@ def load_camera_file(path: str | Path, expected_size: tuple[int, int] | None = N
     if doc.get("kind") not in ("camera", "unit"):
         raise CalibrationError(f"{where}: kind must be 'camera' or 'unit', "
                                f"got {doc.get('kind')!r}")
-    camera, rms_px = _parse_camera(_table(doc, "camera", _CAMERA_KEYS, where),
-                                   f"{where}: camera")
+    table = _table(doc, "camera", _CAMERA_KEYS, where)
+    camera, rms_px = _parse_camera(table, f"{where}: camera")
     _check_size(camera, expected_size, where)
-    return CameraFile(camera=camera, rms_px=rms_px, meta=_meta(doc, "meta"),
+    return CameraFile(camera=camera, rms_px=rms_px,
+                      sigma=_parse_sigma(table, f"{where}: camera"), meta=_meta(doc, "meta"),
                       board=_meta(doc, "board"))

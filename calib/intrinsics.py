@@ -2,7 +2,8 @@
 
 Views come from a folder of images or live from a camera backend. Corners are found with
 ``CharucoDetector.detectBoard`` and ``board.matchImagePoints``, then ``cv2.calibrateCamera``
-fits K (square pixels: fx = fy) and five distortion coefficients (k3 fixed at 0).
+fits K (square pixels: fx = fy) and the distortion k1, k2 (k3 and, by default, the
+tangential p1, p2 held at 0).
 Too few usable views, too few corners or an RMS reprojection error above the limit is a
 :class:`CalibrationError`, never a silently poor camera file.
 """
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -21,6 +22,7 @@ import numpy.typing as npt
 from atris_node.calibration import CameraModel
 from atris_node.errors import CalibrationError
 from calib.board import BoardDetection, BoardSpec, detect, to_gray8
+from calib.files import IntrinsicsSigma
 from calib.progress import progress
 
 logger = logging.getLogger(__name__)
@@ -33,13 +35,15 @@ MAX_RMS_PX = 1.0
 
 @dataclass(frozen=True)
 class IntrinsicsResult:
-    """The fitted camera, its RMS reprojection error (px) and the per-view errors (px)."""
+    """The fitted camera, its RMS reprojection error (px), the per-view errors (px) and
+    the standard deviations of f, cx, cy (px)."""
 
     camera: CameraModel
     rms_px: float
     view_names: tuple[str, ...]
     view_rms_px: tuple[float, ...]
     corners_per_view: tuple[int, ...]
+    sigma: IntrinsicsSigma = field(default_factory=IntrinsicsSigma)
 
 
 def image_files(folder: str | Path) -> list[Path]:
@@ -88,56 +92,62 @@ def _same_size(size: tuple[int, int], image: npt.NDArray[np.uint8],
     return here
 
 
-def _fit(found: list[BoardDetection], size: tuple[int, int]
-         ) -> tuple[float, npt.NDArray[np.float64], npt.NDArray[np.float64], list[float]]:
+@dataclass(frozen=True)
+class _Fit:
+    rms_px: float
+    matrix: npt.NDArray[np.float64]
+    distortion: npt.NDArray[np.float64]
+    sigma: npt.NDArray[np.float64]  # standard deviations of fx, fy, cx, cy, ... (px)
+    view_rms_px: list[float]
+
+
+def _fit(found: list[BoardDetection], size: tuple[int, int], tangential: bool) -> _Fit:
     width, height = size
     guess = np.array([[float(width), 0.0, width / 2], [0.0, float(width), height / 2],
                       [0.0, 0.0, 1.0]])
     flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_FIX_K3
+    flags |= 0 if tangential else cv2.CALIB_ZERO_TANGENT_DIST
     object_points = [d.object_points.reshape(-1, 1, 3) for d in found]
     image_points = [d.image_points.reshape(-1, 1, 2) for d in found]
-    rms, matrix, distortion, rvecs, tvecs = cv2.calibrateCamera(
+    rms, matrix, distortion, _, _, sigma, _, per_view = cv2.calibrateCameraExtended(
         object_points, image_points, size, guess, np.zeros(5), flags=flags)
-    view_rms = [_view_rms(d, _f64(r), _f64(t), _f64(matrix), _f64(distortion)) for d, r, t in zip(
-        found, rvecs, tvecs, strict=True)]
-    return float(rms), _f64(matrix), _f64(distortion).ravel(), view_rms
+    return _Fit(float(rms), _f64(matrix), _f64(distortion).ravel(), _f64(sigma).ravel(),
+                [float(e) for e in _f64(per_view).ravel()])
 
 
 def _f64(array: object) -> npt.NDArray[np.float64]:
     return np.asarray(array, dtype=np.float64)
 
 
-def _view_rms(detection: BoardDetection, rvec: npt.NDArray[np.float64],
-              tvec: npt.NDArray[np.float64], matrix: npt.NDArray[np.float64],
-              distortion: npt.NDArray[np.float64]) -> float:
-    projected, _ = cv2.projectPoints(detection.object_points, rvec, tvec, matrix, distortion)
-    error = projected.reshape(-1, 2) - detection.image_points
-    return float(np.sqrt(np.mean(np.sum(error**2, axis=1))))
-
-
 def calibrate_intrinsics(spec: BoardSpec, views: Iterable[tuple[str, npt.NDArray[np.uint8]]],
                          min_views: int = MIN_VIEWS, min_corners: int = MIN_CORNERS,
-                         max_rms_px: float = MAX_RMS_PX) -> IntrinsicsResult:
+                         max_rms_px: float = MAX_RMS_PX, *,
+                         tangential: bool = False) -> IntrinsicsResult:
     """Fit the camera to ChArUco ``views`` ((name, (H, W) uint8 image) pairs).
 
     Raises :class:`CalibrationError` for fewer than ``min_views`` views with at least
     ``min_corners`` corners each, or an RMS reprojection error above ``max_rms_px``.
+    Tangential distortion (p1, p2) is held at 0 unless ``tangential``: free, it trades
+    off against the principal point, whose row error becomes an error in every α_k.
     """
     names, found, size = _detections(spec, views, max(min_corners, 6))
     if len(found) < min_views:
         raise CalibrationError(f"only {len(found)} usable board views (with >= "
                                f"{min_corners} corners); at least {min_views} are needed")
-    rms, matrix, distortion, view_rms = _fit(found, size)
+    fit = _fit(found, size, tangential)
     logger.info("intrinsics from %d views: f = %.2f px, RMS %.3f px", len(found),
-                matrix[0, 0], rms)
-    if not np.isfinite(rms) or rms > max_rms_px:
-        raise CalibrationError(f"RMS reprojection error {rms:.3f} px is above the accepted "
-                               f"{max_rms_px} px; check the board size and the views")
+                fit.matrix[0, 0], fit.rms_px)
+    if not np.isfinite(fit.rms_px) or fit.rms_px > max_rms_px:
+        raise CalibrationError(f"RMS reprojection error {fit.rms_px:.3f} px is above the "
+                               f"accepted {max_rms_px} px; check the board size and the views")
+    matrix = fit.matrix
     camera = CameraModel(size[0], size[1], float((matrix[0, 0] + matrix[1, 1]) / 2),
                          float(matrix[0, 2]), float(matrix[1, 2]),
-                         tuple(float(c) for c in distortion))
-    return IntrinsicsResult(camera, rms, tuple(names), tuple(view_rms),
-                            tuple(d.count for d in found))
+                         tuple(float(c) for c in fit.distortion))
+    values = np.nan_to_num(fit.sigma[:4], nan=0.0, posinf=0.0)
+    sigma = IntrinsicsSigma(float(max(values[0], values[1])), float(values[2]), float(values[3]))
+    return IntrinsicsResult(camera, fit.rms_px, tuple(names), tuple(fit.view_rms_px),
+                            tuple(d.count for d in found), sigma)
 
 
 def live_views(backend: str, count: int, every: int = 10, **settings: object

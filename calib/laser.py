@@ -30,6 +30,7 @@ import numpy.typing as npt
 
 from atris_node.calibration import CameraModel, LaserCalibration
 from atris_node.errors import CalibrationError
+from calib.files import IntrinsicsSigma
 from calib.peaks import LineRows
 
 logger = logging.getLogger(__name__)
@@ -127,16 +128,20 @@ def _check_samples(samples: LineSamples, lines: int) -> None:
 
 
 def _to_laser(params: FloatArray, covariance: FloatArray, focal_px: float,
-              focal_sigma_px: float) -> LaserCalibration:
+              sigma: IntrinsicsSigma) -> LaserCalibration:
+    """b = −B/f and α_k = atan2(f, A_k), with standard errors from the fit's covariance
+    and the intrinsics' σ_f and σ_cy (a shift of cy shifts every A_k)."""
     slope, intercepts = params[0], params[1:]
     if slope >= 0:
         raise CalibrationError(f"the line rows do not move up with range (slope {slope:.3g} "
                                "px·m); the captures do not fit a projector above the camera")
     baseline = -slope / focal_px
     baseline_sigma = float(np.hypot(np.sqrt(covariance[0, 0]) / focal_px,
-                                    baseline * focal_sigma_px / focal_px))
+                                    baseline * sigma.focal_px / focal_px))
     alpha = np.arctan2(focal_px, intercepts)
-    alpha_sigma = focal_px / (focal_px**2 + intercepts**2) * np.sqrt(np.diag(covariance)[1:])
+    spread = focal_px**2 + intercepts**2
+    alpha_sigma = np.sqrt((focal_px / spread) ** 2 * (np.diag(covariance)[1:] + sigma.cy_px**2)
+                          + (intercepts / spread) ** 2 * sigma.focal_px**2)
     return LaserCalibration(float(baseline), tuple(float(a) for a in alpha),
                             baseline_sigma, tuple(float(s) for s in alpha_sigma))
 
@@ -152,11 +157,12 @@ def _range_residual_mm(samples: LineSamples, laser: LaserCalibration,
 
 
 def fit_lines(samples: LineSamples, lines: int, focal_px: float,
-              focal_sigma_px: float = 0.0) -> LaserFit:
-    """Fit b and α_k to ``samples`` of ``lines`` lines (see the module text)."""
+              sigma: IntrinsicsSigma | None = None) -> LaserFit:
+    """Fit b and α_k to ``samples`` of ``lines`` lines (see the module text); ``sigma``
+    are the intrinsics' standard deviations, added to the standard errors."""
     _check_samples(samples, lines)
     params, covariance, weights = _irls(_design(samples, lines), samples.u_px)
-    laser = _to_laser(params, covariance, focal_px, focal_sigma_px)
+    laser = _to_laser(params, covariance, focal_px, sigma or IntrinsicsSigma())
     residual_px = samples.u_px - _design(samples, lines) @ params
     residual_mm = _range_residual_mm(samples, laser, focal_px)
     inlier = weights >= 0.5
@@ -198,7 +204,7 @@ def flat_target_samples(camera: CameraModel, captures: list[tuple[float, LineRow
 
 
 def fit_flat_target(camera: CameraModel, captures: list[tuple[float, LineRows]],
-                    focal_sigma_px: float = 0.0) -> LaserFit:
+                    sigma: IntrinsicsSigma | None = None) -> LaserFit:
     """Method (a): b and α_k from a flat target at ≥ 3 known distances (m)."""
     distances = sorted({round(d, 4) for d, _ in captures})
     if len(distances) < MIN_DISTANCES:
@@ -208,8 +214,7 @@ def fit_flat_target(camera: CameraModel, captures: list[tuple[float, LineRows]],
         raise CalibrationError(f"target distances must be in metres within (0.05, 100), "
                                f"got {distances}")
     lines = _line_count(captures)
-    return fit_lines(flat_target_samples(camera, captures), lines, camera.focal_px,
-                     focal_sigma_px)
+    return fit_lines(flat_target_samples(camera, captures), lines, camera.focal_px, sigma)
 
 
 def _line_count(captures: Sequence[tuple[object, LineRows]]) -> int:
@@ -263,7 +268,7 @@ def svd_plane(points: FloatArray) -> PlaneCheck:
 
 
 def fit_board_planes(camera: CameraModel, views: list[tuple[BoardPlane, LineRows]],
-                     focal_sigma_px: float = 0.0) -> LaserFit:
+                     sigma: IntrinsicsSigma | None = None) -> LaserFit:
     """Method (b): b and α_k from laser lines on a board at ≥ 3 poses."""
     if len(views) < MIN_DISTANCES:
         raise CalibrationError(f"board-plane calibration needs at least {MIN_DISTANCES} "
@@ -275,7 +280,7 @@ def fit_board_planes(camera: CameraModel, views: list[tuple[BoardPlane, LineRows
     capture = np.concatenate([np.full(len(k), i) for i, (_, k) in enumerate(per_view)])
     samples = LineSamples(points[:, 1] / points[:, 2] * camera.focal_px, 1.0 / points[:, 2],
                           line, capture.astype(np.int64))
-    fit = fit_lines(samples, lines, camera.focal_px, focal_sigma_px)
+    fit = fit_lines(samples, lines, camera.focal_px, sigma)
     planes = tuple(svd_plane(points[(line == k) & fit.inlier]) for k in range(lines))
     return LaserFit(fit.laser, fit.residual_rms_px, fit.residual_rms_mm, samples,
                     fit.residual_px, fit.residual_mm, fit.inlier, planes)

@@ -4,23 +4,24 @@ What is written (see :mod:`calib.captures` for the layout):
 
 - ChArUco views for the intrinsics: the board texture warped through the true camera
   (:func:`calib.synthetic.render_board_view`), blur and noise;
-- flat-target captures at several distances (and one more for ``verify``): strobed
-  sub-frames of a wall perpendicular to the optical axis, with ambient light, sensor
-  noise and laser glints (outliers), demodulated over one Walsh code period;
+- flat-target captures at several distances (and one more for ``verify``): sub-frames
+  strobed with the scene's Walsh code and demodulated over one code period. For a scene
+  of the simulator (``atris_node.sim``) the scene is rebuilt with only a wall
+  perpendicular to the optical axis at the distance and a pole in front of it (its
+  columns are outliers), and rendered by :class:`atris_node.sim.Simulator`, demodulated by
+  :class:`atris_node.demod.BlockDemodulator`. The built-in ``synthetic`` scene draws
+  Gaussian stripes with ambient light, noise and laser glints (outliers) instead;
 - board-with-laser views: the board view plus a distortion map whose lines are the
-  intersections of the true light planes with the board plane (drawn from the geometry);
+  intersections of the true light planes with the board plane, drawn from the geometry
+  (the simulator has no textured board);
 - ``truth.calib.toml``: the true calibration, in the unit file format.
-
-The truth comes from the scene: ``synthetic`` is built in (1280×800, f = 763 px,
-b = 75 mm, three lines); other names are looked up with the simulator
-(``atris_node.sim.load_scene``) when it is installed.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -30,6 +31,8 @@ import numpy.typing as npt
 from atris_node import codes
 from atris_node.calibration import Calibration, CameraModel, LaserCalibration
 from atris_node.errors import CalibrationError
+from atris_node.sim import Scene, Simulator, load_scene
+from atris_node.sim.raycast import Box, Plane, Shape
 from calib.board import BoardSpec
 from calib.captures import BoardLaserCapture, CaptureSet, FlatCapture, write_manifest
 from calib.files import save_calibration
@@ -67,6 +70,22 @@ class SimulationSettings:
     seed: int = 0
 
 
+@dataclass(frozen=True)
+class SceneSource:
+    """Where flat-target maps come from: the simulator's scene, or the built-in drawing."""
+
+    truth: Calibration
+    settings: SimulationSettings
+    scene: Scene | None = None
+
+    def flat_map(self, distance_m: float, rng: np.random.Generator) -> npt.NDArray[np.int32]:
+        """Demodulated map of a flat target at ``distance_m``."""
+        if self.scene is None:
+            return flat_target_map(self.truth, distance_m, self.settings, rng)
+        seed = self.settings.seed * 100_000 + round(distance_m * 1000)
+        return simulated_flat_map(self.scene, distance_m, seed)
+
+
 def built_in_truth() -> Calibration:
     """The truth of the ``synthetic`` scene."""
     camera = CameraModel(1280, 800, 763.0, 641.3, 398.2)
@@ -74,20 +93,12 @@ def built_in_truth() -> Calibration:
     return Calibration(camera=camera, laser=laser)
 
 
-def scene_truth(scene: str, seed: int) -> Calibration:
-    """The true calibration of ``scene`` (built in, or from the simulator)."""
+def scene_source(scene: str, settings: SimulationSettings) -> SceneSource:
+    """The truth and flat-target renderer of ``scene`` (built in, or a simulator scene)."""
     if scene == BUILT_IN_SCENE:
-        return built_in_truth()
-    try:
-        from atris_node import sim
-    except ImportError as exc:
-        raise CalibrationError(f"scene {scene!r} needs the simulator (atris_node.sim), which "
-                               f"is not available; accepted here: {BUILT_IN_SCENE!r}") from exc
-    simulator = sim.Simulator(sim.load_scene(scene), seed=seed)  # type: ignore[attr-defined]
-    truth = simulator.calibration()
-    if not isinstance(truth, Calibration):
-        raise CalibrationError(f"the simulator gave no calibration for scene {scene!r}")
-    return truth
+        return SceneSource(built_in_truth(), settings)
+    loaded = load_scene(scene)
+    return SceneSource(Simulator(loaded, seed=settings.seed).calibration(), settings, loaded)
 
 
 def flat_rows(truth: Calibration, distance_m: float) -> npt.NDArray[np.float64]:
@@ -126,6 +137,46 @@ def flat_target_map(truth: Calibration, distance_m: float, settings: SimulationS
     return total
 
 
+def wall_scene(scene: Scene, distance_m: float, pole: bool = True) -> Scene:
+    """``scene`` with only a wall perpendicular to unit 0's optical axis at ``distance_m``
+    (camera frame, m) and, with ``pole``, a thin pole at 0.8·distance (outliers)."""
+    mounting = scene.mountings[0]
+    axis = mounting.rotation[:, 2]
+    wall = Plane(albedo=0.7, name="calibration wall", normal=tuple(-axis),
+                 point_m=tuple(mounting.camera_to_vehicle([0.0, 0.0, distance_m])))
+    shapes: list[Shape] = [wall]
+    if pole:
+        near = 0.8 * distance_m
+        x_m = 0.5 * near * (scene.camera.width_px / 2) / scene.camera.focal_px
+        centre = mounting.camera_to_vehicle([x_m, 0.0, near])
+        shapes.append(Box(albedo=0.5, name="pole", center_m=tuple(centre),
+                          size_m=(0.03, 0.02 * distance_m, 10.0)))
+    return replace(scene, shapes=tuple(shapes), mountings=(mounting,), interferers=())
+
+
+def simulated_flat_map(scene: Scene, distance_m: float, seed: int) -> npt.NDArray[np.int32]:
+    """Demodulated (H, W) int32 map of :func:`wall_scene`, from the simulator."""
+    from atris_node.demod import BlockDemodulator
+
+    chips = codes.walsh_chips(scene.code_length, scene.code_row)
+    simulator = Simulator(wall_scene(scene, distance_m), chips=chips, seed=seed)
+    demodulator = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
+    for sequence in range(len(chips)):
+        distortion_map = demodulator.push(simulator.render(sequence))
+    if distortion_map is None:
+        raise CalibrationError("the demodulator gave no map after one code period")
+    return np.asarray(distortion_map.values, dtype=np.int32)
+
+
+def check_lines_in_view(truth: Calibration, distance_m: float, margin_px: float = 5.0) -> None:
+    """Refuse a target distance at which a line falls outside the image."""
+    rows = flat_rows(truth, distance_m)[:, 0]
+    if rows.min() < margin_px or rows.max() > truth.camera.height_px - 1 - margin_px:
+        raise CalibrationError(f"at {distance_m} m line rows {np.round(rows, 1).tolist()} "
+                               f"leave the {truth.camera.height_px}-row image; choose other "
+                               "distances")
+
+
 def _save_png(path: Path, image: npt.NDArray[np.uint8]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), image):
@@ -139,10 +190,17 @@ def _save_map(path: Path, values: npt.NDArray[np.int32]) -> None:
     np.save(path, values.astype(np.int16) if small else values, allow_pickle=False)
 
 
+def board_distances_m(spec: BoardSpec, camera: CameraModel) -> tuple[float, float]:
+    """Board distances (m) at which the board spans 75 % down to 34 % of the image width."""
+    near = camera.focal_px * spec.size_m[0] / (0.75 * camera.width_px)
+    return near, 2.2 * near
+
+
 def _intrinsic_views(out: Path, spec: BoardSpec, camera: CameraModel,
                      settings: SimulationSettings, rng: np.random.Generator) -> list[str]:
     names = []
-    poses = random_poses(spec, camera, settings.intrinsic_views, rng)
+    poses = random_poses(spec, camera, settings.intrinsic_views, rng,
+                         distance_m=board_distances_m(spec, camera))
     for index, pose in enumerate(progress(poses, "board views", "view")):
         name = f"intrinsics/view_{index:03d}.png"
         _save_png(out / name, render_board_view(spec, camera, pose, rng))
@@ -150,24 +208,39 @@ def _intrinsic_views(out: Path, spec: BoardSpec, camera: CameraModel,
     return names
 
 
-def _flat_captures(out: Path, truth: Calibration, distances: Sequence[float],
-                   settings: SimulationSettings, rng: np.random.Generator, *,
-                   folder: str) -> list[FlatCapture]:
+def _flat_captures(out: Path, source: SceneSource, distances: Sequence[float],
+                   rng: np.random.Generator, *, folder: str) -> list[FlatCapture]:
     captures = []
     for distance in progress(distances, f"{folder} target", "distance"):
+        check_lines_in_view(source.truth, distance)
         name = f"{folder}/z_{distance:.3f}m.npy"
-        _save_map(out / name, flat_target_map(truth, distance, settings, rng))
+        _save_map(out / name, source.flat_map(distance, rng))
         captures.append(FlatCapture(float(distance), name))
     return captures
 
 
+def _laser_board_distances_m(spec: BoardSpec, truth: Calibration) -> tuple[float, float]:
+    """Board distances (m) at which the whole line fan fits on 70 % of the board height."""
+    near, far = board_distances_m(spec, truth.camera)
+    cot = 1.0 / np.tan(np.asarray(truth.laser.alpha_rad))
+    fan = float(np.ptp(cot))
+    far = min(far, 0.7 * spec.size_m[1] / fan) if fan > 0 else far
+    if far < 1.1 * near:
+        raise CalibrationError(f"the board ({spec.size_m[1]:.2f} m high) is too small for "
+                               f"the line fan ({np.degrees(fan):.1f}° of cot α) in view; "
+                               "use a larger --square-mm")
+    return near, far
+
+
 def _poses_with_every_line(spec: BoardSpec, truth: Calibration, count: int,
                            rng: np.random.Generator) -> list[BoardPose]:
-    """Board poses on which every line crosses the board over at least half its width."""
+    """Board poses on which every line crosses the board over a quarter of the width."""
+    cot = 1.0 / np.tan(np.asarray(truth.laser.alpha_rad))
+    aim = (float(np.mean(cot)), -truth.laser.baseline_m)  # the middle of the fan
     poses: list[BoardPose] = []
     for _ in range(50):
-        for pose in random_poses(spec, truth.camera, count, rng, distance_m=(0.5, 1.3),
-                                 tilt_deg=20.0):
+        for pose in random_poses(spec, truth.camera, count, rng, tilt_deg=20.0, aim_y=aim,
+                                 distance_m=_laser_board_distances_m(spec, truth)):
             rows = laser_rows_on_board(spec, truth.camera, truth.laser, pose)
             if np.all((rows >= 0).sum(axis=1) > 0.25 * truth.camera.width_px):
                 poses.append(pose)
@@ -199,15 +272,15 @@ def simulate_capture_set(scene: str, out: str | Path, settings: SimulationSettin
     root, spec = Path(out), spec or BoardSpec()
     root.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(settings.seed)
-    truth = scene_truth(scene, settings.seed)
+    source = scene_source(scene, settings)
+    truth = source.truth
     save_calibration(root / "truth.calib.toml", truth, {"method": "simulation truth",
                                                         "scene": scene})
     captures = CaptureSet(
         root, len(truth.laser.alpha_rad), spec, scene, "truth.calib.toml",
         tuple(_intrinsic_views(root, spec, truth.camera, settings, rng)),
-        tuple(_flat_captures(root, truth, settings.distances_m, settings, rng,
-                             folder="flat")),
-        tuple(_flat_captures(root, truth, [settings.verify_distance_m], settings, rng,
+        tuple(_flat_captures(root, source, settings.distances_m, rng, folder="flat")),
+        tuple(_flat_captures(root, source, [settings.verify_distance_m], rng,
                              folder="verify")),
         tuple(_board_laser_captures(root, spec, truth, settings, rng)))
     write_manifest(captures)

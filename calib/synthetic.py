@@ -53,7 +53,7 @@ def _corners_in_view(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
 
 
 def _random_pose(spec: BoardSpec, rng: np.random.Generator, distance_m: float,
-                 tilt_deg: float) -> BoardPose:
+                 tilt_deg: float, centre_y_m: float) -> BoardPose:
     tilt = np.radians(rng.uniform(-tilt_deg, tilt_deg, size=2))
     roll = np.radians(rng.uniform(-15.0, 15.0))
     tilted = cv2.Rodrigues(np.array([tilt[0], tilt[1], 0.0]))[0]
@@ -62,18 +62,22 @@ def _random_pose(spec: BoardSpec, rng: np.random.Generator, distance_m: float,
     rotation = np.asarray(cv2.Rodrigues(rvec)[0], dtype=np.float64)
     centre = np.array([spec.size_m[0] / 2, spec.size_m[1] / 2, 0.0])
     target = np.array([rng.uniform(-0.1, 0.1) * distance_m,
-                       rng.uniform(-0.08, 0.08) * distance_m, distance_m])
+                       centre_y_m + rng.uniform(-0.08, 0.08) * distance_m, distance_m])
     return BoardPose(rvec, target - rotation @ centre)
 
 
 def random_poses(spec: BoardSpec, camera: CameraModel, count: int, rng: np.random.Generator,
-                 *, distance_m: tuple[float, float] = (0.6, 1.3),
-                 tilt_deg: float = 30.0) -> list[BoardPose]:
-    """``count`` board poses fully in view (20 px margin), distances spread over the range."""
+                 *, distance_m: tuple[float, float] = (0.6, 1.3), tilt_deg: float = 30.0,
+                 aim_y: tuple[float, float] = (0.0, 0.0)) -> list[BoardPose]:
+    """``count`` board poses fully in view (20 px margin), distances spread over the range.
+
+    The board centre is aimed at camera ``y = aim_y[0]·z + aim_y[1]`` (m), plus jitter.
+    """
     poses: list[BoardPose] = []
     for distance in np.linspace(*distance_m, count):
         for _ in range(200):
-            pose = _random_pose(spec, rng, float(distance), tilt_deg)
+            centre_y = aim_y[0] * float(distance) + aim_y[1]
+            pose = _random_pose(spec, rng, float(distance), tilt_deg, centre_y)
             if _corners_in_view(spec, camera, pose, 20.0):
                 poses.append(pose)
                 break

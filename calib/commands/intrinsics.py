@@ -42,6 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-corners", type=int, default=intrinsics.MIN_CORNERS)
     parser.add_argument("--max-rms", type=float, default=intrinsics.MAX_RMS_PX,
                         help="largest accepted RMS reprojection error, px")
+    parser.add_argument("--tangential", action="store_true",
+                        help="also fit tangential distortion p1, p2 (default: held at 0)")
     add_output_arguments(parser)
 
 
@@ -72,13 +74,15 @@ def run(args: argparse.Namespace) -> int:
     if not views:
         raise CalibrationError("no board views were found; accepted: png, jpg, bmp, tif, pgm")
     result = intrinsics.calibrate_intrinsics(spec, views, args.min_views, args.min_corners,
-                                             args.max_rms)
+                                             args.max_rms, tangential=args.tangential)
     save_camera_file(args.out, result.camera, result.rms_px, spec.as_dict(),
-                     {"views": len(result.view_names), "method": "charuco"})
+                     {"views": len(result.view_names), "method": "charuco"},
+                     sigma=result.sigma)
     plot = plot_intrinsics(result, plot_path(args, args.out))
     camera = result.camera
     print_result({"camera_file": str(args.out), "focal_px": camera.focal_px,
-                  "cx_px": camera.cx_px, "cy_px": camera.cy_px,
+                  "focal_sigma_px": result.sigma.focal_px, "cx_px": camera.cx_px,
+                  "cy_px": camera.cy_px, "cy_sigma_px": result.sigma.cy_px,
                   "distortion": list(camera.distortion), "rms_px": result.rms_px,
                   "views": len(result.view_names), "plot": str(plot)}, args.json)
     return 0

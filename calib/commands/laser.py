@@ -27,7 +27,7 @@ from calib.commands.common import (
     print_result,
     split_pair,
 )
-from calib.files import load_camera_file, save_calibration
+from calib.files import CameraFile, load_camera_file, save_calibration
 from calib.peaks import LineRows, find_line_rows
 from calib.plots import plot_laser
 from calib.progress import progress
@@ -66,18 +66,20 @@ def _inputs(args: argparse.Namespace) -> tuple[CaptureSet | None, int, BoardSpec
     return captures, lines, captures.board if captures else board_from_args(args)
 
 
-def _flat_fit(args: argparse.Namespace, camera: CameraModel) -> laser.LaserFit:
+def _flat_fit(args: argparse.Namespace, camera_file: CameraFile) -> laser.LaserFit:
     captures, lines, _ = _inputs(args)
+    camera = camera_file.camera
     pairs = [(float(z), Path(m)) for z, m in (split_pair(t, "--flat") for t in args.flat)]
     if captures is not None:
         pairs += [(c.distance_m, captures.path(c.map)) for c in captures.flat]
     rows = [(z, _line_rows(path, lines, camera))
             for z, path in progress(pairs, "flat target", "capture")]
-    return laser.fit_flat_target(camera, rows)
+    return laser.fit_flat_target(camera, rows, camera_file.sigma)
 
 
-def _board_fit(args: argparse.Namespace, camera: CameraModel) -> laser.LaserFit:
+def _board_fit(args: argparse.Namespace, camera_file: CameraFile) -> laser.LaserFit:
     captures, lines, spec = _inputs(args)
+    camera = camera_file.camera
     pairs = [(Path(i), Path(m)) for i, m in (split_pair(t, "--board-view")
                                              for t in args.board_view)]
     if captures is not None:
@@ -89,7 +91,7 @@ def _board_fit(args: argparse.Namespace, camera: CameraModel) -> laser.LaserFit:
             raise CalibrationError(f"cannot read board view {image_path}")
         rvec, tvec = estimate_pose(spec, camera.matrix, np.asarray(camera.distortion), image)
         views.append((laser.board_plane(rvec, tvec), _line_rows(map_path, lines, camera)))
-    return laser.fit_board_planes(camera, views)
+    return laser.fit_board_planes(camera, views, camera_file.sigma)
 
 
 def result_values(fit: laser.LaserFit, out: Path) -> dict[str, object]:
@@ -111,12 +113,11 @@ def result_values(fit: laser.LaserFit, out: Path) -> dict[str, object]:
 
 def run(args: argparse.Namespace) -> int:
     camera_file = load_camera_file(args.camera)
-    camera = camera_file.camera
-    fit = _flat_fit(args, camera) if args.method == "flat" else _board_fit(args, camera)
-    save_calibration(args.out, Calibration(camera=camera, laser=fit.laser),
+    fit = (_flat_fit if args.method == "flat" else _board_fit)(args, camera_file)
+    save_calibration(args.out, Calibration(camera=camera_file.camera, laser=fit.laser),
                      {"method": f"laser-{args.method}", "rms_px": camera_file.rms_px,
                       "residual_rms_px": fit.residual_rms_px,
-                      "residual_rms_mm": fit.residual_rms_mm})
+                      "residual_rms_mm": fit.residual_rms_mm}, sigma=camera_file.sigma)
     values = result_values(fit, args.out)
     values["plot"] = str(plot_laser(fit, plot_path(args, args.out)))
     print_result(values, args.json)
