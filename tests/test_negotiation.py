@@ -493,7 +493,7 @@ def test_a_receive_error_in_the_notifier_thread_is_not_lost():
 
 def test_a_bus_that_already_has_a_notifier_is_shared_or_refused_clearly():
     bus = can.Bus(interface="virtual", channel=channel())
-    notifier = can.Notifier(bus, [])
+    notifier = can.Notifier(bus, [], timeout=0.05)
     try:
         with pytest.raises(BusError, match="notifier="):
             Negotiator(bus, 0x10, PLAN, 0).start()

@@ -110,7 +110,7 @@ class Negotiator:
         on_change: called with ``(state, code_row, plan)`` after every change.
     """
 
-    def __init__(self, bus: can.BusABC, name: int, plan: Plan, unit_id: int,  # noqa: PLR0917
+    def __init__(self, bus: can.BusABC, name: int, plan: Plan, unit_id: int,
                  clock: Clock = time.monotonic, window_s: float = 0.25,
                  reannounce_s: float = 1.0, silence_timeout_s: float = 3.0,
                  mode: str | None = None, *, listen_s: float = 0.1,
@@ -250,7 +250,7 @@ class Negotiator:
             return
         if self._notifier is None:
             try:
-                self._notifier = can.Notifier(self.bus, [self._listener])
+                self._notifier = can.Notifier(self.bus, [self._listener], timeout=0.1)
             except ValueError as exc:  # python-can allows one active Notifier per bus
                 self._set_state(NegotiationState.IDLE, None, self.clock())
                 raise BusError(f"{exc}: pass the bus's Notifier as notifier=") from exc
