@@ -47,6 +47,13 @@ class Shape:
         """Centre (3,) and radius (m) of a sphere holding the shape; radius inf if unbounded."""
         raise NotImplementedError
 
+    def bounds(self, time_s: float) -> tuple[FloatArray, FloatArray] | None:
+        """Axis-aligned box (lo, hi), each (3,), holding the shape; None if unbounded."""
+        centre, radius = self.bounding_sphere(time_s)
+        if not np.isfinite(radius):
+            return None
+        return centre - radius, centre + radius
+
     def intersect(self, origins: FloatArray, directions: FloatArray,
                   time_s: float = 0.0) -> tuple[FloatArray, FloatArray]:
         """Ray parameter (n,) (inf on a miss) and unit normals (n, 3)."""
@@ -117,6 +124,11 @@ class Box(Shape):
         centre = np.asarray(self.center_m) + self.offset(time_s)
         return centre, 0.5 * float(np.linalg.norm(self.size_m))
 
+    def bounds(self, time_s: float) -> tuple[FloatArray, FloatArray] | None:
+        centre = np.asarray(self.center_m) + self.offset(time_s)
+        half = np.abs(self._rotation()) @ (0.5 * np.asarray(self.size_m))
+        return centre - half, centre + half
+
     def _rotation(self) -> FloatArray:
         c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
         return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -156,6 +168,11 @@ class Cylinder(Shape):
         centre = np.asarray(self.center_m) + self.offset(time_s)
         centre[2] += 0.5 * self.height_m
         return centre, float(np.hypot(self.radius_m, 0.5 * self.height_m))
+
+    def bounds(self, time_s: float) -> tuple[FloatArray, FloatArray] | None:
+        base = np.asarray(self.center_m) + self.offset(time_s)
+        r = self.radius_m
+        return base - np.array([r, r, 0.0]), base + np.array([r, r, self.height_m])
 
     def _side(self, o: FloatArray, d: FloatArray) -> FloatArray:
         a = d[:, 0] ** 2 + d[:, 1] ** 2

@@ -246,21 +246,29 @@ class Simulator:
         return laser
 
     def _box(self, shape: Shape, time_s: float) -> tuple[int, int, int, int] | None:
-        """Observed pixel box (r0, r1, c0, c1) that may show ``shape``; None if off-image."""
-        centre, radius = shape.bounding_sphere(time_s)
-        x, y, z = self.mounting.vehicle_to_camera(centre)
+        """Observed pixel box (r0, r1, c0, c1) that may show ``shape``; None if off-image.
+
+        The shape's axis-aligned bounds are projected corner by corner (the image of a
+        box in front of the camera is the hull of its corners), the rectangle's edges
+        pushed through the lens distortion, widened by BOX_MARGIN_PX.
+        """
         cam, h, w = self.camera, self.camera.height_px, self.camera.width_px
-        if z - radius <= 0.05:
+        bounds = shape.bounds(time_s)
+        if bounds is None:
             return 0, h, 0, w
-        lo_v, hi_v = [cam.focal_px * min((x - radius) / (z - radius), (x - radius) / (z + radius)),
-                      cam.focal_px * max((x + radius) / (z - radius), (x + radius) / (z + radius))]
-        lo_u, hi_u = [cam.focal_px * min((y - radius) / (z - radius), (y - radius) / (z + radius)),
-                      cam.focal_px * max((y + radius) / (z - radius), (y + radius) / (z + radius))]
+        lo, hi = bounds
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        local = self.mounting.vehicle_to_camera(corners)
+        if local[:, 2].min() <= 0.05:
+            return 0, h, 0, w
+        u = cam.focal_px * local[:, 1] / local[:, 2]
+        v = cam.focal_px * local[:, 0] / local[:, 2]
         edge = np.linspace(0.0, 1.0, 9)
-        us = np.concatenate([lo_u + (hi_u - lo_u) * edge, np.full(9, lo_u), np.full(9, hi_u),
-                             lo_u + (hi_u - lo_u) * edge])
-        vs = np.concatenate([np.full(9, lo_v), lo_v + (hi_v - lo_v) * edge,
-                             lo_v + (hi_v - lo_v) * edge, np.full(9, hi_v)])
+        us = np.concatenate([u.min() + np.ptp(u) * edge, np.full(9, u.min()),
+                             np.full(9, u.max()), u.min() + np.ptp(u) * edge])
+        vs = np.concatenate([np.full(9, v.min()), v.min() + np.ptp(v) * edge,
+                             v.min() + np.ptp(v) * edge, np.full(9, v.max())])
         rows, cols = distort_pixels(us + cam.cy_px, vs + cam.cx_px, cam.model)
         r0 = max(int(np.floor(rows.min())) - BOX_MARGIN_PX, 0)
         r1 = min(int(np.ceil(rows.max())) + BOX_MARGIN_PX + 1, h)
