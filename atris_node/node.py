@@ -25,6 +25,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import can
@@ -34,6 +35,7 @@ from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.errors import AtrisError, CameraLostError, DemodulationError, NodeFaultError
+from atris_node.snapshot import obstacle_map, write_snapshot
 from atris_node.types import (
     DistortionMap,
     FaultBits,
@@ -114,6 +116,8 @@ class Unit:
         self._fatal: BaseException | None = None
         self._next_seq: int | None = None
         self._last_map: DistortionMap | None = None
+        self._last_sub: SubFrame | None = None
+        self._last_result: Any = None
         self._counter = 0
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
@@ -223,6 +227,7 @@ class Unit:
             self._on_camera_lost(exc)
             return
         self._record_strobe(allowed)
+        self._last_sub = sub
         self.faults &= ~FaultBits.CAMERA_LOST
         self.stats.sub_frames += 1
         dmap = self._demodulate(sub) if chips is not None else None
@@ -296,6 +301,7 @@ class Unit:
     def _on_map(self, dmap: DistortionMap) -> None:
         self._last_map = dmap
         result = self._pipeline.process(dmap)
+        self._last_result = result
         self.stats.measurements += 1
         self._publish(result.measurement)
 
@@ -346,6 +352,17 @@ class Unit:
             return None
         truth = simulator.truth(self._last_map.last_sequence, self._pipeline.layout)
         return tuple(truth.sector_distance_m)
+
+    def snapshot(self, directory: str | Path) -> list[Path]:
+        """Write the newest plain sub-frame, distortion map and top-down obstacle map."""
+        result = self._last_result
+        top_down = None
+        if self._pipeline is not None:
+            top_down = obstacle_map(
+                None if result is None else result.measurement, self._pipeline.layout,
+                None if result is None else result.points_vehicle_m,
+                float(self.config["pipeline.z_max_m"]))
+        return write_snapshot(directory, self.label, self._last_sub, self._last_map, top_down)
 
     # ----------------------------------------------------------------- output
     def status(self) -> UnitStatus:

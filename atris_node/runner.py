@@ -63,7 +63,7 @@ def stop_on_signals(stop: threading.Event) -> Iterator[None]:
 
 
 def run_unit(config: Config, duration_s: float | None = None,
-             stop: threading.Event | None = None) -> Unit:
+             stop: threading.Event | None = None, snapshot_dir: str | None = None) -> Unit:
     """Run one unit in the calling thread until ``duration_s`` passes or a signal arrives.
 
     The laser is off when this returns, whatever happened.
@@ -80,6 +80,8 @@ def run_unit(config: Config, duration_s: float | None = None,
                 unit.step()
                 unit.check()
     finally:
+        if snapshot_dir:
+            unit.snapshot(snapshot_dir)
         unit.shutdown()
         bus.shutdown()
     return unit

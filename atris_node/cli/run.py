@@ -14,10 +14,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until SIGINT/SIGTERM)")
     parser.add_argument("--json", action="store_true", help="print a summary object at the end")
+    parser.add_argument("--snapshot", metavar="DIR",
+                        help="at the end write plain, demodulated and top-down obstacle PNGs")
 
 
 def run(args: argparse.Namespace) -> int:
-    unit = run_unit(config_from_args(args), duration_s=args.duration)
+    unit = run_unit(config_from_args(args), duration_s=args.duration,
+                    snapshot_dir=args.snapshot)
     if args.json:
         stats = unit.stats
         print(json.dumps({"name": unit.label, "sub_frames": stats.sub_frames,
