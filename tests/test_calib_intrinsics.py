@@ -72,3 +72,24 @@ def test_invalid_board_is_a_clear_error() -> None:
         BoardSpec(square_m=0.03, marker_m=0.04)
     with pytest.raises(CalibrationError, match="unknown ArUco dictionary"):
         BoardSpec(dictionary="DICT_9X9_1")
+
+
+def test_live_views_come_from_a_camera_backend_with_the_projector_off() -> None:
+    from calib.intrinsics import live_views
+
+    views = live_views("sim", 3, every=2, scene="indoor_lab", seed=1)
+    assert [v.shape for _, v in views] == [(400, 640)] * 3
+    assert all(v.dtype == np.uint8 and v.max() > 0 for _, v in views)
+    assert len({name for name, _ in views}) == 3
+
+
+def test_live_scene_without_a_board_is_refused(capsys: pytest.CaptureFixture[str],
+                                                tmp_path: Path) -> None:
+    from atris_node.cli import main
+
+    code = main(["calib", "intrinsics", "--backend", "sim", "--driver-option",
+                 "scene=indoor_lab", "--views", "5", "--every", "1", "--out",
+                 str(tmp_path / "camera.toml")])
+    assert code == 1
+    assert "only 0 usable board views" in capsys.readouterr().err
+    assert not (tmp_path / "camera.toml").exists()
