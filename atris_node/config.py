@@ -61,6 +61,8 @@ P = Param
 PARAMS: tuple[Param, ...] = (
     P("unit.name", int, 0, "64-bit NAME for code negotiation; 0 = derived from unit_id",
       in_range(0, 2**64 - 1)),
+    P("unit.name_file", str, "", "file that keeps a random NAME across restarts (empty = "
+      "none)"),
     P("unit.unit_id", int, 0, "CAN ID block 0x500 + 0x10 * unit_id", in_range(0, 15)),
     P("unit.label", str, "front", "human-readable unit name"),
     P("driver.name", str, "sim", "camera/projector backend", one_of("sim", "depthai", "replay")),
@@ -79,6 +81,8 @@ PARAMS: tuple[Param, ...] = (
     P("driver.projector_lease_s", float, 0.05, "watchdog: the laser goes dark this long after "
       "the last strobe command, s", in_range(0.001, 1.0)),
     P("code.length", int, 16, "code length N (sub-frames per period)", power_of_two(4, 128)),
+    P("code.max_length", int, 128, "longest N this unit accepts or grows the plan to",
+      power_of_two(4, 128)),
     P("code.mode", str, "async", "cyclic orthogonal set: async (log2 N) or sync (N-1)",
       one_of("async", "sync")),
     P("code.demod", str, "block", "block (rate/N) or sliding (rate) demodulation",

@@ -31,6 +31,8 @@ from typing import Any
 import can
 
 from atris_node import wiring
+from atris_node.bus.canopen_device import CanopenDevice
+from atris_node.bus.publisher import Publisher
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
@@ -109,8 +111,9 @@ class Unit:
         self._demod: BlockDemodulator | SlidingDemodulator | None = None
         self._demod_key: tuple[int, int] | None = None
         self._pipeline: Any = None
-        self._publisher: Any = None
+        self._publisher: Publisher | CanopenDevice | None = None
         self._negotiator: Any = None
+        self._services: wiring.BusServices | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._fatal: BaseException | None = None
@@ -130,8 +133,10 @@ class Unit:
         self._camera, self._projector = wiring.open_driver(self.config, self._open_backend)
         self._projector.off()
         self._pipeline = wiring.make_pipeline(self.config, self._camera)
-        self._publisher = wiring.make_publisher(self.config, self.bus, self.clock)
-        self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera)
+        self._services = wiring.make_bus_services(self.config, self.bus)
+        self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
+        self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
+                                                  self._services)
         self.lifecycle = Lifecycle.INACTIVE
         logger.info("unit %s configured", self.label)
 
@@ -140,6 +145,7 @@ class Unit:
         if self.lifecycle != Lifecycle.INACTIVE:
             return
         self._stop.clear()
+        assert self._publisher is not None
         self._publisher.start()
         self._negotiator.start()
         self.lifecycle = Lifecycle.ACTIVE
@@ -158,6 +164,7 @@ class Unit:
             self._thread.join(timeout=5.0)
             self._thread = None
         self._negotiator.stop()
+        assert self._publisher is not None
         self._publisher.stop()
         self.lifecycle = Lifecycle.INACTIVE
 
@@ -168,6 +175,8 @@ class Unit:
         for part in (self._projector, self._camera):
             if part is not None:
                 part.close()
+        if self._services is not None:
+            self._services.stop()
         self.lifecycle = Lifecycle.FINALIZED
 
     def check(self) -> None:
@@ -196,6 +205,7 @@ class Unit:
 
     @property
     def publisher(self) -> Any:
+        """The unit's output: the DBC cycle Publisher or the CanopenDevice."""
         return self._publisher
 
     # ----------------------------------------------------------------- the loop
@@ -228,7 +238,9 @@ class Unit:
             return
         self._record_strobe(allowed)
         self._last_sub = sub
-        self.faults &= ~FaultBits.CAMERA_LOST
+        if self.faults & FaultBits.CAMERA_LOST:
+            self.faults &= ~FaultBits.CAMERA_LOST
+            self._emcy("emcy_reset")
         self.stats.sub_frames += 1
         dmap = self._demodulate(sub) if chips is not None else None
         if dmap is not None:
@@ -316,6 +328,8 @@ class Unit:
     def _on_camera_lost(self, exc: AtrisError) -> None:
         """Camera fault: laser off, invalid distances, reconnect with back-off."""
         self._laser_off()
+        if not self.faults & FaultBits.CAMERA_LOST:
+            self._emcy("emcy_camera_lost")
         self.faults |= FaultBits.CAMERA_LOST
         self.stats.camera_faults += 1
         logger.warning("unit %s: camera lost: %s", self.label, exc)
@@ -340,6 +354,12 @@ class Unit:
         self._projector = projector
         self._projector.off()
         self.stats.reconnects += 1
+
+    def _emcy(self, name: str) -> None:
+        """Send a CANopen EMCY (CANopen mode only; the DBC frames carry fault bits)."""
+        send = getattr(self._publisher, name, None)
+        if send is not None:
+            send()
 
     def _laser_off(self) -> None:
         if self._projector is not None:
@@ -377,7 +397,7 @@ class Unit:
             code_length=int(plan.code_length),
             chip_rate_hz=float(getattr(self._camera, "rate_hz", 0.0)),
             measurement_counter=self._counter,
-            faults=self.faults | self._negotiation_faults(),
+            faults=self.faults | self._negotiation_faults() | self._negotiator.faults,
             ambient_level=float(extra.get("ambient_level", 0.0)),
             saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
             foreign_code_energy=float(extra.get("foreign_code_energy", 0.0)),
@@ -402,6 +422,7 @@ class Unit:
             measurement = replace(measurement, counter=self._counter)
             if self.on_measurement is not None:
                 self.on_measurement(measurement)
+        assert self._publisher is not None
         self._publisher.update(measurement, self.status())
 
 

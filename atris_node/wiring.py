@@ -7,10 +7,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import can
+import canopen
 
+from atris_node.bus import negotiation_name
+from atris_node.bus.canopen_device import CanopenDevice
 from atris_node.bus.negotiation import Negotiator
 from atris_node.bus.negotiation_plan import Plan
 from atris_node.bus.publisher import Publisher
@@ -101,23 +106,60 @@ def make_pipeline(config: Config, camera: Camera) -> Pipeline:
     return Pipeline(p, calibration_of(config, camera), mounting_of(config, camera), layout)
 
 
-def make_publisher(config: Config, bus: can.BusABC, clock: Callable[[], float]) -> Publisher:
-    """The cycle publisher of this unit's frames."""
-    return Publisher(bus, config["unit.unit_id"], period_s=config["publish.period_s"],
-                     max_age_s=config["publish.max_age_s"], clock=clock,
-                     sector_count=config["pipeline.sector_count"], fd=config["bus.fd"])
+@dataclass
+class BusServices:
+    """The unit's one Notifier on its bus, and the canopen Network in CANopen mode."""
+
+    notifier: can.Notifier
+    network: canopen.Network | None = None
+
+    def stop(self) -> None:
+        """Stop receiving; the bus itself belongs to the caller. Idempotent."""
+        self.notifier.stop()
 
 
-def unit_name(config: Config) -> int:
-    """The configured NAME, or the default one derived from the unit id."""
-    return int(config["unit.name"]) or DEFAULT_NAME_PREFIX | int(config["unit.unit_id"])
+def make_bus_services(config: Config, bus: can.BusABC) -> BusServices:
+    """One Notifier per bus: canopen's own in CANopen mode, else a plain one."""
+    if config["bus.protocol"] == "canopen":
+        network = canopen.Network(bus)
+        network.connect()
+        assert network.notifier is not None
+        return BusServices(network.notifier, network)
+    return BusServices(can.Notifier(bus, [], timeout=0.1))
 
 
-def make_negotiator(config: Config, bus: can.BusABC, camera: Camera) -> Negotiator:
-    """The code negotiation service for this unit."""
+def make_output(config: Config, bus: can.BusABC, services: BusServices,
+                clock: Callable[[], float]) -> Publisher | CanopenDevice:
+    """The frames of this unit: the DBC cycle publisher, or a CANopen slave."""
+    if services.network is not None:
+        return CanopenDevice(services.network, config["bus.node_id"], clock=clock)
+    publisher = Publisher(bus, config["unit.unit_id"], period_s=config["publish.period_s"],
+                          max_age_s=config["publish.max_age_s"], clock=clock,
+                          sector_count=config["pipeline.sector_count"], fd=config["bus.fd"])
+    services.notifier.add_listener(publisher.health)
+    return publisher
+
+
+def unit_name(config: Config, camera: Camera) -> int:
+    """The NAME: configured, else from the camera serial, else persisted in a file, else
+    derived from the unit id (simulated units without a name file)."""
+    serial = getattr(camera, "serial", None)
+    name_file = config["unit.name_file"] or None
+    if config["unit.name"] or serial or name_file:
+        return negotiation_name.unit_name(config["unit.name"], serial,
+                                          None if name_file is None else Path(name_file))
+    return DEFAULT_NAME_PREFIX | int(config["unit.unit_id"])
+
+
+def make_negotiator(config: Config, bus: can.BusABC, camera: Camera,
+                    services: BusServices) -> Negotiator:
+    """The code negotiation service for this unit, on the unit's Notifier."""
     rate = float(camera.rate_hz) or 240.0
     plan = Plan(code_length=config["code.length"], chip_rate_hz=rate, mode=config["code.mode"])
     n = config.section("negotiation")
-    return Negotiator(bus, unit_name(config), plan, config["unit.unit_id"],
+    return Negotiator(bus, unit_name(config, camera), plan, config["unit.unit_id"],
                       window_s=n["window_s"], reannounce_s=n["reannounce_s"],
-                      silence_timeout_s=n["silence_timeout_s"])
+                      silence_timeout_s=n["silence_timeout_s"],
+                      max_code_length=config["code.max_length"],
+                      can_sync=bool(getattr(camera, "can_trigger", False)),
+                      notifier=services.notifier)
