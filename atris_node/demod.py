@@ -54,7 +54,7 @@ Array = npt.NDArray[np.generic]
 #: accumulator bytes processed per chunk (fits the L2 cache with its sub-frame rows)
 CHUNK_BYTES = 128 * 1024
 #: columns sampled for lock, ambient level and gain statistics: strips of this width ...
-STRIP_WIDTH = 16
+STRIP_WIDTH = 8
 #: ... at these fractions of the frame width (laser lines are horizontal: every row counts)
 STRIP_POSITIONS = (0.25, 0.75)
 #: a lock needs the best lag this many noise standard deviations above every other lag
@@ -229,16 +229,18 @@ class _PhaseLock:
 
 
 class _Kernels:
-    """Chunked in-place updates of one accumulator dtype; each returns the sub-frame's max.
+    """Chunked updates of one accumulator dtype and frame shape; each returns the frame max.
 
     Each chunk of rows is loaded once into cache and both summed and checked for full
     scale there, which costs much less than a separate pass over the frame.
     """
 
-    def __init__(self, dtype: np.dtype[np.signedinteger], width: int) -> None:
+    def __init__(self, dtype: np.dtype[np.signedinteger], shape: tuple[int, int]) -> None:
         self.dtype = dtype
-        self.width = width
-        self.rows = max(1, CHUNK_BYTES // (width * dtype.itemsize))
+        self.shape = shape
+        rows = max(1, CHUNK_BYTES // (shape[1] * dtype.itemsize))
+        self.chunks = [slice(r, r + rows) for r in range(0, shape[0], rows)]
+        self._diff = np.empty((rows, shape[1]), dtype=dtype)
 
     def signed(self, frame: Array) -> Array:
         """The frame as the accumulator adds it: int16 view of uint16 when exact."""
@@ -249,8 +251,7 @@ class _Kernels:
     def start(self, out: Array, frame: Array, sign: int) -> int:
         """``out = sign * frame``."""
         src, peak = self.signed(frame), 0
-        for r in range(0, frame.shape[0], self.rows):
-            rows = slice(r, r + self.rows)
+        for rows in self.chunks:
             if sign > 0:
                 np.copyto(out[rows], src[rows], casting="safe")
             else:
@@ -262,9 +263,9 @@ class _Kernels:
         """``acc += sign * frame``."""
         src, peak = self.signed(frame), 0
         op = np.add if sign > 0 else np.subtract
-        for r in range(0, frame.shape[0], self.rows):
-            rows = slice(r, r + self.rows)
-            op(acc[rows], src[rows], out=acc[rows], dtype=self.dtype)
+        for rows in self.chunks:
+            chunk = acc[rows]
+            op(chunk, src[rows], out=chunk, dtype=self.dtype)
             peak = max(peak, int(frame[rows].max()))
         return peak
 
@@ -272,12 +273,11 @@ class _Kernels:
         """``out = prev + sign * (new - old)``."""
         src_new, src_old, peak = self.signed(new), self.signed(old), 0
         op = np.add if sign > 0 else np.subtract
-        diff = np.empty((self.rows, new.shape[1]), dtype=self.dtype)
-        for r in range(0, new.shape[0], self.rows):
-            rows = slice(r, r + self.rows)
-            d = diff[: out[rows].shape[0]]
-            np.subtract(src_new[rows], src_old[rows], out=d, dtype=self.dtype)
-            op(prev[rows], d, out=out[rows])
+        for rows in self.chunks:
+            target = out[rows]
+            diff = self._diff[: target.shape[0]]
+            np.subtract(src_new[rows], src_old[rows], out=diff, dtype=self.dtype)
+            op(prev[rows], diff, out=target)
             peak = max(peak, int(new[rows].max()))
         return peak
 
@@ -459,9 +459,8 @@ class _Demodulator:
         return int(self._signs[(sequence - self._lag) % self._n])
 
     def _kernels_for(self, pixels: Array) -> _Kernels:
-        width = pixels.shape[1]
-        if self._kernels is None or self._kernels.width != width:
-            self._kernels = _Kernels(self._dtype, width)
+        if self._kernels is None or self._kernels.shape != pixels.shape:
+            self._kernels = _Kernels(self._dtype, (pixels.shape[0], pixels.shape[1]))
         return self._kernels
 
     def _info(self, sub: SubFrame, level: float, peak: int) -> _Info:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from atris_node import codes
+from atris_node.demod import STRIP_POSITIONS, STRIP_WIDTH
 from atris_node.errors import CodeError
 from atris_node.interference import InterferenceMeter, InterferenceReport
 from atris_node.types import SubFrame
@@ -41,7 +42,8 @@ def test_foreign_code_energy_is_measured_at_its_shift() -> None:
     for report in reports:
         assert report.foreign[5] == pytest.approx(4.0)  # (100 / 50)^2, same pixel count
         assert report.foreign[3] == 0.0 and report.own_excess == 0.0
-        assert report.own_energy == pytest.approx((50 * N / 2) ** 2 * 2 * 32)
+        columns = STRIP_WIDTH * len(STRIP_POSITIONS)
+        assert report.own_energy == pytest.approx((50 * N / 2) ** 2 * 2 * columns)
 
 
 def test_same_code_intruder_shows_as_own_excess() -> None:
