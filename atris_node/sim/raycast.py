@@ -235,10 +235,16 @@ def cast(shapes: Sequence[Shape], origins: FloatArray, directions: FloatArray,
 
 
 def occluded(shapes: Sequence[Shape], points: FloatArray, towards: FloatArray,
-             distance_m: FloatArray | float, time_s: float = 0.0) -> npt.NDArray[np.bool_]:
+             distance_m: FloatArray | float, time_s: float = 0.0,
+             clearance_m: FloatArray | float = 1e-4) -> npt.NDArray[np.bool_]:
     """True where the segment from ``points`` (n, 3) along unit ``towards`` (n, 3) or (3,)
-    hits a shape before ``distance_m`` (shadow rays; use inf for a light at infinity)."""
+    hits a shape before ``distance_m`` (shadow rays; use inf for a light at infinity).
+
+    The segment starts ``clearance_m`` (scalar or (n,)) away from the point, so a point
+    computed slightly inside its own surface does not shadow itself.
+    """
     dirs = np.broadcast_to(towards, points.shape)
-    start = points + dirs * 1e-4
+    clearance = np.asarray(clearance_m, dtype=np.float64)
+    start = points + dirs * (clearance[..., None] if clearance.ndim else clearance)
     hits = cast(shapes, start, np.ascontiguousarray(dirs), time_s)
-    return hits.t < np.asarray(distance_m) - 2e-4
+    return hits.t < np.asarray(distance_m) - 2.0 * clearance

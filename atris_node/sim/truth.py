@@ -101,7 +101,8 @@ def _reached(scene: Scene, mounting: Mounting, points_cam: FloatArray,
     in_fan = np.abs(phi) <= scene.projector.fan_rad / 2.0
     if not world.size:
         return in_fan
-    return in_fan & ~occluded(scene.shapes, world, -dirs, r, time_s)
+    # Eq. 1 points lie within ~1e-4 of r of their surface; clear that before testing
+    return in_fan & ~occluded(scene.shapes, world, -dirs, r, time_s, clearance_m=2e-3 * r)
 
 
 def sector_distances(points_vehicle: FloatArray, layout: SectorLayout) -> tuple[
