@@ -4,11 +4,14 @@ A view is the board texture warped through ``H = K [r1 r2 t] A⁻¹`` (A maps bo
 to texture pixels), then blurred and given Gaussian noise. Laser lines on the board are
 drawn from the geometry: the intersection of each light plane ``y = z·cot α_k − b``
 (camera frame, see :mod:`atris_node.mounting`) with the board plane, as a Gaussian
-stripe across the board. The camera has no lens distortion here.
+stripe across the board. The camera's lens distortion (OpenCV k1, k2, p1, p2, k3) is
+applied to both: views by remapping every pixel through the inverse distortion, line
+rows by distorting a dense set of ideal samples.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -16,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.calibration import CameraModel, LaserCalibration
+from atris_node.geometry import distort_pixels, undistort_pixels
 from calib.board import BoardSpec, texture
 
 PX_PER_SQUARE = 120
@@ -46,7 +50,8 @@ def _corners_in_view(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
                      margin_px: float) -> bool:
     w, h = spec.size_m
     corners = np.array([[0, 0, 0], [w, 0, 0], [w, h, 0], [0, h, 0]], dtype=np.float64)
-    points, _ = cv2.projectPoints(corners, pose.rvec, pose.tvec, camera.matrix, None)
+    distortion = np.asarray(camera.distortion) if any(camera.distortion) else None
+    points, _ = cv2.projectPoints(corners, pose.rvec, pose.tvec, camera.matrix, distortion)
     uv = points.reshape(-1, 2)
     return bool(np.all(uv >= margin_px) and np.all(uv[:, 0] <= camera.width_px - margin_px)
                 and np.all(uv[:, 1] <= camera.height_px - margin_px))
@@ -97,45 +102,94 @@ def _texture_to_image(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
     return board_to_image @ np.linalg.inv(metres_to_texture)
 
 
+@functools.lru_cache(maxsize=1)
+def _ideal_fine_grid(camera: CameraModel, supersample: int
+                     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """For each pixel of the observed (distorted) fine grid, its ideal fine position
+    (column, row) under the camera's lens distortion; each (H·s, W·s) float64."""
+    s, half = supersample, (supersample - 1) / 2
+    rows, cols = np.mgrid[0:camera.height_px * s, 0:camera.width_px * s].astype(np.float64)
+    u_px, v_px = undistort_pixels((rows - half) / s, (cols - half) / s, camera)
+    return (v_px + camera.cx_px) * s + half, (u_px + camera.cy_px) * s + half
+
+
+def _warp(board: npt.NDArray[np.float32], homography: npt.NDArray[np.float64],
+          camera: CameraModel) -> npt.NDArray[np.float32]:
+    """The board texture seen through ``homography`` (texture to ideal fine pixels) and,
+    when the camera has any, its lens distortion: (H·s, W·s) float32."""
+    size = (camera.width_px * SUPERSAMPLE, camera.height_px * SUPERSAMPLE)
+    if not any(camera.distortion):
+        return np.asarray(cv2.warpPerspective(board, homography, size, flags=cv2.INTER_LINEAR,
+                                              borderValue=110.0), dtype=np.float32)
+    ideal_x, ideal_y = _ideal_fine_grid(camera, SUPERSAMPLE)
+    inverse = np.linalg.inv(homography)
+    w = inverse[2, 0] * ideal_x + inverse[2, 1] * ideal_y + inverse[2, 2]
+    map_x = ((inverse[0, 0] * ideal_x + inverse[0, 1] * ideal_y + inverse[0, 2]) / w)
+    map_y = ((inverse[1, 0] * ideal_x + inverse[1, 1] * ideal_y + inverse[1, 2]) / w)
+    return np.asarray(cv2.remap(board, map_x.astype(np.float32), map_y.astype(np.float32),
+                                cv2.INTER_LINEAR, borderValue=110.0), dtype=np.float32)
+
+
 def render_board_view(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
                       rng: np.random.Generator, *, noise_dn: float = 2.0,
                       blur_px: float = 0.7) -> npt.NDArray[np.uint8]:
-    """(height_px, width_px) uint8 camera image of the board on a grey background."""
+    """(height_px, width_px) uint8 camera image of the board on a grey background, with
+    the camera's lens distortion."""
     board = texture(spec, PX_PER_SQUARE, MARGIN_SQUARES * PX_PER_SQUARE).astype(np.float32)
     board = np.asarray(cv2.GaussianBlur(board * 0.8 + 20.0, (0, 0), 1.0))  # print: not 0, 255
-    homography = _texture_to_image(spec, camera, pose, SUPERSAMPLE)
-    fine = cv2.warpPerspective(board, homography, (camera.width_px * SUPERSAMPLE,
-                                                   camera.height_px * SUPERSAMPLE),
-                               flags=cv2.INTER_LINEAR, borderValue=110.0)
+    fine = _warp(board, _texture_to_image(spec, camera, pose, SUPERSAMPLE), camera)
     view = cv2.resize(fine, (camera.width_px, camera.height_px), interpolation=cv2.INTER_AREA)
     view = cv2.GaussianBlur(view, (0, 0), blur_px) if blur_px > 0 else view
     view = view + rng.normal(0.0, noise_dn, view.shape)
     return np.clip(np.rint(view), 0, 255).astype(np.uint8)
 
 
-def laser_rows_on_board(spec: BoardSpec, camera: CameraModel, laser: LaserCalibration,
-                        pose: BoardPose) -> npt.NDArray[np.float64]:
-    """True line rows on the board: (K, width_px) float64 image rows (absolute pixels) of
-    each light plane where it hits the board, -1.0 for columns off the board."""
+def _ideal_rows(camera: CameraModel, laser: LaserCalibration, pose: BoardPose,
+                columns: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """(K, n) ideal (undistorted) rows of each light plane on the board plane at the
+    ideal ``columns`` (absolute pixels)."""
     normal, d = pose.plane()
-    columns = np.arange(camera.width_px, dtype=np.float64)
-    rows = np.full((len(laser.alpha_rad), camera.width_px), -1.0)
     ray_x = (columns - camera.cx_px) / camera.focal_px
+    rows = np.empty((len(laser.alpha_rad), len(columns)))
     for k, alpha in enumerate(laser.alpha_rad):
         # a point of plane k on the ray (x', y', 1)·z: y' = cot α − b/z, and n·X = d
         # gives z (n_x x' + n_y cot α + n_z) − n_y b = d
         z = (d + normal[1] * laser.baseline_m) / (
             normal[0] * ray_x + normal[1] / np.tan(alpha) + normal[2])
-        y_over_z = 1.0 / np.tan(alpha) - laser.baseline_m / z
-        rows[k] = camera.cy_px + camera.focal_px * y_over_z
-    return _mask_off_board(spec, camera, pose, rows)
+        rows[k] = camera.cy_px + camera.focal_px * (1.0 / np.tan(alpha) - laser.baseline_m / z)
+    return rows
+
+
+def laser_rows_on_board(spec: BoardSpec, camera: CameraModel, laser: LaserCalibration,
+                        pose: BoardPose) -> npt.NDArray[np.float64]:
+    """True line rows on the board: (K, width_px) float64 observed image rows (absolute
+    pixels, lens distortion applied) of each light plane where it hits the board, -1.0
+    for columns off the board."""
+    if not any(camera.distortion):
+        columns = np.arange(camera.width_px, dtype=np.float64)
+        return _mask_off_board(spec, camera, pose, _ideal_rows(camera, laser, pose, columns),
+                               columns)
+    columns = np.linspace(-0.2 * camera.width_px, 1.2 * camera.width_px, 6 * camera.width_px)
+    ideal = _ideal_rows(camera, laser, pose, columns)
+    on_board = _mask_off_board(spec, camera, pose, ideal, columns) >= 0
+    observed_rows, observed_cols = distort_pixels(ideal, np.broadcast_to(columns, ideal.shape),
+                                                  camera)
+    targets = np.arange(camera.width_px, dtype=np.float64)
+    out = np.full((len(ideal), camera.width_px), -1.0)
+    for k in range(len(ideal)):
+        row = np.interp(targets, observed_cols[k], observed_rows[k])
+        hit = np.interp(targets, observed_cols[k], on_board[k].astype(np.float64)) > 0.999
+        out[k] = np.where(hit & (row >= 0) & (row <= camera.height_px - 1), row, -1.0)
+    return out
 
 
 def _mask_off_board(spec: BoardSpec, camera: CameraModel, pose: BoardPose,
-                    rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+                    rows: npt.NDArray[np.float64],
+                    columns: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``rows`` (K, n) at ideal ``columns`` (n,), -1.0 where off the board or the image."""
     inverse = np.linalg.inv(_texture_to_image(spec, camera, pose))
-    columns = np.broadcast_to(np.arange(camera.width_px, dtype=np.float64), rows.shape)
-    pixels = np.stack([columns, rows, np.ones_like(rows)], axis=-1) @ inverse.T
+    grid = np.broadcast_to(columns, rows.shape)
+    pixels = np.stack([grid, rows, np.ones_like(rows)], axis=-1) @ inverse.T
     tex = pixels[..., :2] / pixels[..., 2:3]
     margin = MARGIN_SQUARES * PX_PER_SQUARE - 0.5
     limit = np.array([spec.squares_x, spec.squares_y]) * PX_PER_SQUARE

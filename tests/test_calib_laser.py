@@ -118,3 +118,23 @@ def test_too_few_board_poses_are_rejected() -> None:
     rows = _flat_rows(1.0, np.random.default_rng(7))
     with pytest.raises(CalibrationError, match="at least 3 board poses"):
         fit_board_planes(CAMERA, [(plane, rows), (plane, rows)])
+
+
+def test_lens_distortion_is_rendered_and_recovered() -> None:
+    from calib.intrinsics import calibrate_intrinsics
+
+    camera = CameraModel(640, 400, 381.0, 319.5, 199.5, (-0.2, 0.08, 0.0, 0.0, 0.0))
+    rng = np.random.default_rng(8)
+    poses = random_poses(SPEC, camera, 8, rng, distance_m=(0.33, 0.7))
+    fitted = calibrate_intrinsics(SPEC, [(f"v{i}", render_board_view(SPEC, camera, p, rng))
+                                         for i, p in enumerate(poses)]).camera
+    assert fitted.focal_px == pytest.approx(381.0, rel=0.005)
+    assert fitted.distortion[0] == pytest.approx(-0.2, abs=0.01)
+    views = []
+    for pose in random_poses(SPEC, camera, 4, rng, distance_m=(0.35, 0.6), tilt_deg=20.0):
+        image = render_board_view(SPEC, camera, pose, rng)
+        rvec, tvec = estimate_pose(SPEC, fitted.matrix, np.asarray(fitted.distortion), image)
+        rows = laser_rows_on_board(SPEC, camera, LASER, pose)
+        views.append((board_plane(rvec, tvec),
+                      find_line_rows(render_line_map(rows, camera.height_px, rng), 3)))
+    _assert_close(fit_board_planes(fitted, views).laser)
