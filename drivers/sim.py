@@ -1,8 +1,9 @@
 """The ``sim`` backend: a camera and a projector sharing one :class:`atris_node.sim.Simulator`.
 
 Timing: the simulated clock is ``sequence / rate_hz`` (device time = exposure mid-time).
-Host times are that clock plus the ``time.monotonic()`` of opening, so they are on the
-host's monotonic scale; with ``realtime=True`` reads sleep until that time comes.
+Host times are the host clock when a sub-frame is handed over (its arrival, as a real
+driver stamps it); simulated time 0 is ``time_origin_s`` on that clock, and with
+``realtime=True`` a read sleeps until ``time_origin_s + sequence / rate_hz``.
 
 The projector's ``strobe(chip, seq)`` sets the chip of sub-frame ``seq + lag_sub_frames``
 (depthai's "next frame" habit with ``lag_sub_frames=1``); a chip holds until the next
