@@ -314,8 +314,18 @@ class Unit:
         self._last_map = dmap
         result = self._pipeline.process(dmap)
         self._last_result = result
+        self._count_deadline(dmap)
         self.stats.measurements += 1
         self._publish(result.measurement)
+
+    def _count_deadline(self, dmap: DistortionMap) -> None:
+        """A map not processed within one output period of its newest sub-frame is late."""
+        rate = float(getattr(self._camera, "rate_hz", 0.0))
+        if rate <= 0.0:
+            return
+        period_s = dmap.code_length / rate
+        if self.clock() - dmap.last_time_s > period_s:
+            self.stats.deadline_misses += 1
 
     def _on_bad_sub_frame(self, exc: DemodulationError) -> None:
         """A sub-frame that cannot be demodulated: drop it, restart the window, go invalid."""

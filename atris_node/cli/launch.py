@@ -128,6 +128,10 @@ def summarize(spec: LaunchSpec, runner: FleetRun | ProcessRun,
             "frames_sent": int(view.get("frames", 0)),
             "e2e_errors": errors.get(unit_id, 0),
         })
+    for entry, unit in zip(units, getattr(runner, "units", []), strict=False):
+        entry["measurements"] = unit.stats.measurements
+        entry["deadline_misses"] = unit.stats.deadline_misses
+        entry["dropped_sub_frames"] = unit.stats.dropped_sub_frames
     return {"launch": spec.name, "mode": spec.mode, "units": units,
             "error_frames": monitor.error_frames, "unknown_frames": monitor.unknown_frames}
 
