@@ -50,8 +50,9 @@ SATURATED_SIGMA_PX = 0.5
 SATURATION_WINDOW_PX = 8
 #: peaks kept per column beyond one per line (reflections, foreign light)
 EXTRA_PEAKS = 4
-#: continuity cost of a line with no samples in the neighbouring columns, pixels
-UNKNOWN_TRACK_COST_PX = 1e4
+#: agreed samples a block of columns / a whole line needs to serve as continuity reference
+MIN_BLOCK_SAMPLES = 4
+MIN_LINE_SAMPLES = 16
 #: columns per block of the continuity reference used to resolve overlapping bands
 CONTINUITY_BLOCK = 32
 
@@ -126,6 +127,7 @@ class Extraction:
     ambiguous: int  # peaks whose line could not be told from order and continuity
     rows_read: int  # map rows read (union of bands plus fit padding)
     unassigned: int  # strong peaks inside the bands that belong to no line (foreign light)
+    foreign_columns: BoolArray  # (W,) columns holding such peaks
     line_snr: tuple[float, ...]  # median SNR of the accepted samples per line, 0 if none
 
 
@@ -342,48 +344,122 @@ def _assign_up(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
 
 
 def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
-    """(W,) block median of the good rows around each column; inf where a block has none."""
+    """(W,) median of the good rows in each block of CONTINUITY_BLOCK columns (at least
+    MIN_BLOCK_SAMPLES of them); elsewhere the median of all good rows when there are at
+    least MIN_LINE_SAMPLES; inf where no reference can be trusted."""
     w = rows.size
     nb = -(-w // CONTINUITY_BLOCK)
     padded = np.full(nb * CONTINUITY_BLOCK, np.inf)
     padded[:w] = np.where(good, rows, np.inf)
     blocks = np.sort(padded.reshape(nb, CONTINUITY_BLOCK), axis=1)
     count = np.isfinite(blocks).sum(axis=1)
-    median = np.where(count > 0, blocks[np.arange(nb), count // 2], np.inf)
+    overall = float(np.median(rows[good])) if good.sum() >= MIN_LINE_SAMPLES else np.inf
+    median = np.where(count >= MIN_BLOCK_SAMPLES, blocks[np.arange(nb), count // 2], overall)
     return np.asarray(np.repeat(median, CONTINUITY_BLOCK)[:w], dtype=np.float64)
 
 
 def _continuity_cost(rows: IntArray, differ: BoolArray, ref: FloatArray) -> FloatArray:
     """(W,) summed distance (px) of the differing assigned rows to their line's
-    reference; a line without a reference costs UNKNOWN_TRACK_COST_PX."""
-    dist = np.where(np.isfinite(ref), np.abs(rows - np.where(np.isfinite(ref), ref, 0.0)),
-                    UNKNOWN_TRACK_COST_PX)
-    return np.asarray(np.where(differ & (rows >= 0), dist, 0.0).sum(axis=0), np.float64)
+    reference; inf where one of them has no reference (continuity cannot judge)."""
+    used = differ & (rows >= 0)
+    dist = np.where(used, np.abs(rows - np.where(np.isfinite(ref), ref, 0.0)), 0.0)
+    unknown = (used & ~np.isfinite(ref)).any(axis=0)
+    return np.where(unknown, np.inf, dist.sum(axis=0))
 
 
-def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int) -> tuple[IntArray, int]:
-    """(K, W) row of each line per column (-1 = none) and the count of ambiguous samples.
+@dataclass(frozen=True)
+class VisibilityPrior:
+    """Where each line would be seen if a surface were there, from the calibration and
+    the mounting: it tells a missing line that is explained (below the ground, off the
+    image, out of range) from one that is not.
+
+    ``cot_alpha`` (K,) cot α_k; ``ground_range_m`` (K, W) float64 camera range z (m) at
+    which line k's plane meets the ground (plus clearance) in column c, ``np.inf`` when it
+    never does; other fields in pixels and metres.
+    """
+
+    cot_alpha: FloatArray
+    focal_px: float
+    cy_px: float
+    height_px: int
+    baseline_m: float
+    z_max_m: float
+    ground_range_m: FloatArray
+
+    def range_of(self, rows: IntArray) -> FloatArray:
+        """(K, W) Eq. 1 range (m) of assigned rows (observed, no lens correction: this is
+        a plausibility check); inf where unassigned or at/below the singular row."""
+        f = self.focal_px
+        den = f * self.cot_alpha[:, None] - (rows - self.cy_px)
+        ok = (rows >= 0) & (den > 0)
+        return np.where(ok, f * self.baseline_m / np.where(ok, den, 1.0), np.inf)
+
+    def unexplained(self, rows: IntArray) -> IntArray:
+        """(W,) number of unassigned lines that should be visible at the range of their
+        nearest assigned neighbour (above ground, inside the image, within z_max)."""
+        z = self.range_of(rows)
+        near = _nearest_neighbour_range(z, np.argsort(self.cot_alpha))
+        f = self.focal_px
+        with np.errstate(divide="ignore"):
+            row = self.cy_px + f * self.cot_alpha[:, None] - f * self.baseline_m / near
+        expected = (rows < 0) & np.isfinite(near) & (near <= self.z_max_m)
+        expected &= (near < self.ground_range_m) & (row >= 0) & (row < self.height_px)
+        return np.asarray(expected.sum(axis=0), dtype=np.int64)
+
+
+def _nearest_neighbour_range(z: FloatArray, order: IntArray) -> FloatArray:
+    """(K, W): for each line, the finite range of the assigned line nearest to it in
+    image order (the nearer range on a tie), inf where a column has none."""
+    k_count = z.shape[0]
+    best = np.full(z.shape, np.inf)
+    best_gap = np.full(z.shape, k_count + 1)
+    for pos, k in enumerate(order):
+        for other_pos, j in enumerate(order):
+            if j == k:
+                continue
+            gap = abs(other_pos - pos)
+            better = np.isfinite(z[j]) & ((gap < best_gap[k]) | ((gap == best_gap[k]) &
+                                                                 (z[j] < best[k])))
+            best[k] = np.where(better, z[j], best[k])
+            best_gap[k] = np.where(better, gap, best_gap[k])
+    return best
+
+
+def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
+                   prior: VisibilityPrior | None = None) -> tuple[IntArray, IntArray]:
+    """(K, W) row of each line per column (-1 = none) and (W,) ambiguous samples per column.
 
     Order: lines keep their top-to-bottom order and each stays in its band. Both greedy
     matchings (top down and bottom up) have the most pairs; where they agree the identity
-    is certain. Where they differ, continuity decides: the matching whose differing rows
-    lie closer (by at least ``sep`` px) to each line's rows in the neighbouring columns
-    wins; otherwise the differing samples are dropped and counted ambiguous.
+    is certain. Where they differ, the ``prior`` (if given) prefers the matching that
+    leaves fewer lines missing without a reason; then continuity decides: the matching
+    whose differing rows lie closer (by at least ``sep`` px) to each line's rows in the
+    neighbouring columns wins; otherwise the differing samples are dropped and counted
+    ambiguous.
     """
-    down, up = _assign_down(peaks, bands), _assign_up(peaks, bands)
+    ordered = tuple(sorted(bands, key=lambda b: b.row_lo + b.row_hi))  # top of image first
+    down, up = _assign_down(peaks, ordered), _assign_up(peaks, ordered)
     differ = down != up
     if not differ.any():
-        return down, 0
-    ref = np.stack([_continuity_reference(down[k], ~differ[k] & (down[k] >= 0))
+        return down, np.zeros(peaks.shape[1], dtype=np.int64)
+    pick_up = pick_down = np.zeros(peaks.shape[1], dtype=np.bool_)
+    if prior is not None:
+        miss_down, miss_up = prior.unexplained(down), prior.unexplained(up)
+        pick_up, pick_down = miss_up < miss_down, miss_down < miss_up
+    settled = ~differ.any(axis=0) | pick_up | pick_down
+    good = ~differ | settled[None, :]
+    chosen = np.where(pick_up[None, :], up, down)
+    ref = np.stack([_continuity_reference(chosen[k], good[k] & (chosen[k] >= 0))
                     for k in range(len(bands))])
     cost_down = _continuity_cost(down, differ, ref)
     cost_up = _continuity_cost(up, differ, ref)
-    use_up = cost_up + sep <= cost_down
-    undecided = ~use_up & ~(cost_down + sep <= cost_up)
+    use_up = pick_up | (~settled & np.isfinite(cost_up) & (cost_up + sep <= cost_down))
+    use_down = pick_down | (~settled & np.isfinite(cost_down) & (cost_down + sep <= cost_up))
+    undecided = ~use_up & ~use_down
     rows = np.where(use_up[None, :], up, down)
     unsure = differ & undecided[None, :] & (down >= 0)
     rows[differ & undecided[None, :]] = -1
-    return rows, int(unsure.sum())
+    return rows, unsure.sum(axis=0).astype(np.int64)
 
 
 # --------------------------------------------------------------------------- extraction
@@ -405,12 +481,12 @@ def _refine(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArra
     return row, sigma, flat, inside & (flat | (ok & local_max))
 
 
-def _count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> int:
-    """Number of entries of ``peaks`` (row numbers, -1 = none) inside at least one band."""
+def _count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
+    """(W,) entries of (M, W) ``peaks`` (rows, -1 = none) inside at least one band."""
     inside = np.zeros(peaks.shape, dtype=np.bool_)
     for b in bands:
         inside |= (peaks >= b.row_lo) & (peaks < b.row_hi)
-    return int(inside.sum())
+    return np.asarray(inside.sum(axis=0), dtype=np.int64)
 
 
 def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float, ...]:
@@ -420,8 +496,8 @@ def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float
 
 
 def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
-                  bands: tuple[Band, ...], settings: ExtractorSettings,
-                  roi_bands: bool = True) -> Extraction:
+                  bands: tuple[Band, ...], settings: ExtractorSettings, *,
+                  roi_bands: bool = True, prior: VisibilityPrior | None = None) -> Extraction:
     """Line samples of a distortion map.
 
     Args:
@@ -432,14 +508,16 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         roi_bands: True reads only the bands (plus :func:`read_padding` rows); False
             searches every whole column for the K strongest peaks and identifies them by
             band and order.
+        prior: optional geometry that helps tell lines apart (see :func:`identify_lines`).
     """
     height = values.shape[0]
     spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
     background, noise = noise_floor(values, spans)
     peaks = strong_maxima(values, spans, background + settings.snr_min * noise,
                           settings.min_separation_px, len(bands) + EXTRA_PEAKS)
-    rows, ambiguous = identify_lines(peaks, bands, settings.min_separation_px)
-    unassigned = max(_count_in_bands(peaks, bands) - int((rows >= 0).sum()) - ambiguous, 0)
+    rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior)
+    ambiguous = int(unsure.sum())
+    unassigned = np.maximum(_count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
     line, cols = np.nonzero(rows >= 0)
     peak_rows = rows[line, cols]
     snr = (values[peak_rows, cols].astype(np.float64) - background) / noise
@@ -453,5 +531,26 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     return Extraction(samples, noise, background, tuple(spans),
                       weak=max(searched - int(strong.sum()) - ambiguous, 0),
                       dropped=int((~ok).sum()), ambiguous=ambiguous,
-                      rows_read=sum(hi - lo for lo, hi in spans), unassigned=unassigned,
+                      rows_read=sum(hi - lo for lo, hi in spans),
+                      unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)))
+
+
+def smooth_along_lines(samples: LineSamples, lines: int, width: int,
+                       taps: int = 5, max_step_px: float = 2.0) -> LineSamples:
+    """Median of ``taps`` neighbouring columns of the same line for each sample whose
+    neighbours all exist and lie within ``max_step_px`` of each other (one surface);
+    other samples (edges, gaps) keep their row. Returns new samples, σ_u unchanged."""
+    if taps < 3 or len(samples) == 0:
+        return samples
+    half = taps // 2
+    grid = np.full((lines, width + 2 * half), np.inf)
+    cols = samples.col_px.astype(np.int64)
+    grid[samples.line, cols + half] = samples.row_px
+    stack = np.stack([grid[samples.line, cols + half + d] for d in range(-half, half + 1)])
+    ok = np.isfinite(stack).all(axis=0)
+    ok[ok] = np.ptp(stack[:, ok], axis=0) <= max_step_px
+    row = samples.row_px.copy()
+    row[ok] = np.median(stack[:, ok], axis=0)
+    return LineSamples(samples.line, row, samples.col_px, samples.snr, samples.sigma_u_px,
+                       samples.saturated)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +30,10 @@ from atris_node.lines import (
     Extraction,
     ExtractorSettings,
     LineSamples,
+    VisibilityPrior,
     extract_lines,
     line_bands,
+    smooth_along_lines,
 )
 from atris_node.mounting import Mounting
 from atris_node.obstacles import (
@@ -49,6 +51,9 @@ from atris_node.types import DistortionMap, FaultBits, Measurement
 logger = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+#: columns next to one with foreign light that are not trusted either
+FOREIGN_MARGIN_COLUMNS = 4
 GROUND_MODES = ("calibrated", "estimate")
 
 
@@ -67,7 +72,7 @@ class PipelineConfig:
     fov_deg: float = 70.0
     min_points: int = 5
     quantile: float = 0.1
-    min_confidence: float = 0.2
+    min_confidence: float = 0.6  # below: INVALID (e.g. only peaks barely above snr_min)
     ground_clearance_m: float = 0.1
     ground_plane: str = "calibrated"
     ground_estimate_every: int = 30
@@ -79,7 +84,9 @@ class PipelineConfig:
     sigma_u_px: float = 0.05  # calibration floor, added in quadrature to the fit's σ_u
     #: foreign light is flagged when the negative/positive map energy or the fraction of
     #: peaks that belong to no line (per line and column) exceeds this
-    foreign_limit: float = 0.05
+    foreign_limit: float = 0.02
+    invalid_on_interference: bool = True  # flagged foreign light: every sector INVALID
+    smooth_columns: int = 5  # median of this many columns along each line (1 = off)
 
     def __post_init__(self) -> None:
         _check(self.peak_method in PEAK_METHODS, "peak_method", self.peak_method,
@@ -93,7 +100,7 @@ class PipelineConfig:
         for name in ("band_margin_px", "sigma_u_px", "foreign_limit", "ground_clearance_m"):
             _check(getattr(self, name) >= 0, name, getattr(self, name), ">= 0")
         for name in ("sector_count", "min_points", "ground_estimate_every",
-                     "object_min_points", "export_every"):
+                     "object_min_points", "export_every", "smooth_columns"):
             _check(getattr(self, name) >= 1, name, getattr(self, name), "an integer >= 1")
         _check(0.0 <= self.quantile <= 0.5, "quantile", self.quantile, "in [0, 0.5]")
         _check(0.0 <= self.min_confidence <= 1.0, "min_confidence", self.min_confidence,
@@ -133,6 +140,7 @@ class Diagnostics:
     line_snr: tuple[float, ...]
     foreign_energy: float
     unassigned_fraction: float
+    foreign_columns: int  # columns not used for sectors: foreign light in or next to them
     interference: bool
     ground: GroundPlane
     timings_ms: dict[str, float] = field(default_factory=dict)
@@ -167,19 +175,44 @@ class PipelineResult:
         return bits
 
 
-def foreign_energy(values: npt.NDArray[np.generic], spans: list[tuple[int, int]],
-                   background_dn: float, threshold_dn: float) -> float:
+def foreign_energy(dmap: DistortionMap, spans: tuple[tuple[int, int], ...],
+                   background_dn: float, threshold_dn: float) -> tuple[float, BoolArray]:
     """Energy of significantly negative map pixels over that of significantly positive
-    ones (0..inf, 0.0 when neither). Our own laser only adds positive values; a foreign
-    or non-orthogonal modulation leaves residuals of both signs."""
+    ones (0..inf, 0.0 when neither), and the (W,) columns holding such negative pixels.
+    Our own laser only adds positive values; a foreign or non-orthogonal modulation leaves
+    residuals of both signs. Only line-like negative pixels count (their left and right
+    neighbours are negative too), so shot noise in bright patches is not taken for
+    foreign light. Saturated pixels are left out (clipping breaks the sum)."""
     negative = positive = 0.0
+    columns = np.zeros(dmap.values.shape[1], dtype=np.bool_)
     for lo, hi in spans:
-        block = values[lo:hi].astype(np.float32) - np.float32(background_dn)
-        negative += float(-block[block < -threshold_dn].sum())
+        block = dmap.values[lo:hi].astype(np.float32) - np.float32(background_dn)
+        block[dmap.saturated[lo:hi]] = 0.0
+        low = _line_like(block < -threshold_dn, block < -threshold_dn / 2)
+        negative += float(-block[low].sum())
         positive += float(block[block > threshold_dn].sum())
+        columns |= low.any(axis=0)
     if negative == 0.0:
-        return 0.0
-    return negative / max(positive, threshold_dn, 1.0)
+        return 0.0, columns
+    return negative / max(positive, threshold_dn, 1.0), columns
+
+
+def _line_like(strong: BoolArray, weak: BoolArray) -> BoolArray:
+    """(H, W) ``strong`` pixels whose left and right neighbours are ``weak``."""
+    out = strong.copy()
+    out[:, 1:] &= weak[:, :-1]
+    out[:, :-1] &= weak[:, 1:]
+    out[:, [0, -1]] = False
+    return out
+
+
+def _widen(columns: BoolArray, margin: int) -> BoolArray:
+    """(W,) ``columns`` dilated by ``margin`` columns each side."""
+    out = columns.copy()
+    for d in range(1, margin + 1):
+        out[d:] |= columns[:-d]
+        out[:-d] |= columns[d:]
+    return out
 
 
 class Pipeline:
@@ -202,6 +235,7 @@ class Pipeline:
         self._sectors = config.sectors()
         self._tracker = ClosingTracker()
         self._ground = GroundPlane()
+        self._prior = visibility_prior(calibration, mounting, self._ground, config)
         self._counter = 0
         logger.debug("pipeline bands: %s", self.bands)
 
@@ -211,12 +245,16 @@ class Pipeline:
         timings: dict[str, float] = {}
         start = time.perf_counter()
         extraction = extract_lines(dmap.values, dmap.saturated, self.bands, self._extractor,
-                                   self.config.roi_bands)
+                                   roi_bands=self.config.roi_bands, prior=self._prior)
         timings["lines"] = _lap(start)
-        points, vehicle = self._triangulate(extraction.samples)
+        samples = smooth_along_lines(extraction.samples, len(self.bands),
+                                     self.calibration.camera.width_px,
+                                     self.config.smooth_columns)
+        points, vehicle = self._triangulate(samples)
         timings["triangulate"] = _lap(start)
         self._update_ground(vehicle[points.valid])
-        result = self._assemble(dmap, extraction, points, vehicle, timings)
+        result = self._assemble(dmap, replace(extraction, samples=samples), points, vehicle,
+                                timings)
         timings["sectors"] = _lap(start)
         self._export(result, dmap.last_sequence)
         timings["total"] = _lap(start)
@@ -246,29 +284,39 @@ class Pipeline:
         plane = estimate_ground(vehicle, self._ground)
         if plane is not None:
             self._ground = plane
+            self._prior = visibility_prior(self.calibration, self.mounting, plane, cfg)
         logger.debug("ground plane: %s (fit %s)", self._ground, plane is not None)
 
     def _assemble(self, dmap: DistortionMap, extraction: Extraction, points: Points,
                   vehicle: FloatArray, timings: dict[str, float]) -> PipelineResult:
         samples, valid = extraction.samples, points.valid
+        energy, negative = foreign_energy(dmap, extraction.spans, extraction.background_dn,
+                                          self.config.snr_min * extraction.noise_floor_dn)
+        foreign = _widen(extraction.foreign_columns | negative, FOREIGN_MARGIN_COLUMNS)
+        clean = ~foreign[samples.col_px.astype(np.int64)]
+        flagged = max(energy, extraction.unassigned / (len(self.bands) * foreign.size)) > (
+            self.config.foreign_limit)
+        if flagged and self.config.invalid_on_interference:
+            clean[:] = False
         obstacle = valid & (self._ground.height(vehicle) > self.config.ground_clearance_m)
-        data = SectorInput(vehicle, obstacle, samples.snr)
+        data = SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean])
         sectors = sector_distances(data, self.layout, self._sectors)
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(
             None if nearest is None else nearest.distance_m, dmap.last_time_s)
         measurement = Measurement(self._counter, sectors, dmap.last_time_s,
                                   dmap.last_sequence, nearest, closing, ttc)
-        found = self._objects(vehicle[obstacle]) if self.config.objects else None
+        found = self._objects(vehicle[obstacle & clean]) if self.config.objects else None
+        diagnostics = self._diagnostics(extraction, valid, (energy, int(foreign.sum())),
+                                        timings)
         return PipelineResult(measurement, samples, valid, points.xyz_m[valid], vehicle[valid],
-                              points.sigma_z_m[valid],
-                              self._diagnostics(dmap, extraction, valid, timings), found)
+                              points.sigma_z_m[valid], diagnostics, found)
 
-    def _diagnostics(self, dmap: DistortionMap, extraction: Extraction,
-                     valid: npt.NDArray[np.bool_], timings: dict[str, float]) -> Diagnostics:
-        slots = len(self.bands) * dmap.values.shape[1]
-        energy = foreign_energy(dmap.values, list(extraction.spans), extraction.background_dn,
-                                self.config.snr_min * extraction.noise_floor_dn)
+    def _diagnostics(self, extraction: Extraction, valid: npt.NDArray[np.bool_],
+                     foreign: tuple[float, int], timings: dict[str, float]) -> Diagnostics:
+        slots = len(self.bands) * extraction.foreign_columns.size
+        energy, columns = foreign
+        unassigned = extraction.unassigned / slots
         return Diagnostics(
             noise_floor_dn=extraction.noise_floor_dn,
             valid_fraction=float(valid.sum()) / slots,
@@ -276,10 +324,9 @@ class Pipeline:
             saturated=int(extraction.samples.saturated.sum()),
             no_return=int((~valid).sum()), rows_read=extraction.rows_read,
             line_snr=extraction.line_snr, foreign_energy=energy,
-            unassigned_fraction=extraction.unassigned / slots,
-            interference=max(energy, extraction.unassigned / slots) > self.config.foreign_limit,
-            ground=self._ground,
-            timings_ms=timings)
+            unassigned_fraction=unassigned, foreign_columns=columns,
+            interference=max(energy, unassigned) > self.config.foreign_limit,
+            ground=self._ground, timings_ms=timings)
 
     def _objects(self, obstacle_points: FloatArray) -> tuple[objects_mod.ObjectBox, ...]:
         return objects_mod.cluster_objects(obstacle_points, self.config.object_eps_m,
@@ -291,6 +338,25 @@ class Pipeline:
             return
         objects_mod.export_cloud(result.points_vehicle_m,
                                  Path(cfg.export_dir) / f"cloud_{sequence:08d}.ply")
+
+
+def visibility_prior(calibration: Calibration, mounting: Mounting, ground: GroundPlane,
+                     config: PipelineConfig) -> VisibilityPrior:
+    """The :class:`VisibilityPrior` of a calibrated, mounted unit over ``ground``: for each
+    line and column, the camera range z (m) where the line's plane comes down to the
+    ground clearance (inf where it never does)."""
+    cam, laser = calibration.camera, calibration.laser
+    cot = 1.0 / np.tan(np.asarray(laser.alpha_rad, dtype=np.float64))
+    v = (np.arange(cam.width_px) - cam.cx_px) / cam.focal_px
+    n_cam = np.asarray(ground.normal) @ mounting.rotation  # plane normal in the camera frame
+    origin = np.asarray(ground.normal) @ (
+        mounting.rotation @ np.array([0.0, -laser.baseline_m, 0.0]) + mounting.translation)
+    slope = n_cam[0] * v[None, :] + n_cam[1] * cot[:, None] + n_cam[2]  # (K, W) per metre
+    rise = config.ground_clearance_m - origin - ground.offset_m
+    ok = slope < 0
+    z = np.where(ok, rise / np.where(ok, slope, -1.0), np.inf)
+    return VisibilityPrior(cot, cam.focal_px, cam.cy_px, cam.height_px, laser.baseline_m,
+                           config.z_max_m, np.where(z > 0, z, np.inf))
 
 
 def _lap(start: float) -> float:
