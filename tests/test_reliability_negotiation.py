@@ -1,0 +1,195 @@
+"""The negotiation safety invariant while claims are lost on the bus.
+
+Every unit of a fake-clock :class:`Fleet` reads and writes through its own
+:class:`FaultyBus`, which drops frames it sends (``drop_tx``), frames it receives
+(``drop_rx``) or every frame with given identifiers (``drop_ids``). Loss cannot be told
+from silence, so the protocol cannot promise that no two units ever strobe one row; what
+it does promise, and what is checked on every unit's strobe timeline:
+
+1. Window: a unit strobes a row only after it sent a CLAIM of that row at least
+   ``window_s`` earlier and held the row since (a local rule; loss cannot break it).
+2. Yield: once a CLAIM of its row from a lower NAME under the same plan has reached a
+   unit, it does not strobe that row again until it re-claims it (same instant).
+3. Bounded sharing: two units strobe the same row only until the first CLAIM of the
+   lower NAME reaches the higher one, plus one tick. Without loss that is never
+   (claims cross inside the window); with a frame loss rate p a sharing outlives k
+   re-announce periods (``reannounce_s``) with probability about p**k.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import can
+import pytest
+
+from atris_node.bus.negotiation_frames import FrameKind, decode_name, make_id, parse_id
+from atris_node.bus.negotiation_plan import Plan
+from atris_node.bus.negotiation_sim import (
+    Fleet,
+    ShimBus,
+    overlaps,
+    plan_at,
+    strobe_intervals,
+    window_violations,
+)
+from atris_node.testing.faultbus import Faults, FaultyBus
+
+PLAN = Plan(code_length=16, chip_rate_hz=480.0)
+WINDOW_S = 0.25
+TICK_S = 0.005
+NAMES = [0x7A, 0x13, 0x5C, 0x21, 0x9E]
+_channels = itertools.count()
+
+
+class TappedBus(FaultyBus):
+    """A FaultyBus that records, on the fleet clock, what its unit sent (even when the
+    fault then dropped it) and what was delivered to it."""
+
+    def __init__(self, inner: ShimBus, faults: Faults, seed: int) -> None:
+        super().__init__(inner, faults, seed=seed)
+        self.clock = inner.clock
+        self.sent: list[tuple[float, can.Message]] = []
+        self.received: list[tuple[float, can.Message]] = []
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.sent.append((self.clock(), msg))
+        super().send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        msg, filtered = super()._recv_internal(timeout)
+        if msg is not None:
+            self.received.append((self.clock(), msg))
+        return msg, filtered
+
+
+class LossyFleet(Fleet):
+    """A Fleet whose units talk through :class:`TappedBus` with per-unit faults."""
+
+    faults: list[Faults]
+
+    def add(self, name: int, plan: Plan, unit_id: int) -> int:
+        index = super().add(name, plan, unit_id)
+        unit = self.units[index]
+        faults = Faults()
+        tapped = TappedBus(self.buses[index], faults, seed=100 + index)
+        unit.bus = tapped
+        self.buses[index] = tapped  # type: ignore[call-overload]
+        self.faults = [*getattr(self, "faults", []), faults]
+        return index
+
+
+MakeFleet = Callable[..., "LossyFleet"]
+
+
+@pytest.fixture
+def lossy_fleet() -> Iterator[MakeFleet]:
+    fleets: list[LossyFleet] = []
+
+    def make(names: list[int], **kwargs: Any) -> LossyFleet:
+        fleet = LossyFleet(f"reliability-negotiation-{next(_channels)}", PLAN, names,
+                           tick_s=TICK_S, **kwargs)
+        fleets.append(fleet)
+        return fleet
+
+    yield make
+    for fleet in fleets:
+        fleet.close()
+
+
+def delivered_lower_claims(fleet: LossyFleet, index: int) -> list[tuple[float, int]]:
+    """(time, row) of CLAIMs from a lower NAME under the same plan delivered to ``index``."""
+    unit, found = fleet.units[index], []
+    for t, msg in fleet.buses[index].received:
+        header = parse_id(msg.arbitration_id)
+        if header is None or header.kind is not FrameKind.CLAIM or len(msg.data) != 8:
+            continue
+        sender = fleet.units[header.identity.unit_id]
+        if decode_name(bytes(msg.data)) < unit.name and plan_at(sender, t) == plan_at(unit, t):
+            found.append((t, header.field))
+    return found
+
+
+def yield_violations(fleet: LossyFleet, end_s: float) -> list[tuple[int, float, int]]:
+    """Rule 2: strobing a row after a lower NAME's claim of it arrived, before re-claiming."""
+    bad = []
+    for index, unit in enumerate(fleet.units):
+        spans = strobe_intervals(unit, end_s)
+        for t, row in delivered_lower_claims(fleet, index):
+            if any(s0 <= t < s1 - TICK_S - 1e-9 and r == row for s0, s1, r in spans):
+                bad.append((index, t, row))
+    return bad
+
+
+def sharing_violations(fleet: LossyFleet, end_s: float) -> list[tuple[int, int, float, float]]:
+    """Rule 3: a shared row that outlived the first delivered claim of the lower NAME."""
+    bad = []
+    for i, j, start, end, row in overlaps(fleet, end_s):
+        low, high = sorted((i, j), key=lambda k: fleet.units[k].name)
+        heard = [t for t, r in delivered_lower_claims(fleet, high)
+                 if r == row and t >= start and fleet.units[low].name < fleet.units[high].name]
+        limit = (min(heard) + TICK_S) if heard else end_s
+        if end > limit + 1e-9:
+            bad.append((low, high, start, end))
+    return bad
+
+
+def assert_invariant(fleet: LossyFleet, end_s: float) -> None:
+    assert window_violations(fleet, end_s, WINDOW_S) == []
+    assert yield_violations(fleet, end_s) == []
+    assert sharing_violations(fleet, end_s) == []
+
+
+def owners(fleet: Fleet) -> list[int | None]:
+    return [u.code_row if u.may_strobe else None for u in fleet.units]
+
+
+@pytest.mark.parametrize(("drop_tx", "drop_rx"), [(0.0, 0.3), (0.2, 0.0), (0.2, 0.3)])
+def test_invariant_holds_while_a_share_of_all_frames_is_lost(
+        lossy_fleet: MakeFleet, drop_tx: float, drop_rx: float) -> None:
+    fleet = lossy_fleet(NAMES, max_code_length=16)  # five units, four codes: one waits
+    for faults in fleet.faults:
+        faults.drop_tx, faults.drop_rx = drop_tx, drop_rx
+    fleet.start_all(spread_s=0.01)
+    fleet.run_until(20.0)
+    assert_invariant(fleet, 20.0)
+    lost = sum(b.counts.dropped_tx + b.counts.dropped_rx for b in fleet.buses)  # type: ignore[attr-defined]
+    assert lost > 30, "the faults did not bite"
+    shared = [end - start for *_, start, end, _ in overlaps(fleet, 20.0)]
+    print(f"drop_tx={drop_tx} drop_rx={drop_rx}: {lost} frames lost, {len(shared)} shared "
+          f"row intervals, longest {max(shared, default=0.0):.3f} s")
+    for faults in fleet.faults:  # the loss ends: everything converges within a few periods
+        faults.drop_tx = faults.drop_rx = 0.0
+    fleet.run_until(26.0)
+    rows = [r for r in owners(fleet) if r is not None]
+    assert len(rows) == 4 and len(set(rows)) == 4
+    assert [o for o in overlaps(fleet, 26.0) if o[3] > 24.0] == []
+    assert_invariant(fleet, 26.0)
+
+
+def test_claims_of_a_joining_unit_lost_for_two_seconds_share_a_row_only_until_one_arrives(
+        lossy_fleet: MakeFleet) -> None:
+    fleet = lossy_fleet(NAMES, max_code_length=16)  # five units, four codes
+    joiner = min(range(5), key=lambda i: fleet.units[i].name)
+    highest = max(range(5), key=lambda i: fleet.units[i].name)
+    for index in range(5):
+        if index != joiner:
+            fleet.start(index, 0.0)
+    fleet.run_until(1.0)
+    identity = fleet.units[joiner].identity
+    fleet.faults[joiner].drop_ids = {make_id(FrameKind.CLAIM, identity, r) for r in range(128)}
+    fleet.start(joiner, 1.0)  # no free row: it takes the highest NAME's, which never hears
+    fleet.run_until(3.0)
+    shared = overlaps(fleet, 3.0)
+    assert {(o[0], o[1]) for o in shared} == {tuple(sorted((joiner, highest)))}
+    assert fleet.faults[joiner] and fleet.buses[joiner].counts.dropped_tx >= 2  # type: ignore[attr-defined]
+    fleet.faults[joiner].drop_ids = set()
+    fleet.run_until(6.0)
+    assert_invariant(fleet, 6.0)
+    assert max(o[3] for o in overlaps(fleet, 6.0)) <= 3.0 + 1.0 + TICK_S + 1e-9, (
+        "sharing outlived the first re-announcement after the loss ended")
+    assert fleet.units[highest].code_row is None or not fleet.units[highest].may_strobe
+    rows = [r for r in owners(fleet) if r is not None]
+    assert len(rows) == 4 and len(set(rows)) == 4
