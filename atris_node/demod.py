@@ -38,7 +38,7 @@ import collections
 import functools
 import logging
 import statistics
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -155,8 +155,13 @@ class _Info:
     sequence: int
     host_time_s: float
     sign: int
-    saturated: bool
+    hot_chunks: tuple[int, ...]  # row chunks holding a pixel at full scale
     level: float  # mean raw level of the sampled strips, DN
+
+    @property
+    def saturated(self) -> bool:
+        """True when some pixel of the sub-frame is at full scale."""
+        return bool(self.hot_chunks)
 
 
 class _PhaseLock:
@@ -228,16 +233,23 @@ class _PhaseLock:
         return float(np.sqrt(variance * float(pattern @ pattern)))
 
 
-class _Kernels:
-    """Chunked updates of one accumulator dtype and frame shape; each returns the frame max.
+#: called with (row slice, sub-frame rows) for a chunk that holds a pixel at full scale
+ChunkHook = Callable[[slice, Array], None]
 
-    Each chunk of rows is loaded once into cache and both summed and checked for full
-    scale there, which costs much less than a separate pass over the frame.
+
+class _Kernels:
+    """Chunked updates for one accumulator dtype and frame shape.
+
+    Each chunk of rows is loaded once into cache; there it is summed, its maximum is taken
+    and, only if that maximum is full scale, ``enter`` marks its saturated pixels. Each
+    update returns the frame's maximum and the indices of its full-scale chunks.
     """
 
-    def __init__(self, dtype: np.dtype[np.signedinteger], shape: tuple[int, int]) -> None:
+    def __init__(self, dtype: np.dtype[np.signedinteger], shape: tuple[int, int],
+                 full_scale: int) -> None:
         self.dtype = dtype
         self.shape = shape
+        self.full_scale = full_scale
         rows = max(1, CHUNK_BYTES // (shape[1] * dtype.itemsize))
         self.chunks = [slice(r, r + rows) for r in range(0, shape[0], rows)]
         self._diff = np.empty((rows, shape[1]), dtype=dtype)
@@ -248,38 +260,55 @@ class _Kernels:
             return frame.view(np.int16)
         return frame
 
-    def start(self, out: Array, frame: Array, sign: int) -> int:
+    def _check(self, rows: slice, chunk: Array, enter: ChunkHook | None) -> int:
+        top = int(chunk.max())
+        if top == self.full_scale and enter is not None:
+            enter(rows, chunk)
+        return top
+
+    def _hot(self, tops: list[int]) -> tuple[int, tuple[int, ...]]:
+        return max(tops), tuple(i for i, t in enumerate(tops) if t >= self.full_scale)
+
+    def start(self, out: Array, frame: Array, sign: int,
+              enter: ChunkHook | None = None) -> tuple[int, tuple[int, ...]]:
         """``out = sign * frame``."""
-        src, peak = self.signed(frame), 0
+        src, tops = self.signed(frame), []
         for rows in self.chunks:
             if sign > 0:
                 np.copyto(out[rows], src[rows], casting="safe")
             else:
                 np.negative(src[rows], out=out[rows], dtype=self.dtype)
-            peak = max(peak, int(frame[rows].max()))
-        return peak
+            tops.append(self._check(rows, frame[rows], enter))
+        return self._hot(tops)
 
-    def add(self, acc: Array, frame: Array, sign: int) -> int:
+    def add(self, acc: Array, frame: Array, sign: int,
+            enter: ChunkHook | None = None) -> tuple[int, tuple[int, ...]]:
         """``acc += sign * frame``."""
-        src, peak = self.signed(frame), 0
+        src, tops = self.signed(frame), []
         op = np.add if sign > 0 else np.subtract
         for rows in self.chunks:
             chunk = acc[rows]
             op(chunk, src[rows], out=chunk, dtype=self.dtype)
-            peak = max(peak, int(frame[rows].max()))
-        return peak
+            tops.append(self._check(rows, frame[rows], enter))
+        return self._hot(tops)
 
-    def slide(self, out: Array, prev: Array, new: Array, old: Array, sign: int) -> int:
-        """``out = prev + sign * (new - old)``."""
-        src_new, src_old, peak = self.signed(new), self.signed(old), 0
+    def slide(self, out: Array, prev: Array, new: Array, old: tuple[Array, tuple[int, ...]],
+              sign: int, hooks: tuple[ChunkHook, ChunkHook] | None = None
+              ) -> tuple[int, tuple[int, ...]]:
+        """``out = prev + sign * (new - old)``; ``hooks`` = (enter new, leave old) chunk."""
+        old_frame, old_hot = old
+        src_new, src_old, tops = self.signed(new), self.signed(old_frame), []
         op = np.add if sign > 0 else np.subtract
-        for rows in self.chunks:
+        enter, leave = hooks if hooks is not None else (None, None)
+        for i, rows in enumerate(self.chunks):
             target = out[rows]
             diff = self._diff[: target.shape[0]]
             np.subtract(src_new[rows], src_old[rows], out=diff, dtype=self.dtype)
             op(prev[rows], diff, out=target)
-            peak = max(peak, int(new[rows].max()))
-        return peak
+            tops.append(self._check(rows, new[rows], enter))
+            if leave is not None and i in old_hot:
+                leave(rows, old_frame[rows])
+        return self._hot(tops)
 
 
 class _Demodulator:
@@ -460,17 +489,18 @@ class _Demodulator:
 
     def _kernels_for(self, pixels: Array) -> _Kernels:
         if self._kernels is None or self._kernels.shape != pixels.shape:
-            self._kernels = _Kernels(self._dtype, (pixels.shape[0], pixels.shape[1]))
+            self._kernels = _Kernels(self._dtype, (pixels.shape[0], pixels.shape[1]),
+                                     self._full_scale)
         return self._kernels
 
-    def _info(self, sub: SubFrame, level: float, peak: int) -> _Info:
+    def _info(self, sub: SubFrame, level: float, update: tuple[int, tuple[int, ...]]) -> _Info:
+        peak, hot_chunks = update
         if peak > self._full_scale:
             self._reprime()
             raise DemodulationError(
                 f"sub-frame {sub.sequence}: pixel value {peak} above the full scale "
                 f"{self._full_scale} of {self._bits}-bit data; accepted: 0..{self._full_scale}")
-        return _Info(sub.sequence, sub.host_time_s, self._sign(sub.sequence),
-                     peak == self._full_scale, level)
+        return _Info(sub.sequence, sub.host_time_s, self._sign(sub.sequence), hot_chunks, level)
 
     def _no_saturation(self, shape: tuple[int, ...]) -> npt.NDArray[np.bool_]:
         if self._clear_mask is None or self._clear_mask.shape != shape:
@@ -518,25 +548,22 @@ class BlockDemodulator(_Demodulator):
         sign = self._sign(sub.sequence)
         if self._acc is None:
             self._acc = np.empty(frame.shape, dtype=self._dtype)
-            peak = kernels.start(self._acc, frame, sign)
+            update = kernels.start(self._acc, frame, sign, self._mark)
         else:
-            peak = kernels.add(self._acc, frame, sign)
-        info = self._info(sub, level, peak)
-        if info.saturated:
-            self._mark(frame)
-        self._infos.append(info)
+            update = kernels.add(self._acc, frame, sign, self._mark)
+        self._infos.append(self._info(sub, level, update))
         if len(self._infos) < self._n:
             return None
         result = self._make_map(self._acc, self._mask, self._infos)
         self._clear_window()
         return result
 
-    def _mark(self, frame: Array) -> None:
-        at_full_scale = frame == self._full_scale
+    def _mark(self, rows: slice, chunk: Array) -> None:
         if self._mask is None:
-            self._mask = at_full_scale
-        else:
-            np.logical_or(self._mask, at_full_scale, out=self._mask)
+            assert self._acc is not None
+            self._mask = np.zeros(self._acc.shape, dtype=bool)
+        target = self._mask[rows]
+        np.logical_or(target, chunk == self._full_scale, out=target)
 
 
 class SlidingDemodulator(_Demodulator):
@@ -545,26 +572,26 @@ class SlidingDemodulator(_Demodulator):
     Priming sums the first N sub-frames as the block demodulator does; then each sub-frame
     replaces the one N sub-frames older. Any N consecutive chips are a full code period, so
     ambient and orthogonal interferers cancel as in the block sum. Pixels at full scale are
-    counted per pixel over the ring (only for sub-frames that have any).
+    counted per pixel over the ring, only in the row chunks that hold any.
     """
 
     def _clear_window(self) -> None:
         self._ring: collections.deque[tuple[Array, _Info]] = collections.deque(maxlen=self._n)
         self._values: Array | None = None
         self._count: npt.NDArray[np.uint16] | None = None
-        self._saturated_frames = 0
+        self._hot_frames: collections.Counter[int] = collections.Counter()
 
     def _add(self, sub: SubFrame, level: float) -> DistortionMap | None:
         kernels, frame = self._kernels_for(sub.pixels), sub.pixels
         sign = self._sign(sub.sequence)
         if self._values is None:
             self._values = np.empty(frame.shape, dtype=self._dtype)
-            peak = kernels.start(self._values, frame, sign)
+            update = kernels.start(self._values, frame, sign, self._enter)
         elif len(self._ring) < self._n:
-            peak = kernels.add(self._values, frame, sign)
+            update = kernels.add(self._values, frame, sign, self._enter)
         else:
             return self._slide(sub, level, kernels)
-        self._enter(frame, self._info(sub, level, peak))
+        self._push_ring(frame, self._info(sub, level, update))
         if len(self._ring) < self._n:
             return None
         return self._make_map(self._values, self._mask(), [i for _, i in self._ring])
@@ -573,25 +600,38 @@ class SlidingDemodulator(_Demodulator):
         assert self._values is not None
         old_frame, old_info = self._ring[0]
         out = np.empty(sub.pixels.shape, dtype=self._dtype)
-        peak = kernels.slide(out, self._values, sub.pixels, old_frame, self._sign(sub.sequence))
-        info = self._info(sub, level, peak)
-        if old_info.saturated and self._count is not None:
-            np.subtract(self._count, old_frame == self._full_scale, out=self._count)
-            self._saturated_frames -= 1
-        self._enter(sub.pixels, info)
+        update = kernels.slide(out, self._values, sub.pixels, (old_frame, old_info.hot_chunks),
+                               self._sign(sub.sequence), (self._enter, self._leave))
+        self._hot_frames.subtract(old_info.hot_chunks)
+        self._push_ring(sub.pixels, self._info(sub, level, update))
         self._values = out
         return self._make_map(out, self._mask(), [i for _, i in self._ring])
 
-    def _enter(self, frame: Array, info: _Info) -> None:
+    def _push_ring(self, frame: Array, info: _Info) -> None:
         self._ring.append((frame, info))
-        if not info.saturated:
-            return
+        self._hot_frames.update(info.hot_chunks)
+
+    def _enter(self, rows: slice, chunk: Array) -> None:
         if self._count is None:
-            self._count = np.zeros(frame.shape, dtype=np.uint16)
-        np.add(self._count, frame == self._full_scale, out=self._count)
-        self._saturated_frames += 1
+            self._count = np.zeros(self._kernels_shape(), dtype=np.uint16)
+        target = self._count[rows]
+        np.add(target, chunk == self._full_scale, out=target)
+
+    def _leave(self, rows: slice, chunk: Array) -> None:
+        assert self._count is not None
+        target = self._count[rows]
+        np.subtract(target, chunk == self._full_scale, out=target)
+
+    def _kernels_shape(self) -> tuple[int, int]:
+        assert self._kernels is not None
+        return self._kernels.shape
 
     def _mask(self) -> npt.NDArray[np.bool_] | None:
-        if not self._saturated_frames or self._count is None:
+        hot = [i for i, frames in self._hot_frames.items() if frames > 0]
+        if not hot or self._count is None or self._kernels is None:
             return None
-        return self._count > 0
+        mask = np.zeros(self._count.shape, dtype=bool)
+        for i in hot:
+            rows = self._kernels.chunks[i]
+            np.greater(self._count[rows], 0, out=mask[rows])
+        return mask

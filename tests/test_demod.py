@@ -185,6 +185,21 @@ def test_full_scale_pixel_is_flagged_for_the_windows_that_hold_it(cls: type[Demo
     assert any(m.first_sequence <= 5 <= m.last_sequence for m in maps)
 
 
+@pytest.mark.parametrize("cls", DEMODULATORS)
+def test_saturation_masks_are_exact_across_row_chunks(cls: type[Demod]) -> None:
+    """Frames of several cached row chunks; full-scale pixels come and go in different ones."""
+    rng = np.random.default_rng(5)
+    n, shape = 4, (300, 640)  # 640 int16 columns: about 100 rows per chunk
+    frames = {s: rng.integers(0, 4000, shape) for s in range(20)}
+    for s, (row, col) in {3: (5, 7), 6: (250, 600), 7: (150, 3), 12: (299, 639)}.items():
+        frames[s][row, col] = 4095
+    maps = _run(cls(codes.walsh_chips(n, 3), 12), (_sub(f, s, 12) for s, f in frames.items()))
+    for m in maps:
+        window = range(m.first_sequence, m.last_sequence + 1)
+        expected = np.any([frames[s] == 4095 for s in window], axis=0)
+        np.testing.assert_array_equal(m.saturated, expected)
+
+
 def test_ambient_level_is_a_fraction_of_full_scale() -> None:
     frames = {s: np.full((4, 40), 255 if s % 2 else 0) for s in range(4)}
     (m,) = _run(BlockDemodulator([1, 1, 0, 0], 8), (_sub(f, s, 8) for s, f in frames.items()))
