@@ -11,8 +11,8 @@ Each row (JSON fields relied on by other tools): ``config`` (object: ``code_leng
 valid samples against the simulator's true point of the same line and column; null when
 no sample), ``valid_fraction`` (valid points per line and column), plus ``demod_ms``,
 ``pipeline_ms`` and ``median_abs_error_m``. Pipeline times are the best of three runs per
-map; demodulation is timed once per sub-frame as it streams. ``--quick`` runs one scene, 640x400, N = 16,
-block demodulation: a minute on a loaded machine.
+map; demodulation is timed once per sub-frame as it streams. ``--quick`` runs one scene,
+640x400, N = 16, block demodulation: a minute on a loaded machine.
 """
 
 from __future__ import annotations
