@@ -93,8 +93,8 @@ def _huber_weights(residual: FloatArray) -> FloatArray:
 
 
 def _irls(design: FloatArray, u_px: FloatArray, iterations: int = 30
-          ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Huber IRLS: (parameters (p,), covariance (p, p), weights (n,))."""
+          ) -> tuple[FloatArray, FloatArray]:
+    """Huber IRLS: (parameters (p,), weights (n,))."""
     weights = np.ones_like(u_px)
     params = np.zeros(design.shape[1])
     for _ in range(iterations):
@@ -105,11 +105,26 @@ def _irls(design: FloatArray, u_px: FloatArray, iterations: int = 30
         if np.allclose(new, weights, atol=1e-6):
             break
         weights = new
-    residual = u_px - design @ params
-    dof = max(len(u_px) - design.shape[1], 1)
-    variance = float(np.sum(weights * residual**2)) / dof
-    covariance = variance * np.linalg.inv(design.T @ (design * weights[:, None]))
-    return params, covariance, weights
+    return params, weights
+
+
+def _covariance(design: FloatArray, residual: FloatArray, weights: FloatArray,
+                cluster: npt.NDArray[np.int64]) -> FloatArray:
+    """(p, p) covariance of the weighted fit: the larger, per parameter, of the classical
+    estimate and the cluster-robust (sandwich) one with one cluster per capture and line,
+    whose samples share the capture's errors (target distance, pose)."""
+    bread = np.linalg.inv(design.T @ (design * weights[:, None]))
+    dof = max(len(residual) - design.shape[1], 1)
+    classical = float(np.sum(weights * residual**2)) / dof * bread
+    groups = np.unique(cluster, return_inverse=True)[1]
+    count = int(groups.max()) + 1
+    if count <= design.shape[1]:
+        return classical
+    scores = np.zeros((count, design.shape[1]))
+    np.add.at(scores, groups, design * (weights * residual)[:, None])
+    sandwich = bread @ (scores.T @ scores) @ bread * count / (count - 1)
+    scale = np.sqrt(np.maximum(np.diag(sandwich), np.diag(classical)) / np.diag(classical))
+    return classical * np.outer(scale, scale)
 
 
 def _check_samples(samples: LineSamples, lines: int) -> None:
@@ -161,9 +176,12 @@ def fit_lines(samples: LineSamples, lines: int, focal_px: float,
     """Fit b and α_k to ``samples`` of ``lines`` lines (see the module text); ``sigma``
     are the intrinsics' standard deviations, added to the standard errors."""
     _check_samples(samples, lines)
-    params, covariance, weights = _irls(_design(samples, lines), samples.u_px)
+    design = _design(samples, lines)
+    params, weights = _irls(design, samples.u_px)
+    residual_px = samples.u_px - design @ params
+    covariance = _covariance(design, residual_px, weights,
+                             samples.capture * lines + samples.line)
     laser = _to_laser(params, covariance, focal_px, sigma or IntrinsicsSigma())
-    residual_px = samples.u_px - _design(samples, lines) @ params
     residual_mm = _range_residual_mm(samples, laser, focal_px)
     inlier = weights >= 0.5
     rms_px = float(np.sqrt(np.mean(residual_px[inlier] ** 2)))

@@ -18,9 +18,10 @@ CALIB_COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("name", choices=sorted(CALIB_COMMANDS), help="calibration step")
+    parser.add_argument("name", nargs="?", choices=sorted(CALIB_COMMANDS),
+                        help="calibration step (none: list them)")
     parser.add_argument("rest", nargs=argparse.REMAINDER, help="options of the step")
 
 
 def run(args: argparse.Namespace) -> int:
-    return dispatch("atris calib", CALIB_COMMANDS, [args.name, *args.rest])
+    return dispatch("atris calib", CALIB_COMMANDS, [args.name, *args.rest] if args.name else [])
