@@ -156,7 +156,7 @@ class _Info:
     host_time_s: float
     sign: int
     hot_chunks: tuple[int, ...]  # row chunks holding a pixel at full scale
-    level: float  # mean raw level of the sampled strips, DN
+    level: float | None  # mean raw level of the sampled strips, DN (when locking)
 
     @property
     def saturated(self) -> bool:
@@ -325,7 +325,7 @@ class _Demodulator:
         self._auto = lag is None
         self._lag = None if lag is None else int(lag) % self._n
         self._lock = _PhaseLock(self._signs)
-        self._pending: collections.deque[tuple[SubFrame, float]] = collections.deque(
+        self._pending: collections.deque[tuple[SubFrame, float | None]] = collections.deque(
             maxlen=self._n)
         self._last: SubFrame | None = None
         self._kernels: _Kernels | None = None
@@ -395,11 +395,11 @@ class _Demodulator:
         self._validate(sub)
         self._follow(sub)
         self._last = sub
-        level = strip_level(sub.pixels)
+        level = strip_level(sub.pixels) if self._auto else None
         decided = None
         if self._auto:
             due = self._lag is None or self._lock.fresh >= self._lock.history
-            decided = self._lock.feed(sub.sequence, level, decide=due)
+            decided = self._lock.feed(sub.sequence, level or 0.0, decide=due)
         if self._lag is None:
             return self._try_lock(sub, level, decided)
         self._track(decided)
@@ -446,13 +446,15 @@ class _Demodulator:
             logger.warning("sequence went back from %d to %d: window restarted", last, sequence)
 
     def _reprime(self) -> None:
+        self._ambient_cache = None
         self._clear_window()
         self._pending.clear()
         self._lock.reset()
 
     # --- phase lock ----------------------------------------------------------------------
 
-    def _try_lock(self, sub: SubFrame, level: float, decided: int | None) -> DistortionMap | None:
+    def _try_lock(self, sub: SubFrame, level: float | None,
+                  decided: int | None) -> DistortionMap | None:
         self._pending.append((sub, level))
         if decided is None:
             return None
@@ -493,7 +495,8 @@ class _Demodulator:
                                      self._full_scale)
         return self._kernels
 
-    def _info(self, sub: SubFrame, level: float, update: tuple[int, tuple[int, ...]]) -> _Info:
+    def _info(self, sub: SubFrame, level: float | None,
+              update: tuple[int, tuple[int, ...]]) -> _Info:
         peak, hot_chunks = update
         if peak > self._full_scale:
             self._reprime()
@@ -508,14 +511,25 @@ class _Demodulator:
             self._clear_mask.setflags(write=False)
         return self._clear_mask
 
+    def _ambient_dn(self, infos: Sequence[_Info], newest: Array) -> float:
+        """Mean raw level of the window's strips; with a known lag (levels not taken per
+        sub-frame) that of the newest sub-frame, refreshed once per N sub-frames."""
+        levels = [i.level for i in infos if i.level is not None]
+        if len(levels) == len(infos):
+            return statistics.fmean(levels)
+        last = infos[-1].sequence
+        if self._ambient_cache is None or not 0 <= last - self._ambient_cache[0] < self._n:
+            self._ambient_cache = (last, strip_level(newest))
+        return self._ambient_cache[1]
+
     def _make_map(self, values: Array, saturated: npt.NDArray[np.bool_] | None,
-                  infos: Sequence[_Info]) -> DistortionMap:
+                  infos: Sequence[_Info], newest: Array) -> DistortionMap:
         values.setflags(write=False)
         mask = self._no_saturation(values.shape) if saturated is None else saturated
         fraction = 0.0 if saturated is None else np.count_nonzero(mask) / mask.size
         gain, snr, signal, residual = measure_gain(values, self._n)
         dropped, self._dropped_since_map = self._dropped_since_map, 0
-        ambient = statistics.fmean(i.level for i in infos) / self._full_scale
+        ambient = self._ambient_dn(infos, newest) / self._full_scale
         return DistortionMap(
             values=values, saturated=mask, code_length=self._n,  # type: ignore[arg-type]
             first_sequence=infos[0].sequence, last_sequence=infos[-1].sequence,
@@ -527,11 +541,12 @@ class _Demodulator:
     # --- per window, in the subclasses ---------------------------------------------------
 
     _clear_mask: npt.NDArray[np.bool_] | None = None
+    _ambient_cache: tuple[int, float] | None = None
 
     def _clear_window(self) -> None:
         raise NotImplementedError
 
-    def _add(self, sub: SubFrame, level: float) -> DistortionMap | None:
+    def _add(self, sub: SubFrame, level: float | None) -> DistortionMap | None:
         raise NotImplementedError
 
 
@@ -543,7 +558,7 @@ class BlockDemodulator(_Demodulator):
         self._mask: npt.NDArray[np.bool_] | None = None
         self._infos: list[_Info] = []
 
-    def _add(self, sub: SubFrame, level: float) -> DistortionMap | None:
+    def _add(self, sub: SubFrame, level: float | None) -> DistortionMap | None:
         kernels, frame = self._kernels_for(sub.pixels), sub.pixels
         sign = self._sign(sub.sequence)
         if self._acc is None:
@@ -554,7 +569,7 @@ class BlockDemodulator(_Demodulator):
         self._infos.append(self._info(sub, level, update))
         if len(self._infos) < self._n:
             return None
-        result = self._make_map(self._acc, self._mask, self._infos)
+        result = self._make_map(self._acc, self._mask, self._infos, frame)
         self._clear_window()
         return result
 
@@ -581,7 +596,7 @@ class SlidingDemodulator(_Demodulator):
         self._count: npt.NDArray[np.uint16] | None = None
         self._hot_frames: collections.Counter[int] = collections.Counter()
 
-    def _add(self, sub: SubFrame, level: float) -> DistortionMap | None:
+    def _add(self, sub: SubFrame, level: float | None) -> DistortionMap | None:
         kernels, frame = self._kernels_for(sub.pixels), sub.pixels
         sign = self._sign(sub.sequence)
         if self._values is None:
@@ -594,9 +609,9 @@ class SlidingDemodulator(_Demodulator):
         self._push_ring(frame, self._info(sub, level, update))
         if len(self._ring) < self._n:
             return None
-        return self._make_map(self._values, self._mask(), [i for _, i in self._ring])
+        return self._make_map(self._values, self._mask(), [i for _, i in self._ring], frame)
 
-    def _slide(self, sub: SubFrame, level: float, kernels: _Kernels) -> DistortionMap:
+    def _slide(self, sub: SubFrame, level: float | None, kernels: _Kernels) -> DistortionMap:
         assert self._values is not None
         old_frame, old_info = self._ring[0]
         out = np.empty(sub.pixels.shape, dtype=self._dtype)
@@ -605,7 +620,7 @@ class SlidingDemodulator(_Demodulator):
         self._hot_frames.subtract(old_info.hot_chunks)
         self._push_ring(sub.pixels, self._info(sub, level, update))
         self._values = out
-        return self._make_map(out, self._mask(), [i for _, i in self._ring])
+        return self._make_map(out, self._mask(), [i for _, i in self._ring], sub.pixels)
 
     def _push_ring(self, frame: Array, info: _Info) -> None:
         self._ring.append((frame, info))

@@ -200,10 +200,17 @@ def test_saturation_masks_are_exact_across_row_chunks(cls: type[Demod]) -> None:
         np.testing.assert_array_equal(m.saturated, expected)
 
 
-def test_ambient_level_is_a_fraction_of_full_scale() -> None:
-    frames = {s: np.full((4, 40), 255 if s % 2 else 0) for s in range(4)}
-    (m,) = _run(BlockDemodulator([1, 1, 0, 0], 8), (_sub(f, s, 8) for s, f in frames.items()))
-    assert m.extra["ambient_level"] == pytest.approx(0.5)
+@pytest.mark.parametrize("lag", [0, None])
+def test_ambient_level_is_a_fraction_of_full_scale(lag: int | None) -> None:
+    chips = codes.walsh_chips(8, 3)
+    subs = []
+    for s in range(80):
+        frame = np.full((64, 40), 102.0) + 0.01 * s
+        frame[30:32] += 60.0 * chips[s % 8]
+        subs.append(_sub(np.rint(frame), s, 8))
+    maps = _run(SlidingDemodulator(chips, 8, lag=lag), subs)
+    assert maps and all(m.extra["ambient_level"] == pytest.approx(0.4 + 0.02 * 0.5, abs=0.02)
+                        for m in maps)
 
 
 # --- feature: sequence numbers, exposure and shape ------------------------------------------
