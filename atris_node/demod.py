@@ -9,9 +9,16 @@ strobing orthogonal codes cancel, the own laser adds up to ``l * N / 2``.
   sub-frame once primed, for a ring of N sub-frame references.
 
 Both track sequence numbers (a gap re-primes the window and is counted, so a map never
-mixes signs), re-prime on an exposure or frame-shape change (counted), flag pixels at full
-scale, lock to an unknown strobe lag by correlation (``lag=None``), and measure processing
-gain and SNR (paper Eq. 5-6) for every map.
+mixes signs), re-prime on an exposure or frame-shape change (counted; a new shape is
+accepted, not an error), flag pixels at full scale, lock to an unknown strobe lag by
+correlation (``lag=None``), and measure processing gain and SNR (paper Eq. 5-6) for every
+map, with ``extra`` keys ``ambient_level`` and ``saturated_fraction`` (fractions) and
+``signal_dn`` and ``residual_dn`` (``I_S`` and ``delta``).
+
+Constant ambient light cancels exactly (balanced codes). A linear drift ``d`` per
+sub-frame leaves the paper's remainder ``delta = d * sum_i v_i i``: zero for Walsh rows
+whose 0-based index has two or more bits set (rows 4, 6, 7, 8, ...), ``-d N 2^j / 2`` for
+the rows 2, 3, 5, 9, ... (index ``2^j``).
 
 Accumulators are int16 when ``N * (2**bits - 1) <= 32767``, else int32, so no sum can
 overflow; uint16 sub-frames are added through an int16 view when the accumulator is
