@@ -25,6 +25,7 @@ Later sources win: unit defaults < ``[defaults]`` < ``[bus]`` < ``[[unit]]`` < e
 
 from __future__ import annotations
 
+import math
 import os
 import tomllib
 from dataclasses import dataclass, field
@@ -70,6 +71,24 @@ def _check_keys(table: dict[str, Any], allowed: set[str], where: str) -> None:
                           f"accepted: {', '.join(sorted(allowed))}")
 
 
+def _check_tables(data: dict[str, Any], where: str) -> None:
+    for name in ("launch", "bus", "defaults", "world"):
+        if not isinstance(data.get(name, {}), dict):
+            raise ConfigError(f"{where}: [{name}] must be a table, got {data[name]!r}")
+    units = data.get("unit", [])
+    if not isinstance(units, list) or not units or not all(isinstance(u, dict) for u in units):
+        raise ConfigError(f"{where}: needs at least one [[unit]] table")
+
+
+def _number(table: dict[str, Any], key: str, kind: type, default: Any, where: str) -> Any:
+    value = table.get(key, default)
+    accepted = int if kind is int else int | float
+    if isinstance(value, bool) or not isinstance(value, accepted) or not math.isfinite(value):
+        raise ConfigError(f"{where} [launch] {key}: must be a finite {kind.__name__}, "
+                          f"got {value!r}")
+    return kind(value)
+
+
 def _unit_config(defaults: dict[str, Any], bus: dict[str, Any], unit: dict[str, Any],
                  where: str) -> cfg.Config:
     merged = cfg.defaults()
@@ -96,24 +115,23 @@ def load_launch(path: str | Path) -> LaunchSpec:
     data = _read(resolved)
     where = f"launch file {resolved.name}"
     _check_keys(data, TOP_KEYS, where)
+    _check_tables(data, where)
     launch = data.get("launch", {})
     _check_keys(launch, LAUNCH_KEYS, f"{where} [launch]")
-    units_raw = data.get("unit", [])
-    if not isinstance(units_raw, list) or not units_raw:
-        raise ConfigError(f"{where}: needs at least one [[unit]] table")
+    units_raw = data["unit"]
     units = [_unit_config(data.get("defaults", {}), data.get("bus", {}), u, where)
              for u in units_raw]
     _check_units(units, where)
     mode = launch.get("mode", "threads")
     if mode not in ("threads", "processes"):
         raise ConfigError(f"{where} [launch] mode: must be threads or processes, got {mode!r}")
-    duration = float(launch.get("duration_s", 10.0))
+    duration = _number(launch, "duration_s", float, 10.0, where)
     if not 0.0 < duration <= 86400.0:
         raise ConfigError(f"{where} [launch] duration_s: must be in (0, 86400], got {duration}")
     return LaunchSpec(
         name=str(launch.get("name", resolved.stem)), path=resolved, duration_s=duration,
         mode=mode, respawn=bool(launch.get("respawn", False)),
-        max_respawns=int(launch.get("max_respawns", 3)), units=tuple(units),
+        max_respawns=_number(launch, "max_respawns", int, 3, where), units=tuple(units),
         world=dict(data.get("world", {})), description=str(launch.get("description", "")),
     )
 
