@@ -108,22 +108,23 @@ def _irls(design: FloatArray, u_px: FloatArray, iterations: int = 30
     return params, weights
 
 
-def _covariance(design: FloatArray, residual: FloatArray, weights: FloatArray,
-                cluster: npt.NDArray[np.int64]) -> FloatArray:
-    """(p, p) covariance of the weighted fit: the larger, per parameter, of the classical
-    estimate and the cluster-robust (sandwich) one with one cluster per capture and line,
-    whose samples share the capture's errors (target distance, pose)."""
+def _covariance(design: FloatArray, u_px: FloatArray, params: FloatArray,
+                weights: FloatArray, capture: npt.NDArray[np.int64]) -> FloatArray:
+    """(p, p) covariance of the fit: per parameter the larger of the classical estimate
+    and the jackknife over captures (leave one capture out, refit). The samples of one
+    capture share its errors (target distance, board pose), which the classical estimate
+    from the per-sample scatter does not see."""
+    residual = u_px - design @ params
     bread = np.linalg.inv(design.T @ (design * weights[:, None]))
     dof = max(len(residual) - design.shape[1], 1)
     classical = float(np.sum(weights * residual**2)) / dof * bread
-    groups = np.unique(cluster, return_inverse=True)[1]
-    count = int(groups.max()) + 1
-    if count <= design.shape[1]:
+    groups = np.unique(capture)
+    if len(groups) < 3:
         return classical
-    scores = np.zeros((count, design.shape[1]))
-    np.add.at(scores, groups, design * (weights * residual)[:, None])
-    sandwich = bread @ (scores.T @ scores) @ bread * count / (count - 1)
-    scale = np.sqrt(np.maximum(np.diag(sandwich), np.diag(classical)) / np.diag(classical))
+    refits = np.array([_irls(design[capture != g], u_px[capture != g])[0] for g in groups])
+    spread = refits - refits.mean(axis=0)
+    jackknife = spread.T @ spread * (len(groups) - 1) / len(groups)
+    scale = np.sqrt(np.maximum(np.diag(jackknife), np.diag(classical)) / np.diag(classical))
     return classical * np.outer(scale, scale)
 
 
@@ -179,8 +180,7 @@ def fit_lines(samples: LineSamples, lines: int, focal_px: float,
     design = _design(samples, lines)
     params, weights = _irls(design, samples.u_px)
     residual_px = samples.u_px - design @ params
-    covariance = _covariance(design, residual_px, weights,
-                             samples.capture * lines + samples.line)
+    covariance = _covariance(design, samples.u_px, params, weights, samples.capture)
     laser = _to_laser(params, covariance, focal_px, sigma or IntrinsicsSigma())
     residual_mm = _range_residual_mm(samples, laser, focal_px)
     inlier = weights >= 0.5

@@ -138,3 +138,17 @@ def test_lens_distortion_is_rendered_and_recovered() -> None:
         views.append((board_plane(rvec, tvec),
                       find_line_rows(render_line_map(rows, camera.height_px, rng), 3)))
     _assert_close(fit_board_planes(fitted, views).laser)
+
+
+def test_standard_errors_see_errors_shared_by_a_capture() -> None:
+    def fit(distance_noise: float) -> LaserCalibration:
+        rng = np.random.default_rng(9)
+        distances = np.linspace(0.5, 2.5, 8)
+        measured = distances * (1.0 + rng.normal(0.0, distance_noise, distances.size))
+        return fit_flat_target(CAMERA, [(float(m), _flat_rows(float(z), rng))
+                                        for z, m in zip(distances, measured, strict=True)]).laser
+
+    exact, taped = fit(0.0), fit(0.01)  # distances as measured with a 1 % error each
+    assert taped.baseline_sigma_m > 20 * exact.baseline_sigma_m
+    assert min(taped.alpha_sigma_rad) > 5 * max(exact.alpha_sigma_rad)
+    assert abs(exact.baseline_m - LASER.baseline_m) < 3.0 * exact.baseline_sigma_m
