@@ -53,15 +53,6 @@ def see(shapes: Sequence[Shape], origin: FloatArray, dirs: FloatArray,
                    albedo.reshape(h, w), hit.reshape(h, w))
 
 
-def composite(a: Surface, b: Surface) -> Surface:
-    """Per ray, the nearer of two surfaces over the same grid."""
-    near = b.t < a.t
-    pick = near[..., None]
-    return Surface(np.where(near, b.t, a.t), np.where(pick, b.points, a.points),
-                   np.where(pick, b.normals, a.normals), np.where(near, b.shape, a.shape),
-                   np.where(near, b.albedo, a.albedo), a.hit | b.hit)
-
-
 def ambient_rates(scene: Scene, surface: Surface, shapes: Sequence[Shape],
                   time_s: float = 0.0) -> tuple[Float32Array, Float32Array]:
     """(steady, lamp) electron rates (h, w) e⁻/s: sun and sky (plus the sky seen directly
@@ -74,7 +65,8 @@ def ambient_rates(scene: Scene, surface: Surface, shapes: Sequence[Shape],
     steady = sky
     if ambient.sun is not None and ambient.sun.lux > 0:
         steady = steady + optics.sun_irradiance(ambient.sun, shapes,
-                                                surface.points.reshape(-1, 3), normals, ff)
+                                                surface.points.reshape(-1, 3), normals, ff,
+                                                time_s)
     albedo = surface.albedo.reshape(-1)
     steady_e = albedo * steady * k / math.pi
     hit = surface.hit.reshape(-1)

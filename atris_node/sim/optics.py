@@ -84,14 +84,15 @@ def _through_window(sun: Sun, points: FloatArray) -> tuple[BoolArray, FloatArray
 
 
 def sun_irradiance(sun: Sun, shapes: Sequence[Shape], points: FloatArray,
-                   normals: FloatArray, filter_factor: float) -> FloatArray:
+                   normals: FloatArray, filter_factor: float,
+                   time_s: float = 0.0) -> FloatArray:
     """Direct-sun irradiance (n,) W/m² at surface points (n, 3) with normals (n, 3)."""
     s = sun.direction
     cos_i = np.clip(normals @ s, 0.0, None)
     lit, distance = _through_window(sun, points)
     candidates = np.flatnonzero(lit & (cos_i > 0))
     if candidates.size:
-        shadow = occluded(shapes, points[candidates], s, distance[candidates])
+        shadow = occluded(shapes, points[candidates], s, distance[candidates], time_s)
         lit[candidates[shadow]] = False
     return np.where(lit, cos_i, 0.0) * lux_to_w_m2(sun.lux, filter_factor)
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -295,7 +295,9 @@ class Simulator:
         near = moving.t < static.surface.t[r0:r1, c0:c1]
         if not near.any():
             return
-        part = layers.composite(_crop(static.surface, box), moving)
+        # only the pixels where the moving shape is in front are lit and written; their
+        # neighbours on the static scene count as "no surface" for the stripe footprint
+        part = replace(moving, hit=near)
         shapes = self.scene.shapes
         steady, lamp = layers.ambient_rates(self.scene, part, shapes, time_s=time_s)
         rates = steady if self.flickers else steady + lamp
@@ -328,9 +330,3 @@ class Simulator:
         return Calibration(self.camera.model,
                            LaserCalibration(laser.baseline_m, laser.alpha_rad))
 
-
-def _crop(surface: layers.Surface, box: tuple[int, int, int, int]) -> layers.Surface:
-    r0, r1, c0, c1 = box
-    return layers.Surface(surface.t[r0:r1, c0:c1], surface.points[r0:r1, c0:c1],
-                          surface.normals[r0:r1, c0:c1], surface.shape[r0:r1, c0:c1],
-                          surface.albedo[r0:r1, c0:c1], surface.hit[r0:r1, c0:c1])
