@@ -55,3 +55,24 @@ def split_pair(text: str, option: str) -> tuple[str, str]:
     if not sep or not left or not right:
         raise CalibrationError(f"{option} expects LEFT=RIGHT, got {text!r}")
     return left, right
+
+
+def add_driver_arguments(parser: argparse.ArgumentParser) -> None:
+    """Repeated ``--driver-option KEY=VALUE`` for a live camera backend."""
+    parser.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="setting passed to the backend (repeatable; numbers are numbers)")
+
+
+def _option_value(text: str) -> object:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def driver_settings(args: argparse.Namespace) -> dict[str, object]:
+    """The ``--driver-option`` settings; text that reads as an int or float becomes one."""
+    pairs = (split_pair(o, "--driver-option") for o in args.driver_option)
+    return {key: _option_value(value) for key, value in pairs}

@@ -14,11 +14,12 @@ from calib.board import BoardSpec
 from calib.captures import load_capture_set
 from calib.commands.common import (
     add_board_arguments,
+    add_driver_arguments,
     add_output_arguments,
     board_from_args,
+    driver_settings,
     plot_path,
     print_result,
-    split_pair,
 )
 from calib.files import save_camera_file
 from calib.plots import plot_intrinsics
@@ -32,8 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--captures", type=Path,
                         help="capture set folder (its board views and board description)")
     source.add_argument("--backend", help="camera backend to capture from live (sim, depthai)")
-    parser.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
-                        help="setting passed to the backend (repeatable)")
+    add_driver_arguments(parser)
     parser.add_argument("--views", type=int, default=15, help="live: views to capture")
     parser.add_argument("--every", type=int, default=10, help="live: keep one sub-frame in N")
     add_board_arguments(parser)
@@ -47,15 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_output_arguments(parser)
 
 
-def _option_value(text: str) -> object:
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def _views(args: argparse.Namespace) -> tuple[BoardSpec, Views]:
     if args.captures is not None:
         captures = load_capture_set(args.captures)
@@ -64,9 +55,8 @@ def _views(args: argparse.Namespace) -> tuple[BoardSpec, Views]:
     spec = board_from_args(args)
     if args.images is not None:
         return spec, list(intrinsics.read_images(intrinsics.image_files(args.images)))
-    options = dict(split_pair(o, "--driver-option") for o in args.driver_option)
-    settings = {key: _option_value(value) for key, value in options.items()}
-    return spec, list(intrinsics.live_views(args.backend, args.views, args.every, **settings))
+    return spec, list(intrinsics.live_views(args.backend, args.views, args.every,
+                                            **driver_settings(args)))
 
 
 def run(args: argparse.Namespace) -> int:
