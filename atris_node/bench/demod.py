@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 from atris_node import codes
 from atris_node.bench._timing import time_interleaved
-from atris_node.demod import BlockDemodulator, SlidingDemodulator, _Kernels
+from atris_node.demod import BlockDemodulator, Kernels, SlidingDemodulator
 from atris_node.types import SubFrame
 
 logger = logging.getLogger(__name__)
@@ -114,7 +114,7 @@ def reference_passes(frames: list[Pixels], repeats: int) -> dict[str, float]:
     acc = np.zeros(frames[0].shape, np.int16)
     peak = np.zeros_like(frames[0])
     view = [f.view(np.int16) if f.dtype == np.uint16 else f for f in frames]
-    kernels = _Kernels(np.dtype(np.int16), (frames[0].shape[0], frames[0].shape[1]), 1 << 16)
+    kernels = Kernels(np.dtype(np.int16), (frames[0].shape[0], frames[0].shape[1]), 1 << 16)
     passes = {
         "add": lambda: [np.add(acc, f, out=acc) for f in view],
         "add+max fused by chunk": lambda: [kernels.add(acc, f, 1) for f in frames],
