@@ -7,7 +7,8 @@ row u (pixels) while the range is known, so the same line is fitted as
     u = A_k + B · (1/z),   A_k = f·cot α_k,   B = −f·b,
 
 one shared slope B and one intercept A_k per line, by iteratively reweighted least
-squares with Huber weights (outlier columns get small weights). Then ``b = −B/f`` and
+squares with Huber weights against each capture's own robust noise scale (outlier columns
+get small weights, far and faint targets count less). Then ``b = −B/f`` and
 ``α_k = atan2(f, A_k)`` in (0, π); standard errors come from the weighted covariance.
 
 - Flat target (:func:`fit_flat_target`): a wall perpendicular to the optical axis at
@@ -86,26 +87,34 @@ def _design(samples: LineSamples, lines: int) -> FloatArray:
     return np.column_stack([samples.inv_z, indicators])
 
 
-def _huber_weights(residual: FloatArray) -> FloatArray:
-    scale = max(1.4826 * float(np.median(np.abs(residual))), 1e-6)
+def _robust_weights(residual: FloatArray, capture: npt.NDArray[np.int64]
+                    ) -> tuple[FloatArray, FloatArray]:
+    """(weights, huber) per sample: ``huber`` in (0, 1] against the sample's own capture's
+    robust scale (far targets are noisier), ``weights = huber / scale²``."""
+    scale = np.empty_like(residual)
+    for group in np.unique(capture):
+        here = capture == group
+        scale[here] = max(1.4826 * float(np.median(np.abs(residual[here]))), 1e-6)
     ratio = np.abs(residual) / (HUBER_K * scale)
-    return np.where(ratio <= 1.0, 1.0, 1.0 / np.maximum(ratio, 1e-12))
+    huber = np.where(ratio <= 1.0, 1.0, 1.0 / np.maximum(ratio, 1e-12))
+    return huber / scale**2, huber
 
 
-def _irls(design: FloatArray, u_px: FloatArray, iterations: int = 30
-          ) -> tuple[FloatArray, FloatArray]:
-    """Huber IRLS: (parameters (p,), weights (n,))."""
-    weights = np.ones_like(u_px)
+def _irls(design: FloatArray, u_px: FloatArray, capture: npt.NDArray[np.int64],
+          iterations: int = 30) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Huber IRLS with a noise scale per capture: (parameters (p,), weights (n,),
+    Huber factors (n,), 1 for inliers)."""
+    weights, huber = np.ones_like(u_px), np.ones_like(u_px)
     params = np.zeros(design.shape[1])
     for _ in range(iterations):
         root = np.sqrt(weights)
         params = np.asarray(np.linalg.lstsq(design * root[:, None], u_px * root,
                                             rcond=None)[0], dtype=np.float64)
-        new = _huber_weights(u_px - design @ params)
-        if np.allclose(new, weights, atol=1e-6):
+        new, huber = _robust_weights(u_px - design @ params, capture)
+        if np.allclose(new / new.max(), weights / weights.max(), atol=1e-6):
             break
         weights = new
-    return params, weights
+    return params, weights, huber
 
 
 def _covariance(design: FloatArray, u_px: FloatArray, params: FloatArray,
@@ -121,7 +130,8 @@ def _covariance(design: FloatArray, u_px: FloatArray, params: FloatArray,
     groups = np.unique(capture)
     if len(groups) < 3:
         return classical
-    refits = np.array([_irls(design[capture != g], u_px[capture != g])[0] for g in groups])
+    refits = np.array([_irls(design[capture != g], u_px[capture != g], capture[capture != g])[0]
+                       for g in groups])
     spread = refits - refits.mean(axis=0)
     jackknife = spread.T @ spread * (len(groups) - 1) / len(groups)
     scale = np.sqrt(np.maximum(np.diag(jackknife), np.diag(classical)) / np.diag(classical))
@@ -178,12 +188,12 @@ def fit_lines(samples: LineSamples, lines: int, focal_px: float,
     are the intrinsics' standard deviations, added to the standard errors."""
     _check_samples(samples, lines)
     design = _design(samples, lines)
-    params, weights = _irls(design, samples.u_px)
+    params, weights, huber = _irls(design, samples.u_px, samples.capture)
     residual_px = samples.u_px - design @ params
     covariance = _covariance(design, samples.u_px, params, weights, samples.capture)
     laser = _to_laser(params, covariance, focal_px, sigma or IntrinsicsSigma())
     residual_mm = _range_residual_mm(samples, laser, focal_px)
-    inlier = weights >= 0.5
+    inlier = huber >= 0.5
     rms_px = float(np.sqrt(np.mean(residual_px[inlier] ** 2)))
     rms_mm = float(np.sqrt(np.mean(residual_mm[inlier] ** 2)))
     logger.info("laser fit: b = %.5f m, alpha = %s deg, RMS %.3f px / %.2f mm, %d of %d inliers",

@@ -67,7 +67,7 @@ def test_laser_round_trip_with_noise_and_outliers(capsys: pytest.CaptureFixture[
     result = json.loads(text)
     assert result["baseline_m"] == pytest.approx(0.075, rel=0.005)
     assert np.abs(np.array(result["alpha_deg"]) - TRUE_ALPHA_DEG).max() < 0.05
-    assert result["inliers"] < 0.95 * result["samples"] or method == "board"  # the pole
+    assert result["inliers"] < 0.99 * result["samples"] or method == "board"  # the pole
     assert all(0.0 < s < 0.05 for s in result["alpha_sigma_deg"])
     saved = load_calibration(out, expected_size=SIZE)
     assert saved.laser.baseline_m == result["baseline_m"]
