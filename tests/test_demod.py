@@ -45,13 +45,16 @@ def _window_sum(frames: dict[int, np.ndarray], signs: np.ndarray, lag: int,
 
 # --- feature: accumulator dtype and exact sums ----------------------------------------------
 
-@pytest.mark.parametrize(("n", "bits", "dtype"), [
+DTYPE_TABLE = [
     (128, 8, np.int16), (256, 8, np.int32), (32, 10, np.int16), (64, 10, np.int32),
     (8, 12, np.int16), (16, 12, np.int32), (4, 13, np.int16), (8, 13, np.int32),
     (4, 16, np.int32), (4096, 16, np.int32),
-])
-def test_accumulator_dtype_follows_the_bound(n: int, bits: int, dtype: type) -> None:
-    assert accumulator_dtype(n, bits) == np.dtype(dtype)
+]
+
+
+def test_accumulator_dtype_follows_the_bound() -> None:
+    for n, bits, dtype in DTYPE_TABLE:
+        assert accumulator_dtype(n, bits) == np.dtype(dtype), (n, bits)
 
 
 @pytest.mark.parametrize("cls", DEMODULATORS)
