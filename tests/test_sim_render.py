@@ -52,6 +52,10 @@ def test_feature_fixed_seed_is_bit_identical_in_any_order() -> None:
     assert all(np.array_equal(x, y) for x, y in zip(first, second, strict=True))
     other = Simulator(scene(), seed=12).render(0, 0).pixels
     assert not np.array_equal(first[0], other)
+    flicker = {"lux": 300.0, "flicker_hz": 100.0, "flicker_depth": 0.5}
+    c, d = (Simulator(scene(ambient__lamp=flicker), seed=11) for _ in range(2))
+    assert c.dynamic
+    assert np.array_equal(c.render(7).pixels, d.render(7).pixels)
 
 
 def test_feature_static_noise_free_scene_skips_work() -> None:

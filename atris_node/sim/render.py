@@ -210,7 +210,7 @@ class Simulator:
         if not self.noise:
             return self.sensor.quantise(electrons)
         self.calls["noise"] += 1
-        return self.sensor.noisy(self.rng(sequence), *self.sensor.prepare(electrons))
+        return self.sensor.noisy_electrons(self.rng(sequence), electrons)
 
     def _electrons(self, chip: int, t0: float, t1: float) -> Float32Array:
         static = self._static_layer()

@@ -99,6 +99,24 @@ class Sensor:
         np.clip(x, 0.0, self.upper_dn, out=x)
         return cast(Pixels, x.astype(self.dtype))
 
+    def noisy_electrons(self, rng: np.random.Generator, electrons: Float32Array) -> Pixels:
+        """Noisy pixels straight from a mean image that changes every sub-frame.
+
+        ``electrons`` is used as scratch space (its values are destroyed). The Poisson
+        redraw is done only when some pixel is below POISSON_BELOW_E.
+        """
+        low_needed = bool(electrons.min() < POISSON_BELOW_E)
+        if low_needed:
+            return self.noisy(rng, *self.prepare(electrons))
+        sigma = self.sigma_dn(electrons)
+        x = standard_normals(rng, electrons.size).reshape(electrons.shape)
+        x *= sigma
+        electrons *= self.gain
+        electrons += np.float32(0.5)
+        x += electrons
+        np.clip(x, 0.0, self.upper_dn, out=x)
+        return cast(Pixels, x.astype(self.dtype))
+
     def prepare(self, electrons: Float32Array) -> tuple[Float32Array, Float32Array,
                                                         npt.NDArray[np.intp], Float32Array]:
         """Everything :meth:`noisy` needs for one mean image (cache it for static scenes)."""
