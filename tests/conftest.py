@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-import gc
 import threading
 import time
+import weakref
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+import can
 import pytest
 
 DATA_DIR = Path(__file__).parent / "data"
@@ -34,18 +36,24 @@ def no_leaked_threads() -> Iterator[None]:
     assert not names, f"test leaked threads: {names}"
 
 
+#: every python-can bus created in this process, registered by its constructor
+_BUSES: weakref.WeakSet[can.BusABC] = weakref.WeakSet()
+_bus_init = can.BusABC.__init__
+
+
+def _registering_init(self: can.BusABC, *args: Any, **kwargs: Any) -> None:
+    _BUSES.add(self)
+    _bus_init(self, *args, **kwargs)
+
+
+can.BusABC.__init__ = _registering_init  # type: ignore[method-assign]
+
+
 @pytest.fixture(autouse=True)
 def no_leaked_buses() -> Iterator[None]:
     """Fail a test that leaves a python-can bus open."""
-    import can
-
     yield
-    gc.collect()
-    open_buses = [
-        o for o in gc.get_objects()
-        # type(), not isinstance(): canopen's network placeholder raises on __class__
-        if issubclass(type(o), can.BusABC) and not getattr(o, "_is_shutdown", True)
-    ]
+    open_buses = [b for b in list(_BUSES) if not getattr(b, "_is_shutdown", True)]
     for bus in open_buses:
         bus.shutdown()
     assert not open_buses, f"test left {len(open_buses)} python-can bus(es) open"
