@@ -118,3 +118,5 @@ def test_exception_bad_settings() -> None:
         open_backend("nowhere")
     with pytest.raises(ConfigError, match="lag_sub_frames must be >= 0"):
         open_backend(small_scene(), lag_sub_frames=-1)
+    with pytest.raises(ConfigError, match="exposure_us must be in"):
+        open_backend(small_scene(), rate_hz=2000.0)  # 1000 µs does not fit 500 µs

@@ -112,6 +112,7 @@ class Simulator:
         self._dirs_cam, self._dirs = layers.camera_rays(scene.camera, self.mounting)
         self._static: _Static | None = None
         self._prepared: dict[int, tuple[object, ...]] = {}
+        self.set_exposure_us(scene.camera.exposure_us)  # checks it fits the sub-frame rate
 
     # ------------------------------------------------------------------ set-up
     @property
