@@ -106,11 +106,13 @@ class Publisher:
             self._thread.join()
 
     def update(self, measurement: Measurement | None, status: UnitStatus) -> None:
-        """Hand over the newest measurement and status; a new measurement is sent at once."""
+        """Hand over the newest measurement and status; a new measurement or a change of
+        state (a fault, the code lost) is sent at once."""
         if measurement is not None:
             payloads.check_sector_count(max(len(measurement.sectors), 1))
         with self._lock:
             fresh = measurement is not None and measurement is not self._measurement
+            fresh |= status.state != self._status.state  # e.g. a camera fault: invalid at once
             self._measurement, self._status = measurement, status
         if fresh:
             self._wake.set()
