@@ -148,12 +148,15 @@ def test_disconnect_is_invalid_within_one_period_laser_off_and_recovers(
     assert valid_before, "no valid distance before the disconnect: the test proves nothing"
     first_invalid = next(t for t, d in frames.frames if t >= lost_at and not isinstance(d, float))
     latency_s = first_invalid - lost_at
-    assert latency_s <= period_s * 1.25, f"invalid only {latency_s * 1e3:.1f} ms after the loss"
+    print(f"\ndisconnect -> first invalid sectors frame: {latency_s * 1e3:.1f} ms "
+          f"(publish period {period_s * 1e3:.0f} ms)")
+    assert latency_s <= period_s, f"invalid only {latency_s * 1e3:.1f} ms after the loss"
     back_at = next(t for t, d in frames.frames if t > first_invalid and isinstance(d, float))
     stale = [t for t, d in frames.frames
              if first_invalid < t < back_at and isinstance(d, float)]
     assert stale == [] and back_at - lost_at >= RECONNECT_MIN_S
     assert unit.stats.reconnects == 1 and len(measurements) > count
+    print(f"disconnect -> valid distances again: {(back_at - lost_at) * 1e3:.0f} ms")
 
 
 #: the first reconnection attempt waits this long, so valid data cannot return sooner
