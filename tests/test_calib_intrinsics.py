@@ -58,10 +58,10 @@ def test_views_of_different_sizes_are_refused(views: list) -> None:
 
 
 def test_printable_board_is_detected_with_every_corner(tmp_path: Path) -> None:
-    png, pdf = write_printable(SPEC, tmp_path / "board.png", tmp_path / "board.pdf", dpi=150)
+    png, pdf = write_printable(SPEC, tmp_path / "board.png", tmp_path / "board.pdf", dpi=72)
     assert pdf is not None and pdf.read_bytes().startswith(b"%PDF")
     image = cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)
-    square_px = round(SPEC.square_m * 1000 / 25.4 * 150)
+    square_px = round(SPEC.square_m * 1000 / 25.4 * 72)
     assert image.shape == ((SPEC.squares_y + 1) * square_px, (SPEC.squares_x + 1) * square_px)
     detection = detect(SPEC, image)
     assert detection is not None and detection.count == SPEC.corner_count
