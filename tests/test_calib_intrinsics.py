@@ -62,7 +62,9 @@ def test_printable_board_is_detected_with_every_corner(tmp_path: Path) -> None:
     assert pdf is not None and pdf.read_bytes().startswith(b"%PDF")
     image = cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)
     square_px = round(SPEC.square_m * 1000 / 25.4 * 72)
-    assert image.shape == ((SPEC.squares_y + 1) * square_px, (SPEC.squares_x + 1) * square_px)
+    margin = 2 * (square_px // 2)  # half a square of white on each side
+    assert image.shape == (SPEC.squares_y * square_px + margin,
+                           SPEC.squares_x * square_px + margin)
     detection = detect(SPEC, image)
     assert detection is not None and detection.count == SPEC.corner_count
 
