@@ -9,12 +9,31 @@ from __future__ import annotations
 import abc
 from collections.abc import Iterator
 from types import TracebackType
+from typing import Self
 
 from atris_node.calibration import Calibration
 from atris_node.types import SubFrame
 
 
-class Camera(abc.ABC):
+class _Closing:
+    """Context manager over ``close()``, shared by both roles."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class Camera(_Closing, abc.ABC):
     """A source of sub-frames.
 
     ``read(timeout_s)`` returns the next sub-frame or raises
@@ -37,7 +56,7 @@ class Camera(abc.ABC):
         """Calibration the device itself knows (the simulator's truth), or None."""
         return None
 
-    def set_exposure_us(self, exposure_us: float) -> None:  # noqa: B027 - optional hook
+    def set_exposure_us(self, exposure_us: float) -> None:
         """Request an exposure time; backends without exposure control ignore it."""
 
     def frames(self, timeout_s: float = 1.0) -> Iterator[SubFrame]:
@@ -45,7 +64,7 @@ class Camera(abc.ABC):
         while not self._closed:
             yield self.read(timeout_s)
 
-    def _close(self) -> None:  # noqa: B027 - optional hook
+    def _close(self) -> None:
         """Backend: release the device."""
 
     def close(self) -> None:
@@ -54,19 +73,8 @@ class Camera(abc.ABC):
             self._closed = True
             self._close()
 
-    def __enter__(self) -> Camera:
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
-
-class Projector(abc.ABC):
+class Projector(_Closing, abc.ABC):
     """A pattern projector switched ON/OFF per sub-frame.
 
     The base keeps the safety rule: after ``off()`` or ``close()`` the projector is dark
@@ -98,7 +106,7 @@ class Projector(abc.ABC):
         self._off()
         self._lit = False
 
-    def set_intensity(self, fraction: float) -> None:  # noqa: B027 - optional hook
+    def set_intensity(self, fraction: float) -> None:
         """Set emitter power as a fraction 0..1 of the maximum."""
 
     @property
@@ -111,14 +119,3 @@ class Projector(abc.ABC):
         if not self._closed:
             self.off()
             self._closed = True
-
-    def __enter__(self) -> Projector:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

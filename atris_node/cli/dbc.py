@@ -3,20 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from atris_node.bus.frames import dbc_text
+from atris_node.cli.common import add_output_argument, write_text
 
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--output", "-o", help="write to this file instead of stdout")
+add_arguments = add_output_argument
 
 
 def run(args: argparse.Namespace) -> int:
-    text = dbc_text()
-    if args.output:
-        with open(args.output, "w", encoding="utf-8") as out:
-            out.write(text)
-    else:
-        sys.stdout.write(text)
-    return 0
+    return write_text(dbc_text(), args.output)
