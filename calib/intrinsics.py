@@ -21,9 +21,9 @@ import numpy.typing as npt
 
 from atris_node.calibration import CameraModel
 from atris_node.errors import CalibrationError
+from atris_node.progress import progress
 from calib.board import BoardDetection, BoardSpec, detect, to_gray8
 from calib.files import IntrinsicsSigma
-from calib.progress import progress
 
 logger = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ import numpy.typing as npt
 from atris_node import codes
 from atris_node.demod import BlockDemodulator
 from atris_node.errors import CalibrationError
-from calib.progress import progress
+from atris_node.progress import progress
 
 logger = logging.getLogger(__name__)
 

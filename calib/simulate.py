@@ -31,12 +31,12 @@ import numpy.typing as npt
 from atris_node import codes
 from atris_node.calibration import Calibration, CameraModel, LaserCalibration
 from atris_node.errors import CalibrationError
+from atris_node.progress import progress
 from atris_node.sim import Scene, Simulator, load_scene
 from atris_node.sim.raycast import Box, Plane, Shape
 from calib.board import BoardSpec
 from calib.captures import BoardLaserCapture, CaptureSet, FlatCapture, write_manifest
 from calib.files import save_calibration
-from calib.progress import progress
 from calib.synthetic import (
     BoardPose,
     laser_rows_on_board,

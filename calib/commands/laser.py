@@ -16,6 +16,7 @@ import numpy as np
 
 from atris_node.calibration import Calibration, CameraModel
 from atris_node.errors import CalibrationError
+from atris_node.progress import progress
 from calib import laser
 from calib.board import BoardSpec, estimate_pose
 from calib.captures import CaptureSet, load_capture_set, load_map
@@ -30,7 +31,6 @@ from calib.commands.common import (
 from calib.files import CameraFile, load_camera_file, save_calibration
 from calib.peaks import LineRows, find_line_rows
 from calib.plots import plot_laser
-from calib.progress import progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -1,6 +1,6 @@
-"""Progress bars for the calibration commands (tqdm on stderr).
+"""Progress bars for long commands (calibration, simulation, benchmarks; tqdm on stderr).
 
-tqdm's monitor thread is switched off: a calibration run is short, and a thread that
+tqdm's monitor thread is switched off: these runs are short, and a thread that
 outlives the command would be a leak in the tests and in a host process.
 """
 
