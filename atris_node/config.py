@@ -124,6 +124,27 @@ PARAMS: tuple[Param, ...] = (
     P("mounting.yaw_deg", float, 0.0, "camera yaw, positive to the left, deg",
       in_range(-180.0, 180.0)),
     P("calibration.file", str, "", "calibration file; empty = the simulator's truth"),
+    P("adaptive.enabled", bool, False, "adapt code length and exposure to the scene"),
+    P("adaptive.snr_target", float, 8.0, "line SNR wanted ...", in_range(1.5, 1e4)),
+    P("adaptive.column_share", float, 0.2, "... on this share of line-column places",
+      in_range(0.01, 1.0)),
+    P("adaptive.min_length", int, 4, "shortest N adaptation asks for", power_of_two(4, 128)),
+    P("adaptive.max_length", int, 32, "longest N adaptation asks for (and code.max_length)",
+      power_of_two(4, 128)),
+    P("adaptive.grow_frames", int, 2, "output frames below target before N doubles",
+      in_range(1, 1000)),
+    P("adaptive.shrink_frames", int, 4, "output frames with margin before N shrinks",
+      in_range(1, 1000)),
+    P("adaptive.hysteresis", float, 0.25, "extra share needed to shorten N (fraction)",
+      in_range(0.0, 10.0)),
+    P("adaptive.noise_exponent", float, 0.5, "delta grows as N**this (0 = paper Eq. 6)",
+      in_range(0.0, 0.95)),
+    P("adaptive.exposure", bool, True, "adapt the exposure (when adaptive.enabled)"),
+    P("adaptive.exposure_min_us", float, 10.0, "shortest exposure, us", in_range(1.0, 1e5)),
+    P("adaptive.exposure_max_us", float, 4000.0, "longest exposure, us (and 95 % of a "
+      "sub-frame period)", in_range(1.0, 1e5)),
+    P("adaptive.low_signal_ratio", float, 1.0, "LOW_SIGNAL when laser l <= this * delta",
+      in_range(0.0, 100.0)),
 )
 PARAM_BY_KEY: dict[str, Param] = {p.key: p for p in PARAMS}
 
