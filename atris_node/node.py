@@ -31,6 +31,8 @@ from typing import Any
 import can
 
 from atris_node import wiring
+from atris_node.adaptive import AdaptiveController, controller_from_config, withheld
+from atris_node.assessment import assess
 from atris_node.bus.canopen_device import CanopenDevice
 from atris_node.bus.publisher import Publisher
 from atris_node.codes import code_set, walsh_chips
@@ -121,6 +123,7 @@ class Unit:
         self._last_map: DistortionMap | None = None
         self._last_sub: SubFrame | None = None
         self._last_result: Any = None
+        self._adaptive: AdaptiveController | None = None
         self._counter = 0
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
@@ -137,6 +140,8 @@ class Unit:
         self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
                                                   self._services)
+        self._adaptive = controller_from_config(self.config,
+                                                float(getattr(self._camera, "rate_hz", 0.0)))
         self.lifecycle = Lifecycle.INACTIVE
         logger.info("unit %s configured", self.label)
 
@@ -316,7 +321,24 @@ class Unit:
         self._last_result = result
         self._count_deadline(dmap)
         self.stats.measurements += 1
-        self._publish(result.measurement)
+        self._publish(self._adapt(dmap, result))
+
+    def _adapt(self, dmap: DistortionMap, result: Any) -> Measurement:
+        """Scene assessment, adaptive exposure and N (docs/adaptive.md); off by default."""
+        if self._adaptive is None or self._camera is None:
+            return result.measurement
+        diag = result.diagnostics
+        dmap.extra["foreign_code_energy"] = diag.foreign_energy
+        decision = self._adaptive.on_frame(
+            assess(dmap, result.samples.snr, diag.line_snr, diag.foreign_energy,
+                   self._last_sub), int(self._negotiator.plan.code_length))
+        if decision.exposure_us is not None:
+            self._camera.set_exposure_us(decision.exposure_us)
+        if decision.code_length is not None:
+            self._negotiator.request_plan(decision.code_length)
+        self.faults = (self.faults | FaultBits.LOW_SIGNAL if decision.low_signal
+                       else self.faults & ~FaultBits.LOW_SIGNAL)
+        return withheld(result.measurement) if decision.low_signal else result.measurement
 
     def _count_deadline(self, dmap: DistortionMap) -> None:
         """A map not processed within one output period of its newest sub-frame is late."""
