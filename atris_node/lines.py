@@ -44,6 +44,8 @@ PEAK_METHODS = ("cog", "parabolic", "gaussian", "blais_rioux", "steger")
 QUARTILE_TO_SIGMA = 0.6745
 #: the smallest noise floor used, DN (quantisation of an integer map is 0.29 DN)
 MIN_NOISE_DN = 0.5
+#: side of the square tiles of the local noise estimate, pixels
+NOISE_TILE_PX = 32
 #: uncertainty given to the centre of a flat-topped (saturated) stripe, pixels
 SATURATED_SIGMA_PX = 0.5
 #: half window (px) searched for the saturated run of a flat-topped stripe
@@ -199,6 +201,52 @@ def noise_floor(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -
     return float(median), max(float(median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
 
 
+@dataclass(frozen=True)
+class NoiseMap:
+    """Local background and noise σ (DN), (H, W) float32, filled in the rows read only.
+
+    Shot noise grows with the ambient light, so a sunlit patch is noisier than the rest:
+    one global threshold would take its noise for peaks. Each NOISE_TILE_PX square tile
+    of the rows read gets its own median and ``(median - q25) / 0.6745`` (2×2 subsample).
+    """
+
+    background: npt.NDArray[np.float32]
+    sigma: npt.NDArray[np.float32]
+
+    def snr(self, values: npt.NDArray[np.generic], rows: IntArray, cols: IntArray) -> FloatArray:
+        """(n,) SNR of the map values at (rows, cols)."""
+        peak = values[rows, cols].astype(np.float64)
+        return (peak - self.background[rows, cols]) / self.sigma[rows, cols]
+
+
+def _tile_statistics(block: npt.NDArray[Any]) -> tuple[FloatArray, FloatArray]:
+    """Per NOISE_TILE_PX tile of ``block`` (h, w): (median, σ), each (h, w) float32."""
+    h, w = block.shape
+    t = NOISE_TILE_PX // 2
+    sub = block[::2, ::2].astype(np.float32)
+    nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
+    padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])), "symmetric")
+    tiles = padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
+    q25, median = np.percentile(tiles, [25.0, 50.0], axis=-1)
+    sigma = np.maximum((median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
+
+    def expand(a: FloatArray) -> FloatArray:
+        full = np.repeat(np.repeat(a, NOISE_TILE_PX, axis=0), NOISE_TILE_PX, axis=1)
+        return np.asarray(full[:h, :w], dtype=np.float32)
+
+    return expand(median), expand(sigma)
+
+
+def noise_map(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -> NoiseMap:
+    """The :class:`NoiseMap` of the rows in ``spans``."""
+    background = np.zeros(values.shape, dtype=np.float32)
+    sigma = np.full(values.shape, MIN_NOISE_DN, dtype=np.float32)
+    for lo, hi in spans:
+        if hi > lo:
+            background[lo:hi], sigma[lo:hi] = _tile_statistics(values[lo:hi])
+    return NoiseMap(background, sigma)
+
+
 # --------------------------------------------------------------------------- sub-pixel
 
 
@@ -292,14 +340,15 @@ def saturated_centre(saturated: BoolArray, rows: IntArray, cols: IntArray,
 
 
 def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]],
-                  threshold_dn: float, sep: int, per_column: int) -> IntArray:
-    """(per_column, W) rows of the local maxima >= ``threshold_dn`` in ``spans``, sorted
+                  threshold_dn: npt.NDArray[np.float32], sep: int, per_column: int) -> IntArray:
+    """(per_column, W) rows of the local maxima >= ``threshold_dn`` ((H, W) DN) in ``spans``,
+    sorted
     top to bottom in each column, -1 padded. A maximum is strictly above the ``sep`` rows
     over it and not below the ``sep`` rows under it (a plateau counts once)."""
     rows, cols = [], []
     for lo, hi in spans:
         block = values[lo:hi]
-        peak = block >= threshold_dn
+        peak = block >= threshold_dn[lo:hi]
         for d in range(1, sep + 1):
             peak[d:] &= block[d:] > block[:-d]
             peak[:-d] &= block[:-d] >= block[d:]
@@ -513,14 +562,15 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     height = values.shape[0]
     spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
     background, noise = noise_floor(values, spans)
-    peaks = strong_maxima(values, spans, background + settings.snr_min * noise,
+    local = noise_map(values, spans)
+    peaks = strong_maxima(values, spans, local.background + settings.snr_min * local.sigma,
                           settings.min_separation_px, len(bands) + EXTRA_PEAKS)
     rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior)
     ambiguous = int(unsure.sum())
     unassigned = np.maximum(_count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
     line, cols = np.nonzero(rows >= 0)
     peak_rows = rows[line, cols]
-    snr = (values[peak_rows, cols].astype(np.float64) - background) / noise
+    snr = local.snr(values, peak_rows, cols)
     strong = snr >= settings.snr_min
     line, cols, peak_rows, snr = line[strong], cols[strong], peak_rows[strong], snr[strong]
     row, sigma, flat, ok = _refine(values, saturated, peak_rows, cols,
@@ -554,3 +604,24 @@ def smooth_along_lines(samples: LineSamples, lines: int, width: int,
     row[ok] = np.median(stack[:, ok], axis=0)
     return LineSamples(samples.line, row, samples.col_px, samples.snr, samples.sigma_u_px,
                        samples.saturated)
+
+
+def supported_along_lines(samples: LineSamples, lines: int, width: int, reach: int = 2,
+                          max_step_px: float = 2.0) -> BoolArray:
+    """(n,) True for samples with a sample of the same line within ``reach`` columns and
+    ``max_step_px`` rows: a lone sample is more likely a wrong identity than a surface."""
+    if len(samples) == 0:
+        return np.zeros(0, dtype=np.bool_)
+    grid = np.full((lines, width + 2 * reach), np.inf)
+    cols = samples.col_px.astype(np.int64) + reach
+    grid[samples.line, cols] = samples.row_px
+    near = np.zeros(len(samples), dtype=np.bool_)
+    for d in (*range(-reach, 0), *range(1, reach + 1)):
+        near |= np.abs(grid[samples.line, cols + d] - samples.row_px) <= max_step_px
+    return near
+
+
+def select(samples: LineSamples, keep: BoolArray) -> LineSamples:
+    """The samples where ``keep`` is True."""
+    return LineSamples(samples.line[keep], samples.row_px[keep], samples.col_px[keep],
+                       samples.snr[keep], samples.sigma_u_px[keep], samples.saturated[keep])

@@ -5,7 +5,8 @@ metres). A point is an *obstacle* when it is a valid return and higher than the 
 clearance above the ground plane. Per sector (see :mod:`atris_node.sectors`):
 
 - VALID: at least ``min_points`` obstacle points and enough confidence; the distance is
-  a low quantile of their horizontal ranges (robust against single outliers);
+  a low quantile of their horizontal ranges, and never nearer than the ``min_points``-th
+  nearest point (a distance always has ``min_points`` points behind it);
 - NO_RETURN: at least ``min_points`` samples (ground hits or rays with no return within
   range) and no obstacle point at all: free up to the range limit;
 - INVALID: everything else (too few samples, too few obstacle points to trust, or low
@@ -126,7 +127,8 @@ def _sector(index: int, layout: SectorLayout, ranges: FloatArray, snr: FloatArra
     conf = _confidence(ranges.size, snr, settings)
     if ranges.size < settings.min_points or conf < settings.min_confidence:
         return SectorDistance(index, bearing, SectorState.INVALID, 0.0, conf, ranges.size)
-    distance = float(np.quantile(ranges, settings.quantile))
+    supported = np.partition(ranges, settings.min_points - 1)[settings.min_points - 1]
+    distance = float(max(np.quantile(ranges, settings.quantile), supported))
     return SectorDistance(index, bearing, SectorState.VALID, distance, conf, ranges.size)
 
 

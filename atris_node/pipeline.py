@@ -33,7 +33,9 @@ from atris_node.lines import (
     VisibilityPrior,
     extract_lines,
     line_bands,
+    select,
     smooth_along_lines,
+    supported_along_lines,
 )
 from atris_node.mounting import Mounting
 from atris_node.obstacles import (
@@ -87,6 +89,7 @@ class PipelineConfig:
     foreign_limit: float = 0.02
     invalid_on_interference: bool = True  # flagged foreign light: every sector INVALID
     smooth_columns: int = 5  # median of this many columns along each line (1 = off)
+    drop_lone_samples: bool = True  # a sample needs a neighbour on its line (±2 columns)
 
     def __post_init__(self) -> None:
         _check(self.peak_method in PEAK_METHODS, "peak_method", self.peak_method,
@@ -140,7 +143,7 @@ class Diagnostics:
     line_snr: tuple[float, ...]
     foreign_energy: float
     unassigned_fraction: float
-    foreign_columns: int  # columns not used for sectors: foreign light in or next to them
+    foreign_columns: int  # columns with foreign light in or next to them
     interference: bool
     ground: GroundPlane
     timings_ms: dict[str, float] = field(default_factory=dict)
@@ -247,19 +250,26 @@ class Pipeline:
         extraction = extract_lines(dmap.values, dmap.saturated, self.bands, self._extractor,
                                    roi_bands=self.config.roi_bands, prior=self._prior)
         timings["lines"] = _lap(start)
-        samples = smooth_along_lines(extraction.samples, len(self.bands),
-                                     self.calibration.camera.width_px,
-                                     self.config.smooth_columns)
+        samples = self._clean_samples(extraction.samples)
         points, vehicle = self._triangulate(samples)
         timings["triangulate"] = _lap(start)
         self._update_ground(vehicle[points.valid])
-        result = self._assemble(dmap, replace(extraction, samples=samples), points, vehicle,
-                                timings)
+        lone = len(extraction.samples) - len(samples)
+        result = self._assemble(dmap, replace(extraction, samples=samples,
+                                              dropped=extraction.dropped + lone),
+                                points, vehicle, timings)
         timings["sectors"] = _lap(start)
         self._export(result, dmap.last_sequence)
         timings["total"] = _lap(start)
         self._counter += 1
         return result
+
+    def _clean_samples(self, samples: LineSamples) -> LineSamples:
+        """Lone samples (no neighbour on their line) dropped, then the median along lines."""
+        width, lines = self.calibration.camera.width_px, len(self.bands)
+        if self.config.drop_lone_samples:
+            samples = select(samples, supported_along_lines(samples, lines, width))
+        return smooth_along_lines(samples, lines, width, self.config.smooth_columns)
 
     def _check_shape(self, dmap: DistortionMap) -> None:
         cam = self.calibration.camera
@@ -293,7 +303,7 @@ class Pipeline:
         energy, negative = foreign_energy(dmap, extraction.spans, extraction.background_dn,
                                           self.config.snr_min * extraction.noise_floor_dn)
         foreign = _widen(extraction.foreign_columns | negative, FOREIGN_MARGIN_COLUMNS)
-        clean = ~foreign[samples.col_px.astype(np.int64)]
+        clean = np.ones(len(samples), dtype=np.bool_)
         flagged = max(energy, extraction.unassigned / (len(self.bands) * foreign.size)) > (
             self.config.foreign_limit)
         if flagged and self.config.invalid_on_interference:
