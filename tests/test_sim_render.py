@@ -187,3 +187,27 @@ def test_exception_bad_unit_chip_and_exposure() -> None:
         sim.render(0, chip=2)
     with pytest.raises(ConfigError, match="exposure_us must be in"):
         sim.set_exposure_us(10000.0)
+
+
+def test_feature_interferers_attach_while_rendering() -> None:
+    import threading
+
+    sim = Simulator(scene(), seed=1)
+    errors: list[BaseException] = []
+
+    def attach() -> None:
+        try:
+            for i in range(3):
+                sim.add_interferer(Mounting(y_m=0.2 * i), LinePattern((1.5,), 0.05),
+                                   always_on)
+        except BaseException as exc:  # pragma: no cover - reported below
+            errors.append(exc)
+
+    worker = threading.Thread(target=attach, name="attach")
+    worker.start()
+    frames = [sim.render(s) for s in range(30)]
+    worker.join()
+    assert not errors and len(frames) == 30
+    assert len(sim.sources) == 3 and len(sim._static_layer().interferers) == 3
+    alone = Simulator(scene(), seed=1).render(30, 0).pixels.astype(np.int64)
+    assert (sim.render(30, 0).pixels - alone).sum() > 1000  # their lines add light

@@ -24,6 +24,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+import threading
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -111,6 +112,7 @@ class Simulator:
         self.moving_shapes = tuple(s for s in scene.shapes if s.moving)
         self._dirs_cam, self._dirs = layers.camera_rays(scene.camera, self.mounting)
         self._static: _Static | None = None
+        self._lock = threading.Lock()
         self._prepared: dict[int, tuple[object, ...]] = {}
         self.set_exposure_us(scene.camera.exposure_us)  # checks it fits the sub-frame rate
 
@@ -127,33 +129,48 @@ class Simulator:
         """True when sub-frames differ by more than chip and noise."""
         return self.flickers or bool(self.sources) or bool(self.moving_shapes)
 
-    def _sheet(self, pose: Mounting, pattern: LinePattern) -> Float32Array:
-        static = self._static_layer()
+    def _sheet(self, static: _Static, pose: Mounting, pattern: LinePattern) -> Float32Array:
         return layers.sheet_rates(self.camera, pose, pattern, static.surface,
                                   self.static_shapes)
 
     def _static_layer(self) -> _Static:
-        if self._static is None:
-            self.calls["static_render"] += 1
-            surface = layers.see(self.static_shapes, self.mounting.translation, self._dirs)
-            steady, lamp = layers.ambient_rates(self.scene, surface, self.static_shapes)
-            if not self.flickers:
-                steady += lamp
-            laser = layers.sheet_rates(self.camera, self.mounting, self.scene.projector,
-                                       surface, self.static_shapes)
-            self._static = _Static(surface, steady, lamp, laser,
-                                   lit=np.flatnonzero(laser.reshape(-1) > 0))
-            self._static.interferers = [self._sheet(s.pose, s.pattern) for s in self.sources]
-        return self._static
+        """The static scene's rates, rendered once (thread-safe: another thread may be
+        attaching interferers while this one renders)."""
+        static = self._static
+        if static is None:
+            with self._lock:
+                if self._static is None:
+                    self._static = self._render_static()
+                static = self._static
+        return static
+
+    def _render_static(self) -> _Static:
+        self.calls["static_render"] += 1
+        surface = layers.see(self.static_shapes, self.mounting.translation, self._dirs)
+        steady, lamp = layers.ambient_rates(self.scene, surface, self.static_shapes)
+        if not self.flickers:
+            steady += lamp
+        laser = layers.sheet_rates(self.camera, self.mounting, self.scene.projector,
+                                   surface, self.static_shapes)
+        static = _Static(surface, steady, lamp, laser,
+                         lit=np.flatnonzero(laser.reshape(-1) > 0))
+        static.interferers = [self._sheet(static, s.pose, s.pattern) for s in self.sources]
+        return static
 
     def add_interferer(self, pose: Mounting, pattern: LinePattern, strobe: Strobe,
                        name: str = "") -> None:
         """Attach a strobing line projector at ``pose`` (its camera frame, vehicle frame
-        coordinates); ``strobe(t0_s, t1_s)`` is the fraction of the window it was ON."""
-        self.sources.append(Source(pose, pattern, strobe, name))
-        if self._static is not None:
-            self._static.interferers.append(self._sheet(pose, pattern))
-        self._prepared.clear()
+        coordinates); ``strobe(t0_s, t1_s)`` is the fraction of the window it was ON.
+
+        Safe while another thread renders: the rates are appended before the source, so
+        a render pairs sources with rates by index and never sees a source without them.
+        """
+        source = Source(pose, pattern, strobe, name)
+        with self._lock:
+            if self._static is not None:
+                self._static.interferers.append(self._sheet(self._static, pose, pattern))
+            self.sources.append(source)
+            self._prepared.clear()
 
     def set_exposure_us(self, exposure_us: float) -> None:
         """Change the exposure (µs, > 0, at most one sub-frame period)."""
@@ -225,7 +242,7 @@ class Simulator:
                                                          t0, t1))
         if chip:
             e += self._laser(0.5 * (t0 + t1)) if self.moving_shapes else static.laser
-        for source, rates in zip(self.sources, static.interferers, strict=True):
+        for source, rates in zip(list(self.sources), static.interferers, strict=False):
             self.calls["interferer"] += 1
             on = source.strobe(t0, t1)
             if on > 0.0:
