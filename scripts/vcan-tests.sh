@@ -100,7 +100,8 @@ run_in_vm() {
   log "booting $kernel without KVM (${VM_MEMORY}, 2 CPUs), results in $results"
   PATH="$PWD/$VENV/bin:$PATH" timeout "$VM_TIMEOUT_S" vng --run "$kernel" --disable-kvm \
     --memory "$VM_MEMORY" --cpus 2 --rwdir "$results" \
-    --exec "bash scripts/vcan-tests.sh --guest $results ${*@Q}" </dev/null
+    --exec "bash scripts/vcan-tests.sh --guest $results ${*@Q}" </dev/null | cat
+  # (through a pipe: qemu re-opens its stdout by path, which would overwrite a log file)
 }
 
 # --- host: the verdict ----------------------------------------------------------------------
@@ -116,6 +117,10 @@ host_main() {
   fi
   log "finished in $((SECONDS - start)) s (exit code $rc)"
   "$PY" scripts/check_junit.py "$results/junit.xml" || rc=1
+  if [ "$rc" != 0 ] && [ -s "$results/units.log" ]; then
+    log "stderr of the unit processes (last 60 lines):"
+    tail -n 60 "$results/units.log"
+  fi
   rm -rf "$results"
   return "$rc"
 }

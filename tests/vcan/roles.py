@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import logging
 import os
 import selectors
 import signal
@@ -157,10 +158,67 @@ def publisher(channel: str, unit_id: str, period_s: str, update_s: str) -> None:
     emit("done", frames_sent=pub.stats.frames_sent, send_errors=pub.stats.send_errors)
 
 
+def canopen_slave(channel: str, node_id: str, update_s: str) -> None:
+    """The unit as a CANopen slave (CanopenDevice) fed a measurement every ``update_s``."""
+    import canopen
+
+    from atris_node.bus.canopen_device import CanopenDevice
+    from atris_node.types import UnitState, UnitStatus
+
+    stop, counter = StdinWatch(), 0
+    network = canopen.Network()
+    network.connect(interface="socketcan", channel=channel)
+    device = CanopenDevice(network, int(node_id, 0))
+    try:
+        device.start()
+        emit("ready")
+        while not stop.poll(float(update_s)):
+            status = UnitStatus(UnitState.RUNNING, 3, 16, 480.0, counter)
+            device.update(measurement(counter, 4, time.monotonic()), status)
+            counter += 1
+    finally:
+        device.stop()
+        network.disconnect()
+    device.check()
+    emit("done", nmt_state=device.nmt_state, updates=counter)
+
+
+def negotiator(channel: str, name: str, unit_id: str, code_length: str) -> None:
+    """A unit's Negotiator on its own socketcan bus; emits every change of what it may do."""
+    from atris_node.bus.negotiation import Negotiator
+    from atris_node.bus.negotiation_plan import Plan
+
+    stop, last = StdinWatch(), None
+    with can.Bus(interface="socketcan", channel=channel) as bus:
+        unit = Negotiator(bus, int(name, 0), Plan(int(code_length), 480.0), int(unit_id))
+        unit.start()
+        emit("ready")
+        try:
+            while not stop.poll(0.02):
+                unit.tick()
+                now = (unit.state.name, unit.code_row, unit.may_strobe)
+                if now != last:
+                    emit("state", t=time.time(), state=now[0], code_row=now[1], strobe=now[2])
+                    last = now
+        finally:
+            unit.stop()
+    emit("state", t=time.time(), state="IDLE", code_row=None, strobe=False)
+    emit("done", hops=unit.hop_count, malformed=unit.malformed_frames)
+
+
+def atris(*argv: str) -> None:
+    """The ``atris`` command itself (e.g. ``run --set bus.interface=socketcan ...``)."""
+    from atris_node.cli import main
+
+    emit("ready")
+    code = main(list(argv))
+    emit("done", exit_code=code)
+
+
 #: modules the zygote imports once, so forked units start at once
 PRELOAD = ("numpy", "can.interfaces.socketcan", "cantools", "canopen", "atris_node.types",
            "atris_node.bus.frames", "atris_node.bus.publisher", "atris_node.bus.canopen_device",
-           "atris_node.bus.negotiation")
+           "atris_node.bus.negotiation", "atris_node.runner", "atris_node.cli.run")
 
 
 def zygote() -> None:
@@ -206,10 +264,13 @@ def run_child(request: dict[str, Any]) -> None:
 
 ROLES: dict[str, Callable[..., None]] = {
     "sender": sender, "echo": echo, "babbler": babbler, "periodic": periodic,
-    "publisher": publisher,
+    "publisher": publisher, "canopen_slave": canopen_slave, "negotiator": negotiator,
+    "atris": atris,
 }
 
 if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr,
+                        format="%(process)d %(relativeCreated)8.0f %(name)s: %(message)s")
     if sys.argv[1] == "zygote":
         zygote()
     else:

@@ -32,10 +32,12 @@ class Zygote:
 
     def __init__(self) -> None:
         env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1", "OPENBLAS_NUM_THREADS": "1"}
-        self.proc = subprocess.Popen([sys.executable, str(ROLES), "zygote"], cwd=REPO_ROOT,
-                                     env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     text=True)
         self.tmp = tempfile.TemporaryDirectory(prefix="atris-vcan-")
+        self.log_path = Path(os.environ.get("ATRIS_VCAN_RESULTS", self.tmp.name)) / "units.log"
+        with open(self.log_path, "a") as log:
+            self.proc = subprocess.Popen([sys.executable, str(ROLES), "zygote"], cwd=REPO_ROOT,
+                                         env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=log, text=True)
         self.count = 0
 
     def fork(self, role: str, args: tuple[str, ...]) -> tuple[int, Path, Path]:
@@ -70,7 +72,8 @@ class UnitProcess:
         self.role = role
         self.pid, fifo_in, fifo_out = zygote.fork(role, args)
         self.stdin: IO[str] = open(fifo_in, "w")  # noqa: SIM115 (closed by close())
-        self.stdout: IO[str] = open(fifo_out)  # noqa: SIM115
+        self.stdout: IO[bytes] = open(fifo_out, "rb", buffering=0)  # noqa: SIM115
+        self._pending = b""
         self.events: list[dict[str, Any]] = []
         self._selector = selectors.DefaultSelector()
         self._selector.register(self.stdout, selectors.EVENT_READ)
@@ -85,11 +88,15 @@ class UnitProcess:
 
     def read(self, timeout_s: float = 60.0) -> dict[str, Any]:
         """The next JSON object the unit printed; fails the test after ``timeout_s``."""
-        if not self._selector.select(timeout_s):
-            pytest.fail(f"{self.role}: no output within {timeout_s} s")
-        line = self.stdout.readline()
-        if not line:
-            pytest.fail(f"{self.role}: exited before answering")
+        deadline = time.monotonic() + timeout_s
+        while b"\n" not in self._pending:
+            if not self._selector.select(max(deadline - time.monotonic(), 0.0)):
+                pytest.fail(f"{self.role}: no output within {timeout_s} s")
+            chunk = os.read(self.stdout.fileno(), 65536)
+            if not chunk:
+                pytest.fail(f"{self.role}: exited before answering")
+            self._pending += chunk
+        line, self._pending = self._pending.split(b"\n", 1)
         self.events.append(dict(json.loads(line)))
         return self.events[-1]
 
@@ -100,6 +107,14 @@ class UnitProcess:
             msg = self.read(max(deadline - time.monotonic(), 0.01))
             if msg.get("event") == event:
                 return msg
+
+    def drain(self) -> None:
+        """Reads every line the unit has printed so far, without waiting."""
+        while b"\n" in self._pending or self._selector.select(0.0):
+            try:
+                self.read(0.0)
+            except pytest.fail.Exception:
+                return
 
     def of(self, event: str) -> list[dict[str, Any]]:
         """Every line read so far whose ``event`` is ``event``."""

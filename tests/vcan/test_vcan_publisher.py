@@ -8,7 +8,6 @@ sub-frame to the kernel receive timestamp of its frames is measured and recorded
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -16,56 +15,12 @@ import cantools
 import pytest
 from e2e_reference import P01Receiver, crc_calculate_crc8
 from roles import sector_distance_m
-from vcan_support import REPO_ROOT, summary_ms
+from unit_frames import DBC_PATH, Received, check_and_decode, cycles, listen
+from vcan_support import summary_ms
 
 pytestmark = pytest.mark.vcan
 
-DBC_PATH = REPO_ROOT / "atris_node" / "bus" / "atris.dbc"
 STATE_RUNNING = 2
-
-
-@dataclass
-class Received:
-    """One received unit frame: its message name, raw signals and kernel timestamp."""
-
-    name: str
-    signals: dict[str, Any]
-    timestamp: float
-    counter: int
-
-
-def listen(bus: can.BusABC, duration_s: float) -> list[can.Message]:
-    """Every frame that arrives on ``bus`` during ``duration_s``."""
-    frames, deadline = [], time.monotonic() + duration_s
-    while time.monotonic() < deadline:
-        msg = bus.recv(0.05)
-        if msg is not None:
-            frames.append(msg)
-    return frames
-
-
-def check_and_decode(db: Any, frames: list[can.Message],
-                     receivers: dict[int, P01Receiver]) -> list[Received]:
-    """Decodes ``frames`` with the DBC; every one must pass the reference E2E check."""
-    out = []
-    for msg in frames:
-        message = db.get_message_by_frame_id(msg.arbitration_id)
-        data_id = message.dbc.attributes["E2EDataID"].value
-        receiver = receivers.setdefault(msg.arbitration_id, P01Receiver(data_id, timeout_s=0.5))
-        assert receiver.check(bytes(msg.data), msg.timestamp) in ("ok", "initial"), message.name
-        signals = message.decode(bytes(msg.data), decode_choices=False, scaling=True)
-        out.append(Received(message.name, signals, msg.timestamp, msg.data[1] & 0x0F))
-    return out
-
-
-def cycles(frames: list[Received]) -> list[list[Received]]:
-    """Frames grouped into publish cycles, each starting with a Status frame."""
-    groups: list[list[Received]] = []
-    for frame in frames:
-        if frame.name.endswith("_Status") or not groups:
-            groups.append([])
-        groups[-1].append(frame)
-    return groups
 
 
 def running_cycles(groups: list[list[Received]]) -> list[list[Received]]:
@@ -78,7 +33,7 @@ def running_cycles(groups: list[list[Received]]) -> list[list[Received]]:
 def unit_bus(unit_id: int) -> can.BusABC:
     block = 0x500 + 0x10 * unit_id
     return can.Bus(interface="socketcan", channel="vcan0",
-                   can_filters=[{"can_id": block, "can_mask": 0x7F0}])
+                   can_filters=[{"can_id": block, "can_mask": 0x7F0, "extended": False}])
 
 
 def test_reference_crc_is_sae_j1850() -> None:

@@ -1,0 +1,105 @@
+"""A canopen RemoteNode master (this process) and a unit in CANopen mode (another process).
+
+They share vcan0 with a second unit publishing its DBC frames, as on a vehicle bus. The
+master configures the slave over SDO in PRE-OPERATIONAL, starts it, sends SYNC, and reads
+the TPDOs back with kernel timestamps; the other unit's frames must stay E2E-clean.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+import can
+import canopen
+import cantools
+import pytest
+from canopen import SdoAbortedError
+from e2e_reference import P01Receiver
+from roles import sector_distance_m
+from unit_frames import DBC_PATH, check_and_decode, listen
+from vcan_support import REPO_ROOT, summary_ms
+
+pytestmark = pytest.mark.vcan
+
+EDS_PATH = REPO_ROOT / "atris_node" / "bus" / "atris.eds"
+NODE_ID = 0x05
+TPDO1, TPDO3, HEARTBEAT = 0x180 + NODE_ID, 0x380 + NODE_ID, 0x700 + NODE_ID
+SYNC_PERIOD_S = 0.05
+NMT_OPERATIONAL = 0x05
+
+
+def configure(master: canopen.RemoteNode) -> None:
+    """SDO writes in PRE-OPERATIONAL: one refused (N = 12 is no power of two), 4 sectors."""
+    with pytest.raises(SdoAbortedError) as refused:
+        master.sdo["Configuration"]["CodeLength"].raw = 12
+    assert refused.value.code == 0x06090030
+    master.sdo["Configuration"]["SectorCount"].raw = 4
+    assert master.sdo["Configuration"]["SectorCount"].raw == 4
+    assert master.sdo["Manufacturer device name"].raw == "ATRIS"
+
+
+def tpdo_values(frames: list[can.Message]) -> list[tuple[int, list[int]]]:
+    """(measurement counter from TPDO1, sector distances in mm from the next TPDO3)."""
+    out, counter = [], None
+    for msg in frames:
+        if msg.arbitration_id == TPDO1:
+            counter = struct.unpack_from("<H", msg.data, 4)[0]
+        elif msg.arbitration_id == TPDO3 and counter is not None:
+            out.append((counter, list(struct.unpack("<4H", msg.data))))
+    return out
+
+
+def sync_to_tpdo_s(frames: list[can.Message]) -> list[float]:
+    """Kernel receive time of each TPDO1 minus that of the SYNC before it, seconds."""
+    out, sync_at = [], None
+    for msg in frames:
+        if msg.arbitration_id == 0x80:
+            sync_at = msg.timestamp
+        elif msg.arbitration_id == TPDO1 and sync_at is not None:
+            out.append(msg.timestamp - sync_at)
+            sync_at = None
+    return out
+
+
+def test_canopen_master_runs_a_unit_next_to_dbc_frames(spawn: Any, record_property: Any) -> None:
+    slave = spawn("canopen_slave", "vcan0", str(NODE_ID), "0.05")
+    unit = spawn("publisher", "vcan0", "3", "0.05", "0.1")
+    slave.wait_for("ready")
+    unit.wait_for("ready")
+    network = canopen.Network()
+    network.connect(interface="socketcan", channel="vcan0")
+    try:
+        master = canopen.RemoteNode(NODE_ID, str(EDS_PATH))
+        master.sdo.RESPONSE_TIMEOUT = 5.0
+        network.add_node(master)
+        with can.Bus(interface="socketcan", channel="vcan0") as listener:
+            configure(master)
+            master.nmt.state = "OPERATIONAL"
+            network.sync.start(SYNC_PERIOD_S)
+            frames = listen(listener, 3.0)
+            network.sync.stop()
+    finally:
+        network.disconnect()
+    assert slave.stop()["nmt_state"] == "OPERATIONAL"
+    unit.stop()
+    check_canopen_frames(frames, record_property)
+    db = cantools.database.load_file(DBC_PATH)
+    receivers: dict[int, P01Receiver] = {}
+    dbc_frames = [f for f in frames if 0x530 <= f.arbitration_id <= 0x53F]
+    assert len(check_and_decode(db, dbc_frames, receivers)) > 100
+    assert all(r.timeouts == 0 for r in receivers.values())
+
+
+def check_canopen_frames(frames: list[can.Message], record_property: Any) -> None:
+    heartbeats = [f for f in frames if f.arbitration_id == HEARTBEAT]
+    assert heartbeats and heartbeats[-1].data[0] == NMT_OPERATIONAL
+    values = tpdo_values(frames)
+    assert len(values) >= 20, f"only {len(values)} SYNC answers in 3 s"
+    for counter, distances_mm in values[1:]:
+        expected = [[round(sector_distance_m(i, k) * 1000) for i in range(4)]
+                    for k in (counter, counter + 1)]
+        assert distances_mm in expected
+    latency = sync_to_tpdo_s(frames)
+    record_property("sync_to_tpdo1", summary_ms(latency))
+    assert summary_ms(latency)["median_ms"] < 50.0

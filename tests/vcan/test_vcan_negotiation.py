@@ -1,0 +1,75 @@
+"""Code negotiation among three unit processes on vcan0, one of them crashing and restarting.
+
+Each unit reports, with wall-clock times, every change of (state, code row, may strobe).
+From those reports the test rebuilds who strobed which code when, and checks that two
+units never strobed the same code at the same time, before or after the restart.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from typing import Any
+
+import pytest
+from vcan_support import UnitProcess
+
+pytestmark = pytest.mark.vcan
+
+#: (NAME, unit_id) of the three units; N = 16 async gives log2 16 = 4 codes
+UNITS = (("0x1000", "1"), ("0x2000", "2"), ("0x3000", "3"))
+Interval = tuple[float, float, int]  # strobing from, until (wall clock s), code row
+
+
+def wait_owned(unit: UnitProcess, timeout_s: float = 60.0) -> dict[str, Any]:
+    """The first report after which ``unit`` may strobe."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        report = unit.wait_for("state", max(deadline - time.monotonic(), 0.01))
+        if report["strobe"]:
+            return report
+
+
+def strobe_intervals(reports: list[dict[str, Any]], end_s: float) -> list[Interval]:
+    """The (from, until, row) intervals in which a unit may strobe, from its reports."""
+    intervals: list[Interval] = []
+    since, row = None, 0
+    for report in [*reports, {"t": end_s, "strobe": False, "code_row": None}]:
+        if since is not None and (not report["strobe"] or report["code_row"] != row):
+            intervals.append((since, report["t"], row))
+            since = None
+        if report["strobe"] and since is None:
+            since, row = report["t"], report["code_row"]
+    return intervals
+
+
+def assert_no_shared_code(per_unit: list[list[Interval]]) -> None:
+    for a, b in itertools.combinations(per_unit, 2):
+        for (a0, a1, row_a), (b0, b1, row_b) in itertools.product(a, b):
+            overlap = min(a1, b1) - max(a0, b0)
+            assert row_a != row_b or overlap <= 0.0, f"code {row_a} strobed by two units"
+
+
+def test_three_units_claim_unique_codes_and_a_restarted_unit_rejoins(
+        spawn: Any, record_property: Any) -> None:
+    units = [spawn("negotiator", "vcan0", name, uid, "16") for name, uid in UNITS]
+    started = time.time()
+    rows = [wait_owned(u)["code_row"] for u in units]
+    assert len(set(rows)) == 3, f"codes not unique: {rows}"
+    record_property("all_owned_after_s", round(time.time() - started, 3))
+    time.sleep(1.0)
+    units[1].drain()
+    units[1].kill()
+    killed_at = time.time()
+    reborn = spawn("negotiator", "vcan0", *UNITS[1], "16")
+    rejoined = wait_owned(reborn)
+    record_property("restart_to_owned_s", round(rejoined["t"] - killed_at, 3))
+    time.sleep(1.5)
+    finals = [u.stop() for u in (units[0], units[2], reborn)]
+    assert all(f["malformed"] == 0 for f in finals)
+    ends = [time.time(), killed_at, time.time(), time.time()]
+    per_unit = [strobe_intervals(u.of("state"), end)
+                for u, end in zip([*units, reborn], ends, strict=True)]
+    assert_no_shared_code(per_unit)
+    final_rows = [per_unit[i][-1][2] for i in (0, 2, 3)]
+    assert len(set(final_rows)) == 3, f"codes after the restart not unique: {final_rows}"
