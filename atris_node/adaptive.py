@@ -23,6 +23,9 @@ Low signal. When the laser level per sub-frame ``l`` falls to ``low_signal_ratio
 (the paper's strong-sunlight limit) the decision says ``low_signal``: the unit reports
 ``FaultBits.LOW_SIGNAL`` and publishes no distance from that frame.
 
+Interference analysis only where someone strobes: :func:`used_chips` keeps the own row
+and the plan's rows claimed on the bus or known in the scene.
+
 Example:
     >>> c = CodeLengthController(CodeLengthSettings(target_snr=8.0, share=0.2), 16)
     >>> c.code_length
@@ -33,7 +36,11 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
+
+import numpy as np
+import numpy.typing as npt
 
 from atris_node.assessment import SceneAssessment
 from atris_node.config import Config
@@ -41,6 +48,8 @@ from atris_node.errors import ConfigError
 from atris_node.types import Measurement, SectorState
 
 logger = logging.getLogger(__name__)
+
+Chips = Sequence[int] | npt.NDArray[np.integer]
 
 
 def _check(ok: bool, name: str, value: object, accepted: str) -> None:
@@ -262,3 +271,21 @@ def controller_from_config(config: Config, rate_hz: float) -> AdaptiveController
     return AdaptiveController(CodeLengthController(code, int(config["code.length"])),
                               exposure if config["adaptive.exposure"] else None,
                               config["adaptive.low_signal_ratio"])
+
+
+def rows_in_use(plan_rows: Iterable[int], own_row: int, peer_rows: Iterable[int | None],
+                scene_rows: Iterable[int] = ()) -> tuple[int, ...]:
+    """The plan's rows worth an interference analysis: the own row and those claimed on
+    the bus (peers) or known to strobe in the scene (interferers), 1-based, sorted."""
+    used = {r for r in (*peer_rows, *scene_rows) if r is not None}
+    return tuple(sorted({own_row} | (set(plan_rows) & used)))
+
+
+def used_chips(chips_by_row: Mapping[int, Chips], own_row: int,
+               peer_rows: Iterable[int | None], scene_rows: Iterable[int] = ()
+               ) -> dict[int, Chips]:
+    """``chips_by_row`` reduced to :func:`rows_in_use`: what an
+    :class:`~atris_node.interference.InterferenceMeter` needs to be given. Codes nobody
+    strobes carry only noise, so leaving them out changes no reported energy."""
+    keep = rows_in_use(chips_by_row, own_row, peer_rows, scene_rows)
+    return {r: chips_by_row[r] for r in keep}
