@@ -21,6 +21,7 @@ import can
 import numpy as np
 
 from atris_node import config as cfg
+from atris_node.bench import skips
 from atris_node.bench.accuracy import range_errors
 from atris_node.node import Unit
 from atris_node.types import DistortionMap, FaultBits, SubFrame
@@ -110,6 +111,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settle", type=int, default=480, help="sub-frames to settle")
     parser.add_argument("--measure", type=int, default=384, help="sub-frames measured")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
+    parser.add_argument("--skips", action="store_true",
+                        help="instead: what leaving out unneeded work saves (bench/skips.py)")
 
 
 def _text(r: dict[str, Any]) -> str:
@@ -123,6 +126,9 @@ def _text(r: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.skips:
+        print(json.dumps(skips.rows(), indent=1))
+        return 0
     rows = [row(scene, args.settle, args.measure) for scene in args.scenes]
     print(json.dumps(rows, indent=1) if args.json else "\n".join(_text(r) for r in rows))
     return 0
