@@ -97,6 +97,8 @@ PARAMS: tuple[Param, ...] = (
     P("pipeline.fov_deg", float, 70.0, "horizontal field of view of the sectors, deg",
       in_range(1.0, 360.0)),
     P("pipeline.min_points", int, 5, "points a sector needs to be valid", in_range(1, 10000)),
+    P("pipeline.invalid_on_interference", bool, True, "foreign light anywhere makes every "
+      "sector invalid (false: only the affected columns are left out)"),
     P("pipeline.objects", bool, False, "cluster points into objects (open3d DBSCAN)"),
     P("bus.interface", str, "virtual", "python-can interface"),
     P("bus.channel", str, "atris", "python-can channel"),
