@@ -41,7 +41,9 @@ def test_smoke_minimal_scene_has_defaults() -> None:
 def test_feature_shipped_scene_loads(name: str) -> None:
     scene = load_scene(name)
     assert (scene.camera.width_px, scene.camera.height_px) == (640, 400)
-    assert 240.0 <= scene.camera.rate_hz <= 480.0
+    # the fleet demo runs three units in real time on two cores: a 30 Hz sub-frame clock
+    low = 30.0 if name == "fleet" else 240.0
+    assert low <= scene.camera.rate_hz <= 480.0
     assert scene.description
 
 
