@@ -3,7 +3,8 @@
 One simulated unit on an in-process virtual bus, stepped in the calling thread (not paced):
 first ``--settle`` sub-frames for the adaptation to settle, then ``--measure`` sub-frames
 measured. Per scene the row holds the N chosen at the end (``code_length``), the output
-rate (maps per sub-frame times the scene's sub-frame rate, Hz), ``ms_per_frame`` (median
+rate (maps whose window lies inside the measured sub-frames, per sub-frame, times the
+scene's sub-frame rate, Hz), ``ms_per_frame`` (median
 wall time of demodulation + pipeline + assessment per output map, rendering excluded) and
 ``range_rmse_m`` (camera range of the valid line samples against the simulator's truth, m;
 None when no sample was valid), beside the same scene at a fixed N = 32
@@ -39,6 +40,8 @@ class _Probe:
         self.frame_ms: list[float] = []
         self.errors: list[np.ndarray] = []
         self.recording = False
+        self.first_sequence = 0  # maps starting before this are not counted
+        self.maps = 0
         demodulate, on_map = unit._demodulate, unit._on_map
 
         def timed_demodulate(sub: SubFrame) -> DistortionMap | None:
@@ -51,7 +54,7 @@ class _Probe:
             start = time.perf_counter()
             on_map(dmap)
             self.busy_s += time.perf_counter() - start
-            if self.recording:
+            if self.recording and dmap.first_sequence >= self.first_sequence:
                 self._record(dmap)
             self.busy_s = 0.0
 
@@ -59,6 +62,7 @@ class _Probe:
         unit._on_map = timed_on_map  # type: ignore[method-assign]
 
     def _record(self, dmap: DistortionMap) -> None:
+        self.maps += 1
         self.frame_ms.append(self.busy_s * 1e3)
         simulator = getattr(self.unit.camera, "simulator", None)
         pipeline = self.unit._pipeline
@@ -78,10 +82,10 @@ def run_scene(scene: str, overrides: list[str], settle: int, measure: int) -> di
         probe = _Probe(unit)
         for _ in range(settle):
             unit.step()
-        probe.recording, maps0 = True, unit.stats.maps
+        probe.recording, probe.first_sequence = True, int(unit._next_seq or 0)
         for _ in range(measure):
             unit.step()
-        return _figures(unit, probe, unit.stats.maps - maps0, measure)
+        return _figures(unit, probe, probe.maps, measure)
     finally:
         unit.shutdown()
         bus.shutdown()
