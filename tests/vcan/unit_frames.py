@@ -41,7 +41,7 @@ def check_and_decode(db: Any, frames: list[can.Message],
     for msg in frames:
         message = db.get_message_by_frame_id(msg.arbitration_id)
         data_id = message.dbc.attributes["E2EDataID"].value
-        receiver = receivers.setdefault(msg.arbitration_id, P01Receiver(data_id, timeout_s=0.5))
+        receiver = receivers.setdefault(msg.arbitration_id, P01Receiver(data_id, timeout_s=1.0))
         assert receiver.check(bytes(msg.data), msg.timestamp) in ("ok", "initial"), message.name
         signals = message.decode(bytes(msg.data), decode_choices=False, scaling=True)
         out.append(Received(message.name, signals, msg.timestamp, msg.data[1] & 0x0F))
