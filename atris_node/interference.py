@@ -26,7 +26,7 @@ Example:
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,3 +134,43 @@ class InterferenceMeter:
             foreign[row] = energy / scale
         return InterferenceReport(foreign, shifts, excess / scale, own_energy,
                                   self._window[0][0], self._window[-1][0])
+
+
+class InterferenceWatch:
+    """Runs an :class:`InterferenceMeter` on one window of N sub-frames out of ``every``.
+
+    Interference that makes a unit hop must be sustained for a second or more, so a
+    sampled window is enough, and the meter's cost (a few ms per sub-frame) is paid on
+    1/``every`` of the sub-frames only. The codes measured are the own row and the rows
+    ``rows_in_use()`` names (claimed on the bus); a code nobody strobes carries only noise.
+    """
+
+    def __init__(self, code_length: int, own_row: int, lag: int, every: int,
+                 rows_in_use: Callable[[], Iterable[int]]) -> None:
+        if every < 1:
+            raise CodeError(f"interference sampling 'every' must be >= 1, got {every}")
+        self.code_length, self.own_row, self.lag, self.every = code_length, own_row, lag, every
+        self._rows_in_use = rows_in_use
+        self._meter: InterferenceMeter | None = None
+        self.windows_measured = 0
+
+    def _start(self) -> InterferenceMeter:
+        rows = {r for r in self._rows_in_use() if 1 < r <= self.code_length}
+        chips = {r: codes.walsh_chips(self.code_length, r) for r in rows | {self.own_row}}
+        return InterferenceMeter(chips, self.own_row, self.lag)
+
+    def push(self, sub: SubFrame) -> InterferenceReport | None:
+        """Feed every sub-frame; only those of a sampled window reach the meter."""
+        window = sub.sequence // self.code_length
+        if window % self.every:
+            self._meter = None
+            return None
+        if self._meter is None:
+            if sub.sequence % self.code_length:
+                return None  # start sampled windows at chip phase 0
+            self._meter = self._start()
+        report = self._meter.push(sub)
+        if report is not None:
+            self.windows_measured += 1
+            self._meter = None
+        return report

@@ -39,6 +39,7 @@ from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.errors import AtrisError, CameraLostError, DemodulationError, NodeFaultError
+from atris_node.interference import InterferenceReport, InterferenceWatch
 from atris_node.snapshot import obstacle_map, write_snapshot
 from atris_node.types import (
     DistortionMap,
@@ -123,6 +124,8 @@ class Unit:
         self._last_map: DistortionMap | None = None
         self._last_sub: SubFrame | None = None
         self._last_result: Any = None
+        self._watch: InterferenceWatch | None = None
+        self._interference: InterferenceReport | None = None
         self._adaptive: AdaptiveController | None = None
         self._counter = 0
         #: called with every measurement handed to the publisher (benchmarks, views)
@@ -284,10 +287,13 @@ class Unit:
     def _new_demodulator(self, key: tuple[int, int]) -> None:
         chips = walsh_chips(*key)
         bits = int(getattr(self._camera, "bits", 8))
-        lag = None if self.config["driver.lag_sub_frames"] else 0
+        # the strobe lag is known only for a simulator without lag; otherwise lock to it
+        known = self.config["driver.name"] == "sim" and not self.config["driver.lag_sub_frames"]
+        lag = 0 if known else None
         kind = SlidingDemodulator if self.config["code.demod"] == "sliding" else BlockDemodulator
         self._demod = kind(chips, bits=bits, lag=lag)
         self._demod_key = key
+        self._watch = None
         set_code = getattr(self._projector, "set_code", None)
         if set_code is not None:  # backends that strobe on the device (depthai Script)
             set_code(chips)
@@ -309,11 +315,29 @@ class Unit:
         except DemodulationError as exc:
             self._on_bad_sub_frame(exc)
             return None
+        self._watch_interference(sub)
         if dmap is not None:
             self.stats.maps += 1
             self.stats.dropped_sub_frames += dmap.dropped
             self.stats.last_lag = dmap.phase
         return dmap
+
+    def _peer_rows(self) -> list[int]:
+        return [p.code_row for p in self._negotiator.peers.named() if p.code_row]
+
+    def _watch_interference(self, sub: SubFrame) -> None:
+        """Sampled foreign-code energy; sustained energy on the own code makes us hop."""
+        every = int(self.config["interference.every_windows"])
+        demod, key = self._demod, self._demod_key
+        if not every or demod is None or key is None or not demod.locked:
+            return
+        if self._watch is None:
+            self._watch = InterferenceWatch(key[0], key[1], demod.lag or 0, every,
+                                            self._peer_rows)
+        report = self._watch.push(sub)
+        if report is not None:
+            self._interference = report
+            self._negotiator.report_interference(report.own_excess, report.foreign)
 
     def _on_map(self, dmap: DistortionMap) -> None:
         self._last_map = dmap
@@ -432,9 +456,15 @@ class Unit:
             faults=self.faults | self._negotiation_faults() | self._negotiator.faults,
             ambient_level=float(extra.get("ambient_level", 0.0)),
             saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
-            foreign_code_energy=float(extra.get("foreign_code_energy", 0.0)),
+            foreign_code_energy=self._foreign_energy(extra),
             dropped_sub_frames=self.stats.dropped_sub_frames,
         )
+
+    def _foreign_energy(self, extra: dict[str, float]) -> float:
+        """Sampled energy of other codes (fraction of the own lines), else the pipeline's."""
+        if self._interference is not None:
+            return float(self._interference.total)
+        return float(extra.get("foreign_code_energy", 0.0))
 
     def _unit_state(self) -> UnitState:
         if self.faults & FaultBits.CAMERA_LOST:
