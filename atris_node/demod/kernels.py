@@ -11,7 +11,7 @@ from atris_node.errors import DemodulationError
 
 Array = npt.NDArray[np.generic]
 #: accumulator bytes processed per chunk (fits the L2 cache with its sub-frame rows)
-CHUNK_BYTES = 128 * 1024
+CHUNK_BYTES = 256 * 1024
 INT16_MAX = int(np.iinfo(np.int16).max)
 
 
