@@ -48,7 +48,13 @@ from atris_node.obstacles import (
     sector_distances,
 )
 from atris_node.sectors import SectorLayout
-from atris_node.types import DistortionMap, FaultBits, Measurement
+from atris_node.types import (
+    DistortionMap,
+    FaultBits,
+    Measurement,
+    SectorDistance,
+    SectorState,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -306,11 +312,15 @@ class Pipeline:
         clean = np.ones(len(samples), dtype=np.bool_)
         flagged = max(energy, extraction.unassigned / (len(self.bands) * foreign.size)) > (
             self.config.foreign_limit)
+        blanked: set[int] = set()
         if flagged and self.config.invalid_on_interference:
             clean[:] = False
+        elif flagged:
+            clean = ~foreign[samples.col_px.astype(np.int64)]
+            blanked = self._sectors_of_columns(foreign)
         obstacle = valid & (self._ground.height(vehicle) > self.config.ground_clearance_m)
         data = SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean])
-        sectors = sector_distances(data, self.layout, self._sectors)
+        sectors = _blank(sector_distances(data, self.layout, self._sectors), blanked)
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(
             None if nearest is None else nearest.distance_m, dmap.last_time_s)
@@ -321,6 +331,15 @@ class Pipeline:
                                         timings)
         return PipelineResult(measurement, samples, valid, points.xyz_m[valid], vehicle[valid],
                               points.sigma_z_m[valid], diagnostics, found)
+
+    def _sectors_of_columns(self, columns: npt.NDArray[np.bool_]) -> set[int]:
+        """Sectors that image columns look into (their horizontal rays, vehicle frame)."""
+        cam = self.calibration.camera
+        v = np.flatnonzero(columns).astype(np.float64) - cam.cx_px
+        rays = np.stack([v, np.zeros_like(v), np.full_like(v, cam.focal_px)], axis=1)
+        directions = rays @ self.mounting.rotation.T
+        index = self.layout.index_of(directions[:, 0], directions[:, 1])
+        return {int(i) for i in index if i >= 0}
 
     def _diagnostics(self, extraction: Extraction, valid: npt.NDArray[np.bool_],
                      foreign: tuple[float, int], timings: dict[str, float]) -> Diagnostics:
@@ -367,6 +386,14 @@ def visibility_prior(calibration: Calibration, mounting: Mounting, ground: Groun
     z = np.where(ok, rise / np.where(ok, slope, -1.0), np.inf)
     return VisibilityPrior(cot, cam.focal_px, cam.cy_px, cam.height_px, laser.baseline_m,
                            config.z_max_m, np.where(z > 0, z, np.inf))
+
+
+def _blank(sectors: tuple[SectorDistance, ...], indices: set[int]
+           ) -> tuple[SectorDistance, ...]:
+    """``sectors`` with those in ``indices`` made INVALID: columns with foreign light were
+    left out, so what remains of such a sector may miss the nearest obstacle."""
+    return tuple(SectorDistance(s.index, s.bearing_rad, SectorState.INVALID)
+                 if s.index in indices else s for s in sectors)
 
 
 def _lap(start: float) -> float:
