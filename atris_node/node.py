@@ -325,6 +325,21 @@ class Unit:
     def _peer_rows(self) -> list[int]:
         return [p.code_row for p in self._negotiator.peers.named() if p.code_row]
 
+    def _reference_row(self) -> int | None:
+        """A row nobody on the bus uses: its energy is the broadband level (motion trails,
+        flicker) that every code sees and that is no sign of a unit on the own code."""
+        assert self._demod_key is not None
+        n, own = self._demod_key
+        taken = {own, *self._peer_rows()}
+        free = [r for r in code_set(n, str(self._negotiator.plan.mode)) if r not in taken]
+        others = [r for r in range(n, 1, -1) if r not in taken]
+        candidates = free or others
+        return candidates[0] if candidates else None
+
+    def _rows_to_measure(self) -> list[int]:
+        reference = self._reference_row()
+        return self._peer_rows() + ([] if reference is None else [reference])
+
     def _watch_interference(self, sub: SubFrame) -> None:
         """Sampled foreign-code energy; sustained energy on the own code makes us hop."""
         every = int(self.config["interference.every_windows"])
@@ -333,11 +348,14 @@ class Unit:
             return
         if self._watch is None:
             self._watch = InterferenceWatch(key[0], key[1], demod.lag or 0, every,
-                                            self._peer_rows)
+                                            self._rows_to_measure)
         report = self._watch.push(sub)
         if report is not None:
             self._interference = report
-            self._negotiator.report_interference(report.own_excess, report.foreign)
+            reference = self._reference_row()
+            broadband = report.foreign.get(reference, 0.0) if reference else 0.0
+            self._negotiator.report_interference(max(report.own_excess - broadband, 0.0),
+                                                 report.foreign)
 
     def _on_map(self, dmap: DistortionMap) -> None:
         self._last_map = dmap
