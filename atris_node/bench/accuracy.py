@@ -32,6 +32,7 @@ from atris_node import codes
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.lines import PEAK_METHODS
 from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.progress import progress
 from atris_node.sim import Simulator, Truth, load_scene, shipped_scenes
 from atris_node.sim.scene import Scene
 from atris_node.types import DistortionMap
@@ -241,7 +242,8 @@ def _line(row: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     grid = grid_of(args)
-    rows = [row for name in grid.scenes for row in scene_rows(name, grid)]
+    scenes = progress(grid.scenes, "accuracy", "scene", len(grid.scenes))
+    rows = [row for name in scenes for row in scene_rows(name, grid)]
     if args.plot is not None:
         plot(rows, args.plot)
     if args.json:

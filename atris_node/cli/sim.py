@@ -25,6 +25,7 @@ import numpy as np
 
 from atris_node.codes import walsh_chips
 from atris_node.errors import ConfigError
+from atris_node.progress import progress
 from atris_node.sectors import SectorLayout
 from atris_node.types import DistortionMap, SectorState, SubFrame
 
@@ -130,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
     demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
     pipeline = _pipeline(sim, layout)
     frame, last_lit = 0, None
-    for sequence in range(args.frames * chips.size):
+    total = args.frames * chips.size
+    for sequence in progress(range(total), f"sim {scene.name}", "sub-frame", total):
         sub = sim.render(sequence)
         last_lit = sub if sub.chip else last_lit
         dmap = demod.push(sub)
