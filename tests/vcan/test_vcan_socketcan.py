@@ -14,13 +14,18 @@ from vcan_support import summary_ms
 pytestmark = pytest.mark.vcan
 
 
-def receive(bus: can.BusABC, count: int, timeout_s: float) -> list[can.Message]:
-    """Up to ``count`` frames from ``bus``, waiting at most ``timeout_s`` in all."""
+def receive(bus: can.BusABC, count: int, timeout_s: float,
+            arb_id: int | None = None) -> list[can.Message]:
+    """Up to ``count`` frames (with id ``arb_id``, when given) within ``timeout_s`` in all.
+
+    python-can's socketcan binds the socket before it sets the kernel filters, so frames
+    that arrive in between (a babbler's) are queued unfiltered; ``arb_id`` drops them.
+    """
     frames: list[can.Message] = []
     deadline = time.monotonic() + timeout_s
     while len(frames) < count and time.monotonic() < deadline:
         msg = bus.recv(0.1)
-        if msg is not None:
+        if msg is not None and arb_id in (None, msg.arbitration_id):
             frames.append(msg)
     return frames
 
@@ -74,7 +79,7 @@ def test_babbling_node_does_not_stall_a_periodic_sender(
                  can_filters=[{"can_id": 0x510, "can_mask": 0x7FF, "extended": False}]) as bus:
         unit = spawn("periodic", "vcan0", "0x510", "0.02")
         unit.wait_for("ready")
-        frames = receive(bus, 100, 60.0)
+        frames = receive(bus, 100, 60.0, arb_id=0x510)
         own = unit.stop()
     babble = babbler.stop()
     assert babble["sent"] > 1000, "the babbler did not load the bus"
