@@ -200,6 +200,11 @@ class Unit:
         return str(self.config["unit.label"])
 
     @property
+    def last_result(self) -> Any:
+        """The newest PipelineResult, or None."""
+        return self._last_result
+
+    @property
     def camera(self) -> Camera | None:
         return self._camera
 

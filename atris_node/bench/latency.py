@@ -3,7 +3,8 @@
 One simulated unit paced at its sub-frame rate publishes on an in-process virtual bus; a
 second bus object receives. For every measurement the age is the receive time of the
 quality frame that carries its counter minus the host timestamp of the newest sub-frame
-the measurement used (both ``time.monotonic()``), in ms.
+the measurement used (both ``time.monotonic()``), in ms. ``pipeline_p50_ms`` is the median
+time of the line-to-sector pipeline alone, the largest share of the age.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
         f"driver.scene={scene}", "driver.realtime=true", f"code.length={code_length}",
         f"bus.channel={CHANNEL}"])
     sent: dict[int, float] = {}
+    pipeline_ms: list[float] = []
     arrivals = _Arrivals()
     with can.Bus(interface="virtual", channel=CHANNEL) as rx, \
             can.Bus(interface="virtual", channel=CHANNEL) as tx:
@@ -65,6 +67,9 @@ def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
 
         def remember(m: Measurement) -> None:
             sent[m.counter & 0xFFFF] = m.newest_time_s
+            result = unit.last_result
+            if result is not None:
+                pipeline_ms.append(float(result.diagnostics.timings_ms.get("total", 0.0)))
 
         unit.on_measurement = remember
         try:
@@ -74,7 +79,9 @@ def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
         finally:
             unit.shutdown()
             notifier.stop()
-    return _row(scene, unit, sent, arrivals.arrivals)
+    row = _row(scene, unit, sent, arrivals.arrivals)
+    row["pipeline_p50_ms"] = round(float(np.median(pipeline_ms)), 3) if pipeline_ms else None
+    return row
 
 
 def _row(scene: str, unit: Unit, sent: dict[int, float],
