@@ -290,8 +290,9 @@ class Negotiator:
         """Handle one python-can message received at ``now`` (negotiator clock)."""
         if not msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
             return
-        if msg.is_rx is False:  # our own frame, reported as such by the interface
-            return
+        # msg.is_rx is not a test for our own frames: python-can's socketcan marks every
+        # frame sent from this host is_rx=False, other local processes' frames included.
+        # Own echoes are recognised by the identity and NAME they carry (on_frame).
         self.on_frame(msg.arbitration_id, bytes(msg.data), now)
 
     def on_frame(self, can_id: int, data: bytes, timestamp: float) -> None:
