@@ -197,8 +197,25 @@ def noise_floor(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -
     if not parts or sum(p.size for p in parts) == 0:
         return 0.0, MIN_NOISE_DN
     sample = np.concatenate(parts).astype(np.float32)
-    q25, median = np.percentile(sample, [25.0, 50.0])
+    q25, median = _quartile_and_median(sample)
     return float(median), max(float(median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
+
+
+def _quartile_and_median(a: npt.NDArray[np.float32]) -> tuple[Any, Any]:
+    """(25th percentile, median) along the last axis, as ``np.percentile`` computes them
+    (linear interpolation), from one partition instead of its general machinery."""
+    n = a.shape[-1]
+    lo25, f25 = divmod((n - 1) * 0.25, 1.0)
+    lo50, f50 = divmod((n - 1) * 0.5, 1.0)
+    i25, i50 = int(lo25), int(lo50)
+    kth = sorted({i25, min(i25 + 1, n - 1), i50, min(i50 + 1, n - 1)})
+    part = np.partition(a, kth, axis=-1)
+
+    def at(i: int, frac: float) -> Any:
+        low = part[..., i]
+        return low + frac * (part[..., min(i + 1, n - 1)] - low) if frac else low
+
+    return at(i25, f25), at(i50, f50)
 
 
 @dataclass(frozen=True)
@@ -227,7 +244,7 @@ def _tile_statistics(block: npt.NDArray[Any]) -> tuple[FloatArray, FloatArray]:
     nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
     padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])), "symmetric")
     tiles = padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
-    q25, median = np.percentile(tiles, [25.0, 50.0], axis=-1)
+    q25, median = _quartile_and_median(tiles)
     sigma = np.maximum((median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
 
     def expand(a: FloatArray) -> FloatArray:
@@ -460,18 +477,17 @@ def _nearest_neighbour_range(z: FloatArray, order: IntArray) -> FloatArray:
     """(K, W): for each line, the finite range of the assigned line nearest to it in
     image order (the nearer range on a tie), inf where a column has none."""
     k_count = z.shape[0]
-    best = np.full(z.shape, np.inf)
-    best_gap = np.full(z.shape, k_count + 1)
-    for pos, k in enumerate(order):
-        for other_pos, j in enumerate(order):
-            if j == k:
-                continue
-            gap = abs(other_pos - pos)
-            better = np.isfinite(z[j]) & ((gap < best_gap[k]) | ((gap == best_gap[k]) &
-                                                                 (z[j] < best[k])))
-            best[k] = np.where(better, z[j], best[k])
-            best_gap[k] = np.where(better, gap, best_gap[k])
-    return best
+    position = np.empty(k_count, dtype=np.int64)
+    position[order] = np.arange(k_count)
+    gap = np.abs(position[:, None] - position[None, :]).astype(np.float64)  # (K, K)
+    np.fill_diagonal(gap, np.inf)
+    finite = np.isfinite(z)
+    # rank by gap first, then by range: ranges are < 1e6 m, gaps whole numbers
+    cost = np.where(finite[None, :, :], gap[:, :, None] * 1e6 + np.where(finite, z, 0.0)[None],
+                    np.inf)  # (K, K, W)
+    best = np.argmin(cost, axis=1)  # (K, W)
+    found = np.isfinite(np.take_along_axis(cost, best[:, None, :], axis=1)[:, 0, :])
+    return np.where(found, np.take_along_axis(z, best, axis=0), np.inf)
 
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
