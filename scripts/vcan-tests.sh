@@ -18,7 +18,7 @@ PY=$VENV/bin/python
 VCAN_IFACES=(vcan0 vcan1)
 VM_MEMORY=${ATRIS_VCAN_VM_MEMORY:-2G}
 VM_TIMEOUT_S=${ATRIS_VCAN_VM_TIMEOUT_S:-900}
-APT_PKGS=(qemu-system-x86 linux-image-amd64 busybox-static)
+APT_PKGS=(qemu-system-x86 linux-image-amd64 busybox-static can-utils)
 
 log() { echo "vcan-tests: $*"; }
 die() { echo "vcan-tests: error: $*" >&2; exit 1; }
@@ -70,6 +70,7 @@ missing_apt_pkgs() {
   command -v qemu-system-x86_64 >/dev/null || echo qemu-system-x86
   guest_kernel >/dev/null || echo linux-image-amd64
   [ -x /bin/busybox ] || [ -x /usr/bin/busybox ] || echo busybox-static
+  command -v cangen >/dev/null || echo can-utils
 }
 
 ensure_vm_tools() {

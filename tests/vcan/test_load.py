@@ -14,14 +14,21 @@ What is asserted is what holds on the test VM (no KVM, on a shared host): the ba
 run, the publisher keeps cycling at its mean period (within 35 %) without a send error, and
 late cycles are flagged. The achieved load, the period jitter and the count of late frames
 without the bit are recorded (``record_property``) and discussed in docs/reliability.md:
-two Python babblers reach 1000-2700 frames/s there, not the 3333 of the definition.
+two Python babblers reach 1000-2700 frames/s there, so the load comes from can-utils'
+``cangen`` (installed by scripts/vcan-tests.sh) when it is there, Python babblers otherwise;
+the achieved rate is measured by a receiving socket and recorded.
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
+import shutil
 import statistics
+import subprocess
+import threading
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import can
@@ -35,6 +42,7 @@ FRAME_BITS = 135
 TARGET_LOAD = 0.9
 TARGET_FRAMES_PER_S = TARGET_LOAD * BUS_BITRATE / FRAME_BITS  # 3333
 BABBLERS = (0x001, 0x002)
+BURST = 10  # cangen frames per gap
 PERIOD_S = 0.05
 TOLERANCE_S = PERIOD_S / 4
 ENCODE_SLACK_S = 0.010
@@ -78,6 +86,58 @@ def unreported_late(frames: list[can.Message]) -> tuple[list[float], int]:
     return unreported, delays
 
 
+@contextlib.contextmanager
+def cangen_babblers() -> Iterator[None]:
+    """can-utils' ``cangen`` (C) for each babbler identifier; stopped at the end of the
+    block. Each sleep of a VM without KVM overshoots by about half a millisecond, so the
+    frames go in bursts of BURST per gap, the gap sized for 30 % above the target rate."""
+    gap_ms = 1e3 * BURST * len(BABBLERS) / (1.3 * TARGET_FRAMES_PER_S)
+    procs = [subprocess.Popen(["cangen", "vcan0", "-g", f"{gap_ms:.3f}", "-c", str(BURST),
+                               "-I", f"{i:03X}", "-L", "8", "-D", "r", "-p", "10"])
+             for i in BABBLERS]
+    try:
+        yield
+    finally:
+        for proc in procs:
+            proc.terminate()
+            proc.wait(timeout=5)
+
+
+class BabbleCounter:
+    """Counts the babblers' frames on vcan0 from a thread (kernel receive timestamps)."""
+
+    def __init__(self) -> None:
+        self.bus = can.Bus(interface="socketcan", channel="vcan0", can_filters=[
+            {"can_id": i, "can_mask": 0x7FF, "extended": False} for i in BABBLERS])
+        self.times: list[float] = []
+        self._since = float("inf")
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="babble-counter", daemon=True)
+
+    def __enter__(self) -> BabbleCounter:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.bus.shutdown()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            msg = self.bus.recv(0.05)
+            if msg is not None and msg.timestamp >= self._since:
+                self.times.append(msg.timestamp)
+
+    def start_window(self) -> None:
+        self._since = time.time()
+
+    def rate(self) -> float:
+        """Babble frames per second over the window so far."""
+        times = list(self.times)
+        return (len(times) - 1) / (times[-1] - times[0]) if len(times) > 1 else 0.0
+
+
 def jitter(values: list[float]) -> dict[str, float]:
     return summary_ms([abs(p - PERIOD_S) for p in values])
 
@@ -89,14 +149,21 @@ def test_publisher_keeps_its_period_or_reports_misses_at_90_percent_load(
         unit = spawn("publisher", "vcan0", "5", str(PERIOD_S), "0.5")
         unit.wait_for("ready")
         quiet = status_frames(bus, 3.0)
-        babblers = [spawn("periodic", "vcan0", hex(i), str(len(BABBLERS) / TARGET_FRAMES_PER_S))
-                    for i in BABBLERS]
-        for babbler in babblers:
-            babbler.wait_for("ready")
-        loaded = status_frames(bus, 6.0)
-        reports = [b.stop() for b in babblers]
+        if shutil.which("cangen"):
+            with BabbleCounter() as counter, cangen_babblers():
+                time.sleep(0.5)
+                counter.start_window()
+                loaded = status_frames(bus, 6.0)
+                rate = counter.rate()
+        else:
+            babblers = [spawn("periodic", "vcan0", hex(i),
+                              str(len(BABBLERS) / TARGET_FRAMES_PER_S)) for i in BABBLERS]
+            for babbler in babblers:
+                babbler.wait_for("ready")
+            loaded = status_frames(bus, 6.0)
+            reports = [b.stop() for b in babblers]
+            rate = sum(r["sent"] / max(sum(r["periods"]), 1e-9) for r in reports)
         done = unit.stop()
-    rate = sum(r["sent"] / max(sum(r["periods"]), 1e-9) for r in reports)
     loaded_periods, quiet_periods = periods(loaded), periods(quiet)
     late = [p for p in loaded_periods if p > PERIOD_S + TOLERANCE_S]
     flagged = sum(1 for m in loaded if m.data[2] & DEADLINE_MISS_BIT)
@@ -116,4 +183,6 @@ def test_publisher_keeps_its_period_or_reports_misses_at_90_percent_load(
     assert len(loaded) >= 0.5 * 6.0 / PERIOD_S, f"only {len(loaded)} cycles in 6 s under load"
     assert statistics.fmean(loaded_periods) == pytest.approx(PERIOD_S, rel=0.35)
     assert done["send_errors"] == 0
-    assert flagged >= 1 or not late, "late cycles but not one DeadlineMiss bit"
+    assert not unreported, f"late cycles neither flagged nor send delays: {unreported}"
+    if shutil.which("cangen"):
+        assert rate >= TARGET_FRAMES_PER_S, f"cangen reached only {rate:.0f} frames/s"
