@@ -8,10 +8,9 @@ docs/reliability.md.
 
 from __future__ import annotations
 
-import collections
 import functools
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import can
@@ -23,9 +22,10 @@ from atris_node.bus import negotiation_frames as nf
 from atris_node.bus.e2e import E2EChecker, E2EState
 from atris_node.bus.frames import FrameCodec
 from atris_node.bus.ids import FrameKind, frame_id
-from atris_node.errors import AtrisError
+from atris_node.testing.fuzz import FuzzTally
 
-COUNTS: collections.Counter[str] = collections.Counter()
+TALLY = FuzzTally()
+settle = TALLY.settle
 CODEC = FrameCodec()
 FAST = settings(max_examples=2000, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow])
@@ -38,17 +38,7 @@ NEGOTIATION_IDS = [nf.make_id(kind, nf.Identity(fold, unit), field)
 @pytest.fixture(scope="module", autouse=True)
 def report_counts() -> Iterator[None]:
     yield
-    print(f"\nfuzz examples per target: {dict(sorted(COUNTS.items()))}")
-
-
-def settle(target: str, call: Callable[[], Any]) -> Any:
-    """Run ``call``; an AtrisError is a clear refusal, any other exception fails the test."""
-    COUNTS[target] += 1
-    try:
-        return call()
-    except AtrisError as exc:
-        assert str(exc), f"{target}: {type(exc).__name__} without a message"
-        return None
+    print("\n" + TALLY.report())
 
 
 def finite_signals(signals: dict[str, Any]) -> None:

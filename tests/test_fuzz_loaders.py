@@ -10,12 +10,11 @@ tried per target is printed at the end of the module (``pytest -s``).
 
 from __future__ import annotations
 
-import collections
 import copy
 import math
 import tempfile
 import tomllib
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -25,14 +24,15 @@ from hypothesis import strategies as st
 
 from atris_node import config as cfg
 from atris_node.calibration import Calibration, CameraModel, LaserCalibration
-from atris_node.errors import AtrisError
 from atris_node.launch import load_launch
 from atris_node.sim.scene import load_scene, parse_scene
+from atris_node.testing.fuzz import FuzzTally
 from atris_node.testing.tomldoc import dumps
 from calib.files import load_calibration, save_calibration
 
 REPO = Path(__file__).resolve().parent.parent
-COUNTS: collections.Counter[str] = collections.Counter()
+TALLY = FuzzTally()
+settle = TALLY.settle
 FUZZ = settings(max_examples=300, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 WORK = Path(tempfile.mkdtemp(prefix="atris-fuzz-"))
@@ -55,17 +55,7 @@ assignment_text = st.one_of(
 @pytest.fixture(scope="module", autouse=True)
 def report_counts() -> Iterator[None]:
     yield
-    print(f"\nfuzz examples per target: {dict(sorted(COUNTS.items()))}")
-
-
-def settle(target: str, call: Callable[[], Any]) -> Any:
-    """Run ``call``; an AtrisError is a clear refusal, any other exception fails the test."""
-    COUNTS[target] += 1
-    try:
-        return call()
-    except AtrisError as exc:
-        assert str(exc), f"{target}: {type(exc).__name__} without a message"
-        return None
+    print("\n" + TALLY.report())
 
 
 def _paths(doc: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
