@@ -20,8 +20,9 @@ from typing import Any
 
 import can
 
+from atris_node.bus import busconfig
+from atris_node.bus.busconfig import BusConfig
 from atris_node.config import Config
-from atris_node.errors import BusError
 from atris_node.launch import LaunchSpec
 from atris_node.node import Unit
 
@@ -32,18 +33,12 @@ ESCALATION_S = (3.0, 2.0)
 
 
 def open_bus(config: Config, **extra: Any) -> can.BusABC:
-    """Open the python-can bus a unit's configuration names."""
-    kwargs: dict[str, Any] = {"interface": config["bus.interface"],
-                              "channel": config["bus.channel"]}
-    if config["bus.interface"] not in ("virtual", "udp_multicast"):
-        kwargs["bitrate"] = config["bus.bitrate"]
-    if config["bus.fd"]:
-        kwargs["fd"] = True
-    kwargs.update(extra)
-    try:
-        return can.Bus(**kwargs)
-    except (can.CanError, OSError, ValueError) as exc:
-        raise BusError(f"cannot open CAN bus {kwargs}: {exc}") from exc
+    """Open the python-can bus a unit's configuration names (``bus.*`` parameters)."""
+    virtual = config["bus.interface"] in ("virtual", "udp_multicast")
+    settings = BusConfig(config["bus.interface"], config["bus.channel"],
+                         None if virtual else config["bus.bitrate"],
+                         True if config["bus.fd"] else None)
+    return busconfig.open_bus(settings, **extra)
 
 
 @contextmanager
