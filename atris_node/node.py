@@ -476,7 +476,7 @@ class Unit:
             code_length=int(plan.code_length),
             chip_rate_hz=float(getattr(self._camera, "rate_hz", 0.0)),
             measurement_counter=self._counter,
-            faults=self.faults | self._negotiation_faults() | self._negotiator.faults,
+            faults=self.faults | self._negotiator.faults,
             ambient_level=float(extra.get("ambient_level", 0.0)),
             saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
             foreign_code_energy=self._foreign_energy(extra),
@@ -496,10 +496,6 @@ class Unit:
         if self._negotiator.may_strobe:
             return UnitState.RUNNING
         return UnitState.NO_CODE if name in ("NO_CODE", "CONFLICT") else UnitState.NEGOTIATING
-
-    def _negotiation_faults(self) -> FaultBits:
-        name = getattr(self._negotiator.state, "name", "")
-        return FaultBits.PLAN_CONFLICT if name == "CONFLICT" else FaultBits.NONE
 
     def _publish(self, measurement: Measurement | None) -> None:
         if measurement is not None:
