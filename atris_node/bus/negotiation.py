@@ -46,6 +46,7 @@ from atris_node.bus.negotiation_plan import (
     grow_to_fit,
     plan_code_rows,
 )
+from atris_node.bus.negotiation_rx import ReceiveBarrier, bus_descriptor
 from atris_node.bus.negotiation_sync import SyncState, worst_leak
 from atris_node.errors import BusError, ConfigError, NegotiationError
 from atris_node.types import FaultBits
@@ -137,6 +138,7 @@ class Negotiator:
         self.interference = interference or InterferenceMonitor()
         self._notifier, self._own_notifier, self._poll = notifier, False, poll_bus
         self._listener = _Listener(self)
+        self.receive = ReceiveBarrier(None if poll_bus else bus_descriptor(bus))
         self._lock = threading.RLock()
         self.peers = PeerTable()
         self.sync = SyncState()
@@ -288,6 +290,7 @@ class Negotiator:
     # ------------------------------------------------------------------ receiving
     def on_message(self, msg: can.Message, now: float) -> None:
         """Handle one python-can message received at ``now`` (negotiator clock)."""
+        self.receive.handled(msg.timestamp)
         if not msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
             return
         # msg.is_rx is not a test for our own frames: python-can's socketcan marks every
@@ -455,7 +458,7 @@ class Negotiator:
             self._set_state(NegotiationState.CLAIMING, None, now)
 
     def _end_listening(self, now: float) -> None:
-        if now - self._started_s < self.listen_s:
+        if now - self._started_s < self.listen_s or not self.receive.caught_up():
             return
         self._listening = False
         running = [(p.name or 0, p.plan) for p in self._live_named()
@@ -474,7 +477,7 @@ class Negotiator:
             return
         self._maybe_grow(now)
         if self._state is NegotiationState.CLAIMING and self._code_row is not None:
-            if now - self._claim_since_s >= self.window_s:
+            if now - self._claim_since_s >= self.window_s and self.receive.caught_up():
                 self._set_state(NegotiationState.OWNED, self._code_row, now)
                 logger.info("row %d of N=%d owned", self._code_row, self._plan.code_length)
         elif self._code_row is None and (self._state is NegotiationState.CLAIMING

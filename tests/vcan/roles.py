@@ -188,7 +188,7 @@ def negotiator(channel: str, name: str, unit_id: str, code_length: str) -> None:
     from atris_node.bus.negotiation import Negotiator
     from atris_node.bus.negotiation_plan import Plan
 
-    stop, last = StdinWatch(), None
+    stop, reported = StdinWatch(), 0
     with can.Bus(interface="socketcan", channel=channel) as bus:
         unit = Negotiator(bus, int(name, 0), Plan(int(code_length), 480.0), int(unit_id))
         unit.start()
@@ -196,14 +196,24 @@ def negotiator(channel: str, name: str, unit_id: str, code_length: str) -> None:
         try:
             while not stop.poll(0.02):
                 unit.tick()
-                now = (unit.state.name, unit.code_row, unit.may_strobe)
-                if now != last:
-                    emit("state", t=time.time(), state=now[0], code_row=now[1], strobe=now[2])
-                    last = now
+                reported = _emit_timeline(unit, reported)
         finally:
             unit.stop()
-    emit("state", t=time.time(), state="IDLE", code_row=None, strobe=False)
-    emit("done", hops=unit.hop_count, malformed=unit.malformed_frames)
+    _emit_timeline(unit, reported)
+    emit("done", hops=unit.hop_count, malformed=unit.malformed_frames,
+         deferrals=unit.receive.deferrals)
+
+
+def _emit_timeline(unit: Any, reported: int) -> int:
+    """Emits the strobe-timeline entries after the first ``reported``; returns the count.
+
+    Each entry carries the time the negotiator changed it (CLOCK_MONOTONIC, system-wide),
+    whichever thread did, not the time this loop noticed.
+    """
+    timeline = list(unit.timeline)
+    for t, strobe, row in timeline[reported:]:
+        emit("state", t=t, state=unit.state.name, code_row=row, strobe=strobe)
+    return len(timeline)
 
 
 def atris(*argv: str) -> None:
