@@ -196,26 +196,30 @@ def noise_floor(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -
     parts = [values[lo:hi:2, ::2].ravel() for lo, hi in spans]
     if not parts or sum(p.size for p in parts) == 0:
         return 0.0, MIN_NOISE_DN
-    sample = np.concatenate(parts).astype(np.float32)
-    q25, median = _quartile_and_median(sample)
+    q25, median = _quartile_and_median(np.concatenate(parts))
     return float(median), max(float(median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
 
 
-def _quartile_and_median(a: npt.NDArray[np.float32]) -> tuple[Any, Any]:
-    """(25th percentile, median) along the last axis, as ``np.percentile`` computes them
-    (linear interpolation), from one partition instead of its general machinery."""
+def _quartile_and_median(a: npt.NDArray[Any]) -> tuple[Any, Any]:
+    """(25th percentile, median) along the last axis of ``a`` (any real dtype), float32,
+    as ``np.percentile`` computes them on ``a.astype(np.float32)`` (linear interpolation).
+
+    One sort in the input's own dtype: numpy's vectorised sort is several times faster
+    than a partition at four indices, and converting only the picked values to float32
+    gives the same numbers (the conversion keeps the order).
+    """
     n = a.shape[-1]
     lo25, f25 = divmod((n - 1) * 0.25, 1.0)
     lo50, f50 = divmod((n - 1) * 0.5, 1.0)
-    i25, i50 = int(lo25), int(lo50)
-    kth = sorted({i25, min(i25 + 1, n - 1), i50, min(i50 + 1, n - 1)})
-    part = np.partition(a, kth, axis=-1)
+    ordered = np.sort(a, axis=-1)
 
     def at(i: int, frac: float) -> Any:
-        low = part[..., i]
-        return low + frac * (part[..., min(i + 1, n - 1)] - low) if frac else low
+        low = ordered[..., i].astype(np.float32)
+        if not frac:
+            return low
+        return low + frac * (ordered[..., min(i + 1, n - 1)].astype(np.float32) - low)
 
-    return at(i25, f25), at(i50, f50)
+    return at(int(lo25), f25), at(int(lo50), f50)
 
 
 @dataclass(frozen=True)
@@ -240,18 +244,22 @@ def _tile_statistics(block: npt.NDArray[Any]) -> tuple[FloatArray, FloatArray]:
     """Per NOISE_TILE_PX tile of ``block`` (h, w): (median, σ), each (h, w) float32."""
     h, w = block.shape
     t = NOISE_TILE_PX // 2
-    sub = block[::2, ::2].astype(np.float32)
+    sub = block[::2, ::2]
     nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
     padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])), "symmetric")
     tiles = padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
     q25, median = _quartile_and_median(tiles)
     sigma = np.maximum((median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
+    return _expand_tiles(median, h, w), _expand_tiles(sigma, h, w)
 
-    def expand(a: FloatArray) -> FloatArray:
-        full = np.repeat(np.repeat(a, NOISE_TILE_PX, axis=0), NOISE_TILE_PX, axis=1)
-        return np.asarray(full[:h, :w], dtype=np.float32)
 
-    return expand(median), expand(sigma)
+def _expand_tiles(a: npt.NDArray[np.float32], h: int, w: int) -> npt.NDArray[np.float32]:
+    """(h, w) float32 image of the (nr, nc) per-tile values ``a``, NOISE_TILE_PX square
+    tiles from the top left (one broadcast copy; ``np.repeat`` twice is ~8x slower)."""
+    nr, nc = a.shape
+    t = NOISE_TILE_PX
+    full = np.broadcast_to(a[:, None, :, None], (nr, t, nc, t)).reshape(nr * t, nc * t)
+    return np.asarray(full[:h, :w], dtype=np.float32)
 
 
 def noise_map(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -> NoiseMap:
