@@ -93,6 +93,10 @@ PARAMS: tuple[Param, ...] = (
     P("pipeline.z_min_m", float, 0.3, "nearest range searched, m", in_range(0.05, 100.0)),
     P("pipeline.z_max_m", float, 10.0, "farthest range searched, m", in_range(0.1, 200.0)),
     P("pipeline.roi_bands", bool, True, "search each line only inside its row band"),
+    P("pipeline.roi_narrowing", bool, False, "search each line only near its recent rows "
+      "(identical results; a pixel elsewhere above threshold forces a full search)"),
+    P("pipeline.roi_full_every", int, 16, "maps between whole-band searches while "
+      "narrowing", in_range(1, 10000)),
     P("pipeline.sector_count", int, 8, "number of sectors", in_range(1, 16)),
     P("pipeline.fov_deg", float, 70.0, "horizontal field of view of the sectors, deg",
       in_range(1.0, 360.0)),

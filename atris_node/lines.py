@@ -131,6 +131,7 @@ class Extraction:
     unassigned: int  # strong peaks inside the bands that belong to no line (foreign light)
     foreign_columns: BoolArray  # (W,) columns holding such peaks
     line_snr: tuple[float, ...]  # median SNR of the accepted samples per line, 0 if none
+    narrowed: bool = False  # peaks were looked for on the ``search`` rows only
 
 
 # --------------------------------------------------------------------------- bands
@@ -365,11 +366,13 @@ def saturated_centre(saturated: BoolArray, rows: IntArray, cols: IntArray,
 
 
 def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]],
-                  threshold_dn: npt.NDArray[np.float32], sep: int, per_column: int) -> IntArray:
+                  threshold_dn: npt.NDArray[np.float32], sep: int, per_column: int,
+                  inside: BoolArray | None = None) -> IntArray:
     """(per_column, W) rows of the local maxima >= ``threshold_dn`` ((H, W) DN) in ``spans``,
-    sorted
-    top to bottom in each column, -1 padded. A maximum is strictly above the ``sep`` rows
-    over it and not below the ``sep`` rows under it (a plateau counts once)."""
+    sorted top to bottom in each column, -1 padded. A maximum is strictly above the ``sep``
+    rows over it and not below the ``sep`` rows under it (a plateau counts once). With
+    ``inside`` ((H,) bool) only maxima on those rows are kept; the rows around them are
+    still compared, so each kept maximum is one the whole span would have found."""
     rows, cols = [], []
     for lo, hi in spans:
         block = values[lo:hi]
@@ -377,6 +380,8 @@ def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]],
         for d in range(1, sep + 1):
             peak[d:] &= block[d:] > block[:-d]
             peak[:-d] &= block[:-d] >= block[d:]
+        if inside is not None:
+            peak &= inside[lo:hi, None]
         r, c = np.nonzero(peak)
         rows.append(r + lo)
         cols.append(c)
@@ -568,9 +573,43 @@ def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float
                  for k in range(count))
 
 
+def _search_rows(spans: list[tuple[int, int]], search: list[tuple[int, int]] | None,
+                 sep: int, height: int) -> tuple[list[tuple[int, int]], BoolArray | None]:
+    """Spans to scan for maxima and the (H,) rows whose maxima count: ``search`` within
+    ``spans``, scanned ``sep`` rows wider so edge rows compare as in the whole span."""
+    if search is None:
+        return spans, None
+    read = np.zeros(height + 1, dtype=np.bool_)
+    for lo, hi in spans:
+        read[lo:hi] = True
+    inside = np.zeros(height, dtype=np.bool_)
+    scan = np.zeros(height + 1, dtype=np.bool_)
+    for lo, hi in search:
+        inside[max(lo, 0):max(hi, 0)] = True
+        scan[max(lo - sep, 0):max(hi + sep, 0)] = True
+    inside &= read[:height]
+    scan &= read
+    edges = np.flatnonzero(np.diff(np.concatenate(([False], scan))))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)], inside
+
+
+def _above_elsewhere(values: npt.NDArray[Any], threshold_dn: npt.NDArray[np.float32],
+                     spans: list[tuple[int, int]], inside: BoolArray) -> bool:
+    """True when a pixel of ``spans`` outside the ``inside`` rows reaches ``threshold_dn``.
+    Every maximum :func:`strong_maxima` keeps reaches it, so False proves that searching
+    the ``inside`` rows alone finds every maximum of ``spans``."""
+    outside = np.zeros(values.shape[0] + 1, dtype=np.bool_)
+    for lo, hi in spans:
+        outside[lo:hi] = ~inside[lo:hi]
+    edges = np.flatnonzero(np.diff(np.concatenate(([False], outside))))
+    return any(bool((values[a:b] >= threshold_dn[a:b]).any())
+               for a, b in zip(edges[::2], edges[1::2], strict=True))
+
+
 def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                   bands: tuple[Band, ...], settings: ExtractorSettings, *,
-                  roi_bands: bool = True, prior: VisibilityPrior | None = None) -> Extraction:
+                  roi_bands: bool = True, prior: VisibilityPrior | None = None,
+                  search: list[tuple[int, int]] | None = None) -> Extraction:
     """Line samples of a distortion map.
 
     Args:
@@ -582,13 +621,22 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
             searches every whole column for the K strongest peaks and identifies them by
             band and order.
         prior: optional geometry that helps tell lines apart (see :func:`identify_lines`).
+        search: row intervals ``[lo, hi)`` where peaks are looked for (ROI narrowing,
+            :mod:`atris_node.roi`); None looks in every row read. When a pixel of another
+            row read reaches the peak threshold, every row read is searched after all, so
+            the peaks are always those of the whole search. Noise statistics, line
+            identity and the foreign-light counts use every row read.
     """
     height = values.shape[0]
     spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
     background, noise = noise_floor(values, spans)
     local = noise_map(values, spans)
-    peaks = strong_maxima(values, spans, local.background + settings.snr_min * local.sigma,
-                          settings.min_separation_px, len(bands) + EXTRA_PEAKS)
+    threshold = local.background + settings.snr_min * local.sigma
+    hunt, inside = _search_rows(spans, search, settings.min_separation_px, height)
+    if inside is not None and _above_elsewhere(values, threshold, spans, inside):
+        hunt, inside = spans, None  # something outside the recent rows: search them all
+    peaks = strong_maxima(values, hunt, threshold, settings.min_separation_px,
+                          len(bands) + EXTRA_PEAKS, inside)
     rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior)
     ambiguous = int(unsure.sum())
     unassigned = np.maximum(_count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
@@ -607,7 +655,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       dropped=int((~ok).sum()), ambiguous=ambiguous,
                       rows_read=sum(hi - lo for lo, hi in spans),
                       unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
-                      line_snr=_median_per_line(samples.line, samples.snr, len(bands)))
+                      line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
+                      narrowed=inside is not None)
 
 
 def smooth_along_lines(samples: LineSamples, lines: int, width: int,

@@ -47,6 +47,7 @@ from atris_node.obstacles import (
     nearest_obstacle,
     sector_distances,
 )
+from atris_node.roi import RoiSettings, RoiTracker
 from atris_node.sectors import SectorLayout
 from atris_node.types import (
     DistortionMap,
@@ -96,6 +97,8 @@ class PipelineConfig:
     invalid_on_interference: bool = True  # flagged foreign light: every sector INVALID
     smooth_columns: int = 5  # median of this many columns along each line (1 = off)
     drop_lone_samples: bool = True  # a sample needs a neighbour on its line (±2 columns)
+    roi_narrowing: bool = False  # search lines near their recent rows (atris_node.roi)
+    roi_full_every: int = 16  # maps between whole-band searches while narrowing
 
     def __post_init__(self) -> None:
         _check(self.peak_method in PEAK_METHODS, "peak_method", self.peak_method,
@@ -109,7 +112,7 @@ class PipelineConfig:
         for name in ("band_margin_px", "sigma_u_px", "foreign_limit", "ground_clearance_m"):
             _check(getattr(self, name) >= 0, name, getattr(self, name), ">= 0")
         for name in ("sector_count", "min_points", "ground_estimate_every",
-                     "object_min_points", "export_every", "smooth_columns"):
+                     "object_min_points", "export_every", "smooth_columns", "roi_full_every"):
             _check(getattr(self, name) >= 1, name, getattr(self, name), "an integer >= 1")
         _check(0.0 <= self.quantile <= 0.5, "quantile", self.quantile, "in [0, 0.5]")
         _check(0.0 <= self.min_confidence <= 1.0, "min_confidence", self.min_confidence,
@@ -246,6 +249,9 @@ class Pipeline:
         self._ground = GroundPlane()
         self._prior = visibility_prior(calibration, mounting, self._ground, config)
         self._counter = 0
+        self.roi = (RoiTracker(self.bands, cam.width_px, RoiSettings(
+            full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
+            else None)
         logger.debug("pipeline bands: %s", self.bands)
 
     def process(self, dmap: DistortionMap) -> PipelineResult:
@@ -253,8 +259,7 @@ class Pipeline:
         self._check_shape(dmap)
         timings: dict[str, float] = {}
         start = time.perf_counter()
-        extraction = extract_lines(dmap.values, dmap.saturated, self.bands, self._extractor,
-                                   roi_bands=self.config.roi_bands, prior=self._prior)
+        extraction, whole = self._extract(dmap)
         timings["lines"] = _lap(start)
         samples = self._clean_samples(extraction.samples)
         points, vehicle = self._triangulate(samples)
@@ -265,10 +270,22 @@ class Pipeline:
                                               dropped=extraction.dropped + lone),
                                 points, vehicle, timings)
         timings["sectors"] = _lap(start)
+        if self.roi is not None:
+            self.roi.update(extraction.samples, whole, result.diagnostics.interference)
         self._export(result, dmap.last_sequence)
         timings["total"] = _lap(start)
         self._counter += 1
         return result
+
+    def _extract(self, dmap: DistortionMap) -> tuple[Extraction, bool]:
+        """Line samples of ``dmap``, and True when the whole bands were searched (always
+        without ROI narrowing; with it, when a full search was due or something showed
+        outside the recent rows)."""
+        search = None if self.roi is None else self.roi.search_rows()
+        extraction = extract_lines(dmap.values, dmap.saturated, self.bands, self._extractor,
+                                   roi_bands=self.config.roi_bands, prior=self._prior,
+                                   search=search)
+        return extraction, not extraction.narrowed
 
     def _clean_samples(self, samples: LineSamples) -> LineSamples:
         """Lone samples (no neighbour on their line) dropped, then the median along lines."""

@@ -96,7 +96,8 @@ def pipeline_config(config: Config) -> PipelineConfig:
                           z_min_m=p["z_min_m"], z_max_m=p["z_max_m"],
                           roi_bands=p["roi_bands"], sector_count=p["sector_count"],
                           fov_deg=p["fov_deg"], min_points=p["min_points"],
-                          objects=p["objects"],
+                          objects=p["objects"], roi_narrowing=p["roi_narrowing"],
+                          roi_full_every=p["roi_full_every"],
                           invalid_on_interference=p["invalid_on_interference"])
 
 
