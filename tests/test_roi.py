@@ -134,3 +134,12 @@ def test_narrowing_needs_bands_and_is_off_by_default() -> None:
     assert Pipeline(replace(NARROW, roi_bands=False), *parts).roi is None  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="roi_full_every"):
         replace(NARROW, roi_full_every=0)
+
+
+def test_bench_row_reports_identical_results_and_narrowed_maps() -> None:
+    from atris_node.bench.skips import roi_row
+
+    row = roi_row(count=24)
+    assert row["result_unchanged"] is True
+    assert 0 < row["narrowed_maps"] < row["maps"]
+    assert row["ms_full"] > 0 and row["ms_skipped"] > 0

@@ -3,9 +3,12 @@
 - interference analysis only for codes in use (sync plan, N = 16: 15 rows, two in use)
   against every code of the plan, ms per sub-frame, with the reported energies compared;
 - the phase search (lag correlation) per sub-frame against the locked demodulator's
-  re-check once per lock history, ms per sub-frame.
+  re-check once per lock history, ms per sub-frame;
+- the line search over the whole bands against ROI narrowing (``atris_node.roi``), ms of
+  the pipeline per map on the simulated indoor_lab scene, samples and sectors compared.
 
-Sub-frames are synthetic 640x400 10-bit frames with the own line and one other unit.
+Sub-frames of the first two are synthetic 640x400 10-bit frames with the own line and one
+other unit.
 """
 
 from __future__ import annotations
@@ -18,9 +21,12 @@ import numpy as np
 
 from atris_node import codes
 from atris_node.adaptive import used_chips
+from atris_node.bench.accuracy import scaled
 from atris_node.demod import BlockDemodulator
 from atris_node.interference import InterferenceMeter
-from atris_node.types import SubFrame
+from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.sim import Simulator, load_scene
+from atris_node.types import DistortionMap, SubFrame
 
 N = 16
 
@@ -76,6 +82,41 @@ def phase_search_row() -> dict[str, Any]:
             "result_unchanged": demod.relocks == 0}
 
 
+def _roi_maps(count: int) -> tuple[Simulator, list[DistortionMap]]:
+    """``count`` block maps of indoor_lab at 640x400, N = 4."""
+    sim = Simulator(scaled(load_scene("indoor_lab"), 640, 400), chips=codes.walsh_chips(4, 2),
+                    seed=1)
+    demod = BlockDemodulator(sim.chips, bits=sim.camera.bits)
+    maps = (demod.push(sim.render(seq)) for seq in range(4 * count))
+    return sim, [m for m in maps if m is not None]
+
+
+def _same(a: PipelineResult, b: PipelineResult) -> bool:
+    fields = ("line", "row_px", "col_px", "snr", "sigma_u_px", "saturated")
+    return a.measurement.sectors == b.measurement.sectors and all(
+        np.array_equal(getattr(a.samples, f), getattr(b.samples, f)) for f in fields)
+
+
+def roi_row(count: int = 48) -> dict[str, Any]:
+    """Whole-band search vs ROI narrowing on the same maps, each map timed back to back."""
+    sim, maps = _roi_maps(count)
+    parts = (sim.calibration(), sim.mounting, PipelineConfig().layout())
+    full = Pipeline(PipelineConfig(), *parts)
+    narrow = Pipeline(PipelineConfig(roi_narrowing=True), *parts)
+    full_ms, narrow_ms, same = [], [], True
+    for dmap in maps:
+        a = full.process(dmap)
+        b = narrow.process(dmap)
+        same = same and _same(a, b)
+        full_ms.append(a.diagnostics.timings_ms["lines"])
+        narrow_ms.append(b.diagnostics.timings_ms["lines"])
+    assert narrow.roi is not None
+    return {"skip": "line search outside the recent rows", "maps": len(maps),
+            "narrowed_maps": len(maps) - narrow.roi.full_searches,
+            "ms_full": float(np.mean(full_ms)), "ms_skipped": float(np.mean(narrow_ms)),
+            "result_unchanged": bool(same)}
+
+
 def rows() -> list[dict[str, Any]]:
     """Every skip row."""
-    return [interference_row(), phase_search_row()]
+    return [interference_row(), phase_search_row(), roi_row()]
