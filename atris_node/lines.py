@@ -356,7 +356,7 @@ def _windows(values: npt.NDArray[np.generic], rows: IntArray, cols: IntArray,
 def saturated_centre(saturated: BoolArray, rows: IntArray, cols: IntArray,
                      r: int = SATURATION_WINDOW_PX) -> FloatArray:
     """Centre row (px) of the saturated pixels within ±r rows of (rows, cols), float64."""
-    mask, _ = _windows(saturated.astype(np.float64), rows, cols, r)
+    mask, _ = _windows(saturated, rows, cols, r)
     offsets = np.arange(-r, r + 1, dtype=np.float64)
     count = np.maximum(mask.sum(axis=1), 1.0)
     return rows + (mask @ offsets) / count
@@ -423,18 +423,30 @@ def _assign_up(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
 
 
 def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
-    """(W,) median of the good rows in each block of CONTINUITY_BLOCK columns (at least
-    MIN_BLOCK_SAMPLES of them); elsewhere the median of all good rows when there are at
-    least MIN_LINE_SAMPLES; inf where no reference can be trusted."""
-    w = rows.size
+    """(K, W) per line: the median of the good rows in each block of CONTINUITY_BLOCK
+    columns (at least MIN_BLOCK_SAMPLES of them); elsewhere the median of all the line's
+    good rows when there are at least MIN_LINE_SAMPLES; inf where no reference can be
+    trusted. ``rows`` (K, W) int, ``good`` (K, W) bool; one sort for all lines."""
+    k, w = rows.shape
     nb = -(-w // CONTINUITY_BLOCK)
-    padded = np.full(nb * CONTINUITY_BLOCK, np.inf)
-    padded[:w] = np.where(good, rows, np.inf)
-    blocks = np.sort(padded.reshape(nb, CONTINUITY_BLOCK), axis=1)
-    count = np.isfinite(blocks).sum(axis=1)
-    overall = float(np.median(rows[good])) if good.sum() >= MIN_LINE_SAMPLES else np.inf
-    median = np.where(count >= MIN_BLOCK_SAMPLES, blocks[np.arange(nb), count // 2], overall)
-    return np.asarray(np.repeat(median, CONTINUITY_BLOCK)[:w], dtype=np.float64)
+    padded = np.full((k, nb * CONTINUITY_BLOCK), np.inf)
+    padded[:, :w] = np.where(good, rows, np.inf)
+    blocks = np.sort(padded.reshape(k, nb, CONTINUITY_BLOCK), axis=2)
+    count = np.isfinite(blocks).sum(axis=2)
+    middle = np.take_along_axis(blocks, (count // 2)[..., None], axis=2)[..., 0]
+    median = np.where(count >= MIN_BLOCK_SAMPLES, middle, _line_medians(padded, good)[:, None])
+    return np.repeat(median, CONTINUITY_BLOCK, axis=1)[:, :w]
+
+
+def _line_medians(padded: FloatArray, good: BoolArray) -> FloatArray:
+    """(K,) ``np.median`` of the finite entries of each row of ``padded`` (K, n) (inf
+    elsewhere) when ``good`` (K, W) has at least MIN_LINE_SAMPLES in that row, else inf."""
+    count = good.sum(axis=1)
+    ordered = np.sort(padded, axis=1)
+    lines = np.arange(padded.shape[0])
+    upper = ordered[lines, count // 2]
+    lower = ordered[lines, np.maximum(count - 1, 0) // 2]
+    return np.where(count >= MIN_LINE_SAMPLES, (lower + upper) / 2, np.inf)
 
 
 def _continuity_cost(rows: IntArray, differ: BoolArray, ref: FloatArray) -> FloatArray:
@@ -488,19 +500,26 @@ class VisibilityPrior:
 
 def _nearest_neighbour_range(z: FloatArray, order: IntArray) -> FloatArray:
     """(K, W): for each line, the finite range of the assigned line nearest to it in
-    image order (the nearer range on a tie), inf where a column has none."""
+    image order (the nearer range on a tie), inf where a column has none. The nearest
+    assigned line above and below each position come from running max / min of indices."""
     k_count = z.shape[0]
-    position = np.empty(k_count, dtype=np.int64)
-    position[order] = np.arange(k_count)
-    gap = np.abs(position[:, None] - position[None, :]).astype(np.float64)  # (K, K)
-    np.fill_diagonal(gap, np.inf)
-    finite = np.isfinite(z)
-    # rank by gap first, then by range: ranges are < 1e6 m, gaps whole numbers
-    cost = np.where(finite[None, :, :], gap[:, :, None] * 1e6 + np.where(finite, z, 0.0)[None],
-                    np.inf)  # (K, K, W)
-    best = np.argmin(cost, axis=1)  # (K, W)
-    found = np.isfinite(np.take_along_axis(cost, best[:, None, :], axis=1)[:, 0, :])
-    return np.where(found, np.take_along_axis(z, best, axis=0), np.inf)
+    ranges = z[order]  # image order
+    position = np.arange(k_count)[:, None]
+    assigned = np.isfinite(ranges)
+    up = np.full(ranges.shape, -2 * k_count)  # nearest assigned position above, or far off
+    up[1:] = np.maximum.accumulate(np.where(assigned, position, -2 * k_count), axis=0)[:-1]
+    down = np.full(ranges.shape, 3 * k_count)  # nearest assigned position below, or far off
+    down[:-1] = np.minimum.accumulate(
+        np.where(assigned, position, 3 * k_count)[::-1], axis=0)[::-1][1:]
+    z_up = np.where(up >= 0, np.take_along_axis(ranges, np.clip(up, 0, k_count - 1), 0), np.inf)
+    z_down = np.where(down < k_count,
+                      np.take_along_axis(ranges, np.clip(down, 0, k_count - 1), 0), np.inf)
+    gap_up, gap_down = position - up, down - position
+    nearest = np.where((gap_up < gap_down) | ((gap_up == gap_down) & (z_up <= z_down)),
+                       z_up, z_down)
+    out = np.empty_like(nearest)
+    out[order] = nearest
+    return out
 
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
@@ -527,8 +546,7 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     settled = ~differ.any(axis=0) | pick_up | pick_down
     good = ~differ | settled[None, :]
     chosen = np.where(pick_up[None, :], up, down)
-    ref = np.stack([_continuity_reference(chosen[k], good[k] & (chosen[k] >= 0))
-                    for k in range(len(bands))])
+    ref = _continuity_reference(chosen, good & (chosen >= 0))
     cost_down = _continuity_cost(down, differ, ref)
     cost_up = _continuity_cost(up, differ, ref)
     use_up = pick_up | (~settled & np.isfinite(cost_up) & (cost_up + sep <= cost_down))
@@ -551,9 +569,11 @@ def _refine(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArra
     window, inside = _windows(values, rows, cols, r)
     local_max = (window[:, r] >= window[:, r - 1]) & (window[:, r] >= window[:, r + 1])
     offset, ok = subpixel_offset(window, settings, noise)
-    near, _ = _windows(saturated.astype(np.float64), rows, cols, 1)
+    near, _ = _windows(saturated, rows, cols, 1)
     flat = np.asarray(near.any(axis=1), dtype=np.bool_)
-    row = np.where(flat, saturated_centre(saturated, rows, cols), rows + offset)
+    row = rows + offset
+    if flat.any():  # only peaks next to saturated pixels: the mask is read there alone
+        row[flat] = saturated_centre(saturated, rows[flat], cols[flat])
     crlb = np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi))
     sigma = np.where(flat, SATURATED_SIGMA_PX, crlb / np.maximum(snr, 1.0))
     return row, sigma, flat, inside & (flat | (ok & local_max))

@@ -11,7 +11,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from atris_node.lines import NOISE_TILE_PX, _quartile_and_median, noise_map, noise_floor
+from atris_node.lines import (
+    CONTINUITY_BLOCK,
+    MIN_BLOCK_SAMPLES,
+    MIN_LINE_SAMPLES,
+    NOISE_TILE_PX,
+    _continuity_reference,
+    _nearest_neighbour_range,
+    _quartile_and_median,
+    noise_floor,
+    noise_map,
+)
 
 
 def _ambient_map(rng: np.random.Generator, height: int = 400, width: int = 640,
@@ -62,3 +72,46 @@ def test_noise_floor_is_the_percentile_of_the_subsample() -> None:
     q25, median = np.percentile(sample.astype(np.float32), [25, 50])
     assert background == pytest.approx(median, abs=1e-4)
     assert sigma == pytest.approx((median - q25) / 0.6745, rel=1e-5)
+
+
+def _nearest_by_definition(z: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """For each line and column: the range of the assigned line fewest places away in
+    image order, the nearer range on a tie; inf when no other line is assigned."""
+    position = np.argsort(order)
+    out = np.full(z.shape, np.inf)
+    for k in range(z.shape[0]):
+        for c in range(z.shape[1]):
+            found = [(abs(position[k] - position[j]), z[j, c]) for j in range(z.shape[0])
+                     if j != k and np.isfinite(z[j, c])]
+            if found:
+                out[k, c] = min(found)[1]
+    return out
+
+
+def test_nearest_neighbour_range_is_its_definition() -> None:
+    rng = np.random.default_rng(13)
+    z = rng.choice([1.0, 2.0, 2.5, 4.0, np.inf], (6, 400), p=[0.15, 0.15, 0.1, 0.15, 0.45])
+    order = np.array([3, 0, 5, 1, 4, 2])
+    np.testing.assert_array_equal(_nearest_neighbour_range(z, order),
+                                  _nearest_by_definition(z, order))
+
+
+def _reference_per_line(rows: np.ndarray, good: np.ndarray) -> np.ndarray:
+    """The continuity reference of one line (W,), one block at a time with np.median."""
+    w, block = rows.size, CONTINUITY_BLOCK
+    overall = float(np.median(rows[good])) if good.sum() >= MIN_LINE_SAMPLES else np.inf
+    out = np.empty(w)
+    for lo in range(0, w, block):
+        kept = np.sort(rows[lo:lo + block][good[lo:lo + block]].astype(np.float64))
+        out[lo:lo + block] = kept[kept.size // 2] if kept.size >= MIN_BLOCK_SAMPLES else overall
+    return out
+
+
+def test_continuity_reference_is_the_per_line_block_median() -> None:
+    rng = np.random.default_rng(14)
+    rows = np.round(100 + 20 * np.sin(np.arange(650) / 40.0) + rng.normal(0, 3, (5, 650)))
+    rows = rows.astype(np.int64)
+    good = rng.random(rows.shape) < np.array([0.9, 0.5, 0.1, 0.02, 0.0])[:, None]
+    good[1, 100:300] = False  # blocks without enough samples take the line's median
+    reference = np.stack([_reference_per_line(r, g) for r, g in zip(rows, good, strict=True)])
+    np.testing.assert_array_equal(_continuity_reference(rows, good), reference)
