@@ -105,17 +105,65 @@ class SectorInput:
 
 def _confidence(count: int, snr: FloatArray, settings: SectorSettings) -> float:
     """0..1: grows with the point count (full at 3·min_points) and the median SNR (full
-    at 2·snr_min)."""
+    at 2·snr_min); ``snr`` sorted ascending."""
     if count == 0 or snr.size == 0:
         return 0.0
     by_count = min(1.0, count / (3.0 * settings.min_points))
-    by_snr = min(1.0, float(np.median(snr)) / (2.0 * settings.snr_min))
+    by_snr = min(1.0, _median_of_sorted(snr) / (2.0 * settings.snr_min))
     return by_count * by_snr
+
+
+def _median_of_sorted(ordered: FloatArray) -> float:
+    """``np.median`` of a non-empty ascending array (the mean of the middle two if even)."""
+    half = ordered.size // 2
+    if ordered.size % 2:
+        return float(ordered[half])
+    return float((ordered[half - 1] + ordered[half]) / 2)
+
+
+def _quantile_of_sorted(ordered: FloatArray, q: float) -> float:
+    """``np.quantile(ordered, q)`` (linear method) of a non-empty ascending array, with
+    numpy's own interpolation arithmetic, so the result is the same to the last bit."""
+    n = ordered.size
+    position = (n - 1) * q
+    low = int(np.floor(position))
+    if position >= n - 1:
+        return float(ordered[-1])
+    a, b = float(ordered[low]), float(ordered[low + 1])
+    t = position - low
+    return b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t
+
+
+@dataclass(frozen=True)
+class _Groups:
+    """Values grouped by sector, ascending within each: sector s holds
+    ``values[start[s]:start[s + 1]]``."""
+
+    values: FloatArray
+    start: npt.NDArray[np.int64]
+
+    @classmethod
+    def of(cls, sector: npt.NDArray[np.int64], values: FloatArray, count: int) -> _Groups:
+        """(n,) ``values`` by (n,) ``sector`` index; indices outside 0..count-1 left out."""
+        keep = (sector >= 0) & (sector < count)
+        index, kept = sector[keep], values[keep]
+        by_value = np.argsort(kept)  # then stably by sector: a radix sort on int16
+        order = by_value[np.argsort(index[by_value].astype(np.int16), kind="stable")]
+        start = np.concatenate(([0], np.cumsum(np.bincount(index, minlength=count))))
+        return cls(kept[order], start)
+
+    def __getitem__(self, s: int) -> FloatArray:
+        return self.values[self.start[s]:self.start[s + 1]]
+
+    def size(self, s: int) -> int:
+        """Values in sector ``s``."""
+        return int(self.start[s + 1] - self.start[s])
 
 
 def _sector(index: int, layout: SectorLayout, ranges: FloatArray, snr: FloatArray, *,
             samples: int, settings: SectorSettings) -> SectorDistance:
-    """One sector from the horizontal ranges (m) and SNR of its obstacle points."""
+    """One sector from the horizontal ranges (m) and SNR of its obstacle points, both
+    sorted ascending."""
     bearing = layout.bearing_of(index)
     if samples < settings.min_points:
         return SectorDistance(index, bearing, SectorState.INVALID, point_count=samples)
@@ -127,25 +175,25 @@ def _sector(index: int, layout: SectorLayout, ranges: FloatArray, snr: FloatArra
     conf = _confidence(ranges.size, snr, settings)
     if ranges.size < settings.min_points or conf < settings.min_confidence:
         return SectorDistance(index, bearing, SectorState.INVALID, 0.0, conf, ranges.size)
-    supported = np.partition(ranges, settings.min_points - 1)[settings.min_points - 1]
-    distance = float(max(np.quantile(ranges, settings.quantile), supported))
+    supported = float(ranges[settings.min_points - 1])
+    distance = max(_quantile_of_sorted(ranges, settings.quantile), supported)
     return SectorDistance(index, bearing, SectorState.VALID, distance, conf, ranges.size)
 
 
 def sector_distances(data: SectorInput, layout: SectorLayout,
                      settings: SectorSettings) -> tuple[SectorDistance, ...]:
-    """One :class:`SectorDistance` per sector of ``layout``, index 0 at the right edge."""
+    """One :class:`SectorDistance` per sector of ``layout``, index 0 at the right edge.
+    The samples are grouped by sector and sorted once, so each sector's quantile and
+    medians are read off sorted slices."""
     p = data.points
     idx = layout.index_of(p[:, 0], p[:, 1])
-    rng = layout.horizontal_range(p[:, 0], p[:, 1])
-    out = []
-    for s in range(layout.count):
-        here = idx == s
-        hit = here & data.obstacle
-        snr = data.snr[hit] if hit.any() else data.snr[here]
-        out.append(_sector(s, layout, rng[hit], snr, samples=int(here.sum()),
-                           settings=settings))
-    return tuple(out)
+    hit = np.where(data.obstacle, idx, -1)
+    ranges = _Groups.of(hit, layout.horizontal_range(p[:, 0], p[:, 1]), layout.count)
+    hit_snr = _Groups.of(hit, data.snr, layout.count)
+    all_snr = _Groups.of(idx, data.snr, layout.count)
+    return tuple(_sector(s, layout, ranges[s], hit_snr[s] if ranges.size(s) else all_snr[s],
+                         samples=all_snr.size(s), settings=settings)
+                 for s in range(layout.count))
 
 
 def nearest_obstacle(sectors: tuple[SectorDistance, ...], data: SectorInput,

@@ -146,3 +146,46 @@ def test_point_cloud_export_reads_back(tmp_path: Path, suffix: str) -> None:
 def test_unknown_cloud_format_is_a_config_error(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"\.ply"):
         export_cloud(np.zeros((3, 3)), tmp_path / "cloud.xyz")
+
+
+def _sector_by_definition(s: int, rng_m: np.ndarray, hit: np.ndarray, here: np.ndarray,
+                          snr: np.ndarray, settings: SectorSettings) -> tuple[object, ...]:
+    """State, distance, confidence and count of one sector with numpy's median/quantile."""
+    used = snr[hit] if hit.any() else snr[here]
+    count = int(hit.sum()) if hit.any() else int(here.sum())
+    conf = 0.0 if count == 0 else min(1.0, count / (3.0 * settings.min_points)) * min(
+        1.0, float(np.median(used)) / (2.0 * settings.snr_min))
+    if here.sum() < settings.min_points:
+        return SectorState.INVALID, 0.0, 0.0, int(here.sum())
+    if not hit.any():
+        state = SectorState.NO_RETURN if conf >= settings.min_confidence else SectorState.INVALID
+        return state, 0.0, conf, count
+    if count < settings.min_points or conf < settings.min_confidence:
+        return SectorState.INVALID, 0.0, conf, count
+    ranges = rng_m[hit]
+    supported = np.sort(ranges)[settings.min_points - 1]
+    return (SectorState.VALID, float(max(np.quantile(ranges, settings.quantile), supported)),
+            conf, count)
+
+
+@pytest.mark.parametrize("quantile", [0.0, 0.1, 0.25, 0.5])
+def test_sector_distances_are_numpys_quantiles_per_sector(quantile: float) -> None:
+    rng = np.random.default_rng(int(quantile * 100))
+    layout = SectorLayout(8, np.deg2rad(70.0))
+    counts = [0, 3, 4, 5, 6, 17, 200, 1001]
+    bearings = np.concatenate([np.full(n, layout.bearing_of(s)) for s, n in enumerate(counts)])
+    bearings += rng.uniform(-0.03, 0.03, bearings.size)
+    r = rng.uniform(0.5, 9.0, bearings.size)
+    points = np.stack([r * np.cos(bearings), r * np.sin(bearings), np.zeros_like(r)], axis=1)
+    obstacle = rng.random(r.size) < 0.7
+    obstacle[:12] = False  # sector 1 and 2 without a hit
+    snr = rng.uniform(3.0, 40.0, r.size)
+    settings = SectorSettings(min_points=5, quantile=quantile, min_confidence=0.2)
+    sectors = sector_distances(SectorInput(points, obstacle, snr), layout, settings)
+    index = layout.index_of(points[:, 0], points[:, 1])
+    horizontal = np.hypot(points[:, 0], points[:, 1])
+    for s, sector in enumerate(sectors):
+        here = index == s
+        expected = _sector_by_definition(s, horizontal, here & obstacle, here, snr, settings)
+        assert (sector.state, sector.distance_m, sector.confidence, sector.point_count) == (
+            expected)
