@@ -225,52 +225,82 @@ def _quartile_and_median(a: npt.NDArray[Any]) -> tuple[Any, Any]:
 
 @dataclass(frozen=True)
 class NoiseMap:
-    """Local background and noise σ (DN), (H, W) float32, filled in the rows read only.
+    """Local background and noise σ (DN) per NOISE_TILE_PX square tile of the rows read.
 
     Shot noise grows with the ambient light, so a sunlit patch is noisier than the rest:
     one global threshold would take its noise for peaks. Each NOISE_TILE_PX square tile
     of the rows read gets its own median and ``(median - q25) / 0.6745`` (2×2 subsample).
+
+    ``background_tiles`` and ``sigma_tiles`` (R + 1, C) float32 hold the tiles of every
+    span stacked, and in their last row the values outside the rows read (0 and
+    MIN_NOISE_DN); ``tile_row`` (H,) int64 gives each image row its row of tiles (-1, the
+    last, outside the rows read). Column c lies in tile column ``c // NOISE_TILE_PX``.
+    Per-pixel (H, W) float32 images are made only where asked for.
     """
 
-    background: npt.NDArray[np.float32]
-    sigma: npt.NDArray[np.float32]
+    tile_row: IntArray
+    background_tiles: npt.NDArray[np.float32]
+    sigma_tiles: npt.NDArray[np.float32]
+    width: int
+
+    @property
+    def background(self) -> npt.NDArray[np.float32]:
+        """(H, W) float32 local background, DN."""
+        return self._image(self.background_tiles)
+
+    @property
+    def sigma(self) -> npt.NDArray[np.float32]:
+        """(H, W) float32 local noise σ, DN."""
+        return self._image(self.sigma_tiles)
+
+    def threshold(self, snr_min: float) -> npt.NDArray[np.float32]:
+        """(H, W) float32 ``background + snr_min · σ``, DN, computed per tile."""
+        return self._image(self.background_tiles + snr_min * self.sigma_tiles)
+
+    def _image(self, tiles: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        """(H, W) float32 image of per-tile values (one broadcast copy)."""
+        t = NOISE_TILE_PX
+        rows = tiles[self.tile_row]  # (H, C)
+        full = np.broadcast_to(rows[:, :, None], (*rows.shape, t)).reshape(rows.shape[0], -1)
+        return np.ascontiguousarray(full[:, :self.width])
 
     def snr(self, values: npt.NDArray[np.generic], rows: IntArray, cols: IntArray) -> FloatArray:
         """(n,) SNR of the map values at (rows, cols)."""
         peak = values[rows, cols].astype(np.float64)
-        return (peak - self.background[rows, cols]) / self.sigma[rows, cols]
+        at = (self.tile_row[rows], cols // NOISE_TILE_PX)
+        return (peak - self.background_tiles[at]) / self.sigma_tiles[at]
 
 
-def _tile_statistics(block: npt.NDArray[Any]) -> tuple[FloatArray, FloatArray]:
-    """Per NOISE_TILE_PX tile of ``block`` (h, w): (median, σ), each (h, w) float32."""
-    h, w = block.shape
+def _tile_statistics(block: npt.NDArray[Any]) -> tuple[npt.NDArray[np.float32],
+                                                        npt.NDArray[np.float32]]:
+    """Per NOISE_TILE_PX tile of ``block`` (h, w): (median, σ), each (nr, nc) float32,
+    tiles from the top left corner."""
     t = NOISE_TILE_PX // 2
     sub = block[::2, ::2]
     nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
     padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])), "symmetric")
     tiles = padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
     q25, median = _quartile_and_median(tiles)
-    sigma = np.maximum((median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
-    return _expand_tiles(median, h, w), _expand_tiles(sigma, h, w)
-
-
-def _expand_tiles(a: npt.NDArray[np.float32], h: int, w: int) -> npt.NDArray[np.float32]:
-    """(h, w) float32 image of the (nr, nc) per-tile values ``a``, NOISE_TILE_PX square
-    tiles from the top left (one broadcast copy; ``np.repeat`` twice is ~8x slower)."""
-    nr, nc = a.shape
-    t = NOISE_TILE_PX
-    full = np.broadcast_to(a[:, None, :, None], (nr, t, nc, t)).reshape(nr * t, nc * t)
-    return np.asarray(full[:h, :w], dtype=np.float32)
+    return median, np.maximum((median - q25) / QUARTILE_TO_SIGMA, np.float32(MIN_NOISE_DN))
 
 
 def noise_map(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -> NoiseMap:
     """The :class:`NoiseMap` of the rows in ``spans``."""
-    background = np.zeros(values.shape, dtype=np.float32)
-    sigma = np.full(values.shape, MIN_NOISE_DN, dtype=np.float32)
+    height, width = values.shape
+    tile_row = np.full(height, -1, dtype=np.int64)
+    nc = -(-width // NOISE_TILE_PX)
+    background = [np.zeros((0, nc), dtype=np.float32)]
+    sigma = [np.zeros((0, nc), dtype=np.float32)]
     for lo, hi in spans:
         if hi > lo:
-            background[lo:hi], sigma[lo:hi] = _tile_statistics(values[lo:hi])
-    return NoiseMap(background, sigma)
+            tile_row[lo:hi] = sum(b.shape[0] for b in background) + (
+                np.arange(hi - lo) // NOISE_TILE_PX)
+            median, noise = _tile_statistics(values[lo:hi])
+            background.append(median)
+            sigma.append(noise)
+    background.append(np.zeros((1, nc), dtype=np.float32))
+    sigma.append(np.full((1, nc), MIN_NOISE_DN, dtype=np.float32))
+    return NoiseMap(tile_row, np.concatenate(background), np.concatenate(sigma), width)
 
 
 # --------------------------------------------------------------------------- sub-pixel
@@ -382,7 +412,7 @@ def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]],
             peak[:-d] &= block[:-d] >= block[d:]
         if inside is not None:
             peak &= inside[lo:hi, None]
-        r, c = np.nonzero(peak)
+        r, c = np.divmod(np.flatnonzero(peak), peak.shape[1])  # 10x faster than 2-D nonzero
         rows.append(r + lo)
         cols.append(c)
     out = np.full((per_column, values.shape[1]), -1, dtype=np.int64)
@@ -588,9 +618,20 @@ def _count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
 
 
 def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float, ...]:
-    """Median SNR of the samples of each of ``count`` lines, 0.0 for a line without any."""
-    return tuple(float(np.median(snr[line == k])) if (line == k).any() else 0.0
-                 for k in range(count))
+    """Median SNR (as ``np.median``) of the samples of each of ``count`` lines, 0.0 for a
+    line without any: one sort by SNR, then a stable sort by line, and the middle of
+    each line's slice."""
+    if line.size == 0:
+        return (0.0,) * count
+    by_snr = np.argsort(snr)
+    ordered = snr[by_snr[np.argsort(line[by_snr], kind="stable")]]
+    size = np.bincount(line, minlength=count)[:count]
+    start = np.cumsum(size) - size
+    last = ordered.size - 1
+    upper = ordered[np.minimum(start + size // 2, last)]
+    lower = ordered[np.minimum(start + (size - 1) // 2, last)]
+    return tuple(float((lo + hi) / 2) if n else 0.0
+                 for lo, hi, n in zip(lower, upper, size, strict=True))
 
 
 def _search_rows(spans: list[tuple[int, int]], search: list[tuple[int, int]] | None,
@@ -651,7 +692,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
     background, noise = noise_floor(values, spans)
     local = noise_map(values, spans)
-    threshold = local.background + settings.snr_min * local.sigma
+    threshold = local.threshold(settings.snr_min)
     hunt, inside = _search_rows(spans, search, settings.min_separation_px, height)
     if inside is not None and _above_elsewhere(values, threshold, spans, inside):
         hunt, inside = spans, None  # something outside the recent rows: search them all

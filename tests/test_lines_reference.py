@@ -17,6 +17,7 @@ from atris_node.lines import (
     MIN_LINE_SAMPLES,
     NOISE_TILE_PX,
     _continuity_reference,
+    _median_per_line,
     _nearest_neighbour_range,
     _quartile_and_median,
     noise_floor,
@@ -115,3 +116,28 @@ def test_continuity_reference_is_the_per_line_block_median() -> None:
     good[1, 100:300] = False  # blocks without enough samples take the line's median
     reference = np.stack([_reference_per_line(r, g) for r, g in zip(rows, good, strict=True)])
     np.testing.assert_array_equal(_continuity_reference(rows, good), reference)
+
+
+def test_threshold_and_snr_are_those_of_the_per_pixel_images() -> None:
+    rng = np.random.default_rng(15)
+    values = _ambient_map(rng)
+    local = noise_map(values, [(30, 130), (150, 310)])
+    background, sigma = local.background, local.sigma
+    assert background.shape == sigma.shape == values.shape
+    np.testing.assert_array_equal(local.threshold(6.0), background + 6.0 * sigma)
+    rows, cols = rng.integers(0, 400, 500), rng.integers(0, 640, 500)
+    expected = (values[rows, cols] - background[rows, cols].astype(np.float64)) / sigma[
+        rows, cols]
+    np.testing.assert_array_equal(local.snr(values, rows, cols), expected)
+    assert (background[130:150] == 0).all() and (sigma[310:] == 0.5).all()
+
+
+@pytest.mark.parametrize("count", [1, 3, 8])
+def test_median_per_line_is_numpys_median(count: int) -> None:
+    rng = np.random.default_rng(count)
+    line = rng.integers(0, max(count - 1, 1), 999)  # of several lines, the last has none
+    snr = rng.uniform(6.0, 80.0, line.size)
+    expected = tuple(float(np.median(snr[line == k])) if (line == k).any() else 0.0
+                     for k in range(count))
+    assert _median_per_line(line, snr, count) == expected
+    assert _median_per_line(line[:0], snr[:0], count) == (0.0,) * count
