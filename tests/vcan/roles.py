@@ -183,14 +183,30 @@ def canopen_slave(channel: str, node_id: str, update_s: str) -> None:
     emit("done", nmt_state=device.nmt_state, updates=counter)
 
 
-def negotiator(channel: str, name: str, unit_id: str, code_length: str) -> None:
-    """A unit's Negotiator on its own socketcan bus; emits every change of what it may do."""
+class Stall(can.Listener):
+    """Blocks the receive thread on its first frame for ``seconds``: a starved thread."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds, self.done = seconds, seconds <= 0.0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if not self.done:
+            self.done = True
+            time.sleep(self.seconds)
+
+
+def negotiator(channel: str, name: str, unit_id: str, code_length: str,
+               stall_s: str = "0") -> None:
+    """A unit's Negotiator on its own socketcan bus; emits every change of what it may do.
+    With ``stall_s`` its receive thread stalls that long on the first frame it gets."""
     from atris_node.bus.negotiation import Negotiator
     from atris_node.bus.negotiation_plan import Plan
 
     stop, reported = StdinWatch(), 0
     with can.Bus(interface="socketcan", channel=channel) as bus:
-        unit = Negotiator(bus, int(name, 0), Plan(int(code_length), 480.0), int(unit_id))
+        notifier = can.Notifier(bus, [Stall(float(stall_s))], timeout=0.1)
+        unit = Negotiator(bus, int(name, 0), Plan(int(code_length), 480.0), int(unit_id),
+                          notifier=notifier)
         unit.start()
         emit("ready")
         try:
@@ -199,6 +215,7 @@ def negotiator(channel: str, name: str, unit_id: str, code_length: str) -> None:
                 reported = _emit_timeline(unit, reported)
         finally:
             unit.stop()
+            notifier.stop()
     _emit_timeline(unit, reported)
     emit("done", hops=unit.hop_count, malformed=unit.malformed_frames,
          deferrals=unit.receive.deferrals)

@@ -94,3 +94,22 @@ def test_three_units_claim_unique_codes_and_a_restarted_unit_rejoins(
     assert_no_shared_code(per_unit)
     final_rows = [per_unit[i][-1][2] for i in (0, 2, 3)]
     assert len(set(final_rows)) == 3, f"codes after the restart not unique: {final_rows}"
+
+
+def test_a_unit_whose_receive_thread_stalls_does_not_strobe_a_code_it_has_not_heard_taken(
+        spawn: Any, record_property: Any) -> None:
+    """The second unit's receive thread stalls 1 s on the first frame (a starved thread):
+    the first unit's claim waits unread in its socket. It must hear that claim before it
+    chooses and promotes a code, so the two never strobe the same one."""
+    first = spawn("negotiator", "vcan0", "0x1000", "1", "16")
+    wait_owned(first)
+    second = spawn("negotiator", "vcan0", "0x2000", "2", "16", "1.0")
+    settled_rows([first, second])
+    finals = [u.stop() for u in (first, second)]
+    ends = [time.monotonic()] * 2
+    per_unit = [strobe_intervals(u.of("state"), end)
+                for u, end in zip((first, second), ends, strict=True)]
+    record_property("deferrals_of_the_stalled_unit", finals[1]["deferrals"])
+    assert_no_shared_code(per_unit)
+    assert finals[1]["deferrals"] > 0, "the stalled unit never waited for its socket"
+    assert per_unit[1][0][2] != per_unit[0][0][2]
