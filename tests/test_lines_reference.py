@@ -16,12 +16,14 @@ from atris_node.lines import (
     MIN_BLOCK_SAMPLES,
     MIN_LINE_SAMPLES,
     NOISE_TILE_PX,
+    LineSamples,
     _continuity_reference,
     _median_per_line,
     _nearest_neighbour_range,
     _quartile_and_median,
     noise_floor,
     noise_map,
+    smooth_along_lines,
 )
 
 
@@ -141,3 +143,31 @@ def test_median_per_line_is_numpys_median(count: int) -> None:
                      for k in range(count))
     assert _median_per_line(line, snr, count) == expected
     assert _median_per_line(line[:0], snr[:0], count) == (0.0,) * count
+
+
+def _smoothed_by_definition(samples: LineSamples, lines: int, width: int, taps: int
+                            ) -> np.ndarray:
+    """Rows after the median of 2·(taps // 2) + 1 columns, with np.median and np.ptp."""
+    half = taps // 2
+    grid = np.full((lines, width + 2 * half), np.inf)
+    cols = samples.col_px.astype(np.int64)
+    grid[samples.line, cols + half] = samples.row_px
+    stack = np.stack([grid[samples.line, cols + half + d] for d in range(-half, half + 1)])
+    ok = np.isfinite(stack).all(axis=0)
+    ok[ok] = np.ptp(stack[:, ok], axis=0) <= 2.0
+    row = samples.row_px.copy()
+    row[ok] = np.median(stack[:, ok], axis=0)
+    return row
+
+
+@pytest.mark.parametrize("taps", [3, 4, 5, 9])
+def test_smoothing_is_the_median_of_the_neighbouring_columns(taps: int) -> None:
+    rng = np.random.default_rng(taps)
+    line, col = np.nonzero(rng.random((4, 640)) < 0.8)  # gaps
+    row = 50.0 * line + 20.0 * np.sin(col / 50.0) + rng.normal(0.0, 0.4, col.size)
+    row[rng.random(col.size) < 0.02] += 9.0  # steps
+    samples = LineSamples(line, row, col.astype(np.float64), np.ones(col.size),
+                          np.ones(col.size), np.zeros(col.size, bool))
+    smoothed = smooth_along_lines(samples, 4, 640, taps)
+    np.testing.assert_array_equal(smoothed.row_px,
+                                  _smoothed_by_definition(samples, 4, 640, taps))

@@ -117,6 +117,19 @@ def test_closing_speed_and_time_to_collision() -> None:
     assert receding[-1][0] == pytest.approx(-1.0) and receding[-1][1] is None
 
 
+def test_closing_speed_is_the_least_squares_slope() -> None:
+    rng = np.random.default_rng(9)
+    for _ in range(50):
+        tracker = ClosingTracker(max_jump_m=10.0)
+        times = np.cumsum(rng.uniform(0.02, 0.05, 6)) + rng.uniform(0.0, 1e4)
+        distances = 4.0 - rng.uniform(-3.0, 3.0) * (times - times[0]) + rng.normal(
+            0.0, 0.02, 6)
+        for t, d in zip(times, distances, strict=True):
+            closing, _ = tracker.update(float(d), float(t))
+        slope = np.polyfit(times - times[-1], distances, 1)[0]
+        assert closing == pytest.approx(-slope, rel=1e-9, abs=1e-9)
+
+
 def test_a_jump_to_another_object_restarts_the_track() -> None:
     tracker = ClosingTracker()
     for t in (0.0, 0.1, 0.2):
