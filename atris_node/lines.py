@@ -609,8 +609,9 @@ def _refine(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArra
     window, inside = _windows(values, rows, cols, r)
     local_max = (window[:, r] >= window[:, r - 1]) & (window[:, r] >= window[:, r + 1])
     offset, ok = subpixel_offset(window, settings, noise)
-    near, _ = _windows(saturated, rows, cols, 1)
-    flat = np.asarray(near.any(axis=1), dtype=np.bool_)
+    flat = np.zeros(rows.size, dtype=np.bool_)
+    if saturated.any():  # a flat top needs a saturated pixel next to the peak
+        flat = np.asarray(_windows(saturated, rows, cols, 1)[0].any(axis=1), dtype=np.bool_)
     row = rows + offset
     if flat.any():  # only peaks next to saturated pixels: the mask is read there alone
         row[flat] = saturated_centre(saturated, rows[flat], cols[flat])
@@ -620,11 +621,14 @@ def _refine(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArra
 
 
 def _count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
-    """(W,) entries of (M, W) ``peaks`` (rows, -1 = none) inside at least one band."""
-    inside = np.zeros(peaks.shape, dtype=np.bool_)
+    """(W,) entries of (M, W) ``peaks`` (rows, -1 = none) inside at least one band, looked
+    up in a table of the rows some band covers (its last entry, for -1 and for rows
+    below every band, False)."""
+    top = max((b.row_hi for b in bands), default=0)
+    covered = np.zeros(top + 1, dtype=np.bool_)
     for b in bands:
-        inside |= (peaks >= b.row_lo) & (peaks < b.row_hi)
-    return np.asarray(inside.sum(axis=0), dtype=np.int64)
+        covered[b.row_lo:max(b.row_hi, b.row_lo)] = True
+    return np.asarray(covered[np.minimum(peaks, top)].sum(axis=0), dtype=np.int64)
 
 
 def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float, ...]:

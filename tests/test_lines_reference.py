@@ -16,8 +16,10 @@ from atris_node.lines import (
     MIN_BLOCK_SAMPLES,
     MIN_LINE_SAMPLES,
     NOISE_TILE_PX,
+    Band,
     LineSamples,
     _continuity_reference,
+    _count_in_bands,
     _median_per_line,
     _nearest_neighbour_range,
     _quartile_and_median,
@@ -171,3 +173,13 @@ def test_smoothing_is_the_median_of_the_neighbouring_columns(taps: int) -> None:
     smoothed = smooth_along_lines(samples, 4, 640, taps)
     np.testing.assert_array_equal(smoothed.row_px,
                                   _smoothed_by_definition(samples, 4, 640, taps))
+
+
+def test_peaks_in_bands_are_counted_per_column() -> None:
+    rng = np.random.default_rng(16)
+    peaks = np.sort(rng.integers(-1, 400, (12, 640)), axis=0)
+    bands = (Band(0, 54, 154), Band(1, 74, 175), Band(2, 300, 300), Band(3, 320, 390))
+    inside = np.zeros(peaks.shape, dtype=bool)
+    for b in bands:
+        inside |= (peaks >= b.row_lo) & (peaks < b.row_hi)
+    np.testing.assert_array_equal(_count_in_bands(peaks, bands), inside.sum(axis=0))
