@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -101,6 +101,17 @@ class SectorInput:
     points: FloatArray
     obstacle: BoolArray
     snr: FloatArray
+    _placed: dict[SectorLayout, tuple[npt.NDArray[np.int64], FloatArray]] = field(
+        default_factory=dict, init=False, repr=False, compare=False)
+
+    def placed(self, layout: SectorLayout) -> tuple[npt.NDArray[np.int64], FloatArray]:
+        """(n,) sector index (-1 outside the field of view) and horizontal range (m) of
+        every sample, computed once per layout (the sectors and the nearest obstacle
+        both need them)."""
+        if layout not in self._placed:
+            x, y = self.points[:, 0], self.points[:, 1]
+            self._placed[layout] = (layout.index_of(x, y), layout.horizontal_range(x, y))
+        return self._placed[layout]
 
 
 def _confidence(count: int, snr: FloatArray, settings: SectorSettings) -> float:
@@ -185,15 +196,16 @@ def sector_distances(data: SectorInput, layout: SectorLayout,
     """One :class:`SectorDistance` per sector of ``layout``, index 0 at the right edge.
     The samples are grouped by sector and sorted once, so each sector's quantile and
     medians are read off sorted slices."""
-    p = data.points
-    idx = layout.index_of(p[:, 0], p[:, 1])
+    idx, rng = data.placed(layout)
     hit = np.where(data.obstacle, idx, -1)
-    ranges = _Groups.of(hit, layout.horizontal_range(p[:, 0], p[:, 1]), layout.count)
-    hit_snr = _Groups.of(hit, data.snr, layout.count)
-    all_snr = _Groups.of(idx, data.snr, layout.count)
-    return tuple(_sector(s, layout, ranges[s], hit_snr[s] if ranges.size(s) else all_snr[s],
-                         samples=all_snr.size(s), settings=settings)
-                 for s in range(layout.count))
+    ranges, hit_snr = _Groups.of(hit, rng, layout.count), _Groups.of(hit, data.snr, layout.count)
+    samples = np.bincount(idx[idx >= 0], minlength=layout.count)
+
+    def snr(s: int) -> FloatArray:  # of the hits, else (rarely needed) of every sample
+        return hit_snr[s] if ranges.size(s) else np.sort(data.snr[idx == s])
+
+    return tuple(_sector(s, layout, ranges[s], snr(s), samples=int(samples[s]),
+                         settings=settings) for s in range(layout.count))
 
 
 def nearest_obstacle(sectors: tuple[SectorDistance, ...], data: SectorInput,
@@ -204,11 +216,11 @@ def nearest_obstacle(sectors: tuple[SectorDistance, ...], data: SectorInput,
     if not valid:
         return None
     best = min(valid, key=lambda s: s.distance_m)
-    p = data.points[data.obstacle]
-    here = layout.index_of(p[:, 0], p[:, 1]) == best.index
-    near = here & (layout.horizontal_range(p[:, 0], p[:, 1]) <= best.distance_m + 1e-9)
+    idx, rng = data.placed(layout)
+    near = data.obstacle & (idx == best.index) & (rng <= best.distance_m + 1e-9)
     if near.any():
-        bearing = float(np.arctan2(p[near, 1], p[near, 0]).mean())
+        p = data.points[near]
+        bearing = float(np.arctan2(p[:, 1], p[:, 0]).mean())
         return SectorDistance(best.index, bearing, best.state, best.distance_m,
                               best.confidence, best.point_count)
     return best

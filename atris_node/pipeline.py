@@ -200,22 +200,24 @@ def foreign_energy(dmap: DistortionMap, spans: tuple[tuple[int, int], ...],
     for lo, hi in spans:
         block = dmap.values[lo:hi].astype(np.float32) - np.float32(background_dn)
         block[dmap.saturated[lo:hi]] = 0.0
-        low = _line_like(block < -threshold_dn, block < -threshold_dn / 2)
-        negative += float(-block[low].sum())
+        low = _line_like(block, threshold_dn)
+        negative += float(-block.ravel()[low].sum())
         positive += float(block[block > threshold_dn].sum())
-        columns |= low.any(axis=0)
+        columns[low % block.shape[1]] = True
     if negative == 0.0:
         return 0.0, columns
     return negative / max(positive, threshold_dn, 1.0), columns
 
 
-def _line_like(strong: BoolArray, weak: BoolArray) -> BoolArray:
-    """(H, W) ``strong`` pixels whose left and right neighbours are ``weak``."""
-    out = strong.copy()
-    out[:, 1:] &= weak[:, :-1]
-    out[:, :-1] &= weak[:, 1:]
-    out[:, [0, -1]] = False
-    return out
+def _line_like(block: npt.NDArray[np.float32], threshold_dn: float) -> npt.NDArray[np.intp]:
+    """Flat (row-major) indices of the pixels of ``block`` (h, w) below ``-threshold_dn``
+    whose left and right neighbours are below ``-threshold_dn / 2``, ascending. Such
+    pixels are rare, so the neighbours are read for them alone."""
+    w = block.shape[1]
+    strong = np.flatnonzero(block < -threshold_dn)
+    strong = strong[(strong % w > 0) & (strong % w < w - 1)]
+    flat, weak = block.ravel(), -threshold_dn / 2
+    return strong[(flat[strong - 1] < weak) & (flat[strong + 1] < weak)]
 
 
 def _widen(columns: BoolArray, margin: int) -> BoolArray:

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from atris_node.codes import walsh_chips
 from atris_node.demod import BlockDemodulator
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult, foreign_energy
 from atris_node.sectors import SectorLayout
 from atris_node.sim import Simulator, load_scene
-from atris_node.types import SectorState
+from atris_node.types import DistortionMap, SectorState
 
 N, ROW = 16, 2
 
@@ -44,3 +46,36 @@ def test_only_sectors_with_foreign_columns_go_invalid_and_none_reads_too_far() -
     for result, _ in flagged:
         states = [s.state for s in result.measurement.sectors]
         assert SectorState.INVALID in states and SectorState.VALID in states
+
+
+def _foreign_by_definition(values: np.ndarray, saturated: np.ndarray, background: float,
+                           threshold: float) -> tuple[float, np.ndarray]:
+    """foreign_energy written out with whole-image masks (one span, all rows)."""
+    block = values.astype(np.float32) - np.float32(background)
+    block[saturated] = 0.0
+    low = block < -threshold
+    low[:, 1:] &= block[:, :-1] < -threshold / 2
+    low[:, :-1] &= block[:, 1:] < -threshold / 2
+    low[:, [0, -1]] = False
+    negative = float(-block[low].sum())
+    positive = float(block[block > threshold].sum())
+    energy = 0.0 if negative == 0.0 else negative / max(positive, threshold, 1.0)
+    return energy, low.any(axis=0)
+
+
+def test_foreign_energy_reads_line_like_negative_pixels() -> None:
+    rng = np.random.default_rng(17)
+    values = np.round(rng.normal(5.0, 8.0, (120, 640))).astype(np.int16)
+    values[40, 100:160] -= 200  # a negative trail
+    values[41:44, 0:3] -= 300  # at the image edge
+    values[70, 300] -= 400  # one lone pixel: not line-like
+    values[90, 200:260] += 500  # our own line
+    saturated = np.zeros(values.shape, bool)
+    saturated[40, 150:155] = True
+    dmap = DistortionMap(values, saturated, N, 0, N - 1, 0.0, 0.1)
+    energy, columns = foreign_energy(dmap, ((0, 120),), 5.0, 48.0)
+    expected_energy, expected_columns = _foreign_by_definition(values, saturated, 5.0, 48.0)
+    assert energy == expected_energy > 0.0
+    np.testing.assert_array_equal(columns, expected_columns)
+    # the 5 saturated pixels count as 0, and take a neighbour from the pixels beside them
+    assert columns[101:159].sum() == 58 - 7 and not columns[300]
