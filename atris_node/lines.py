@@ -540,19 +540,23 @@ class VisibilityPrior:
 def _nearest_neighbour_range(z: FloatArray, order: IntArray) -> FloatArray:
     """(K, W): for each line, the finite range of the assigned line nearest to it in
     image order (the nearer range on a tie), inf where a column has none. The nearest
-    assigned line above and below each position come from running max / min of indices."""
-    k_count = z.shape[0]
-    ranges = z[order]  # image order
+    assigned positions above and below come from a running max / min down the K rows
+    (a missing one lies 2K away, so it is never the nearer)."""
+    k_count, width = z.shape
+    ranges = np.vstack([z[order], np.full((1, width), np.inf)])  # image order, + a row of inf
     position = np.arange(k_count)[:, None]
-    assigned = np.isfinite(ranges)
-    up = np.full(ranges.shape, -2 * k_count)  # nearest assigned position above, or far off
-    up[1:] = np.maximum.accumulate(np.where(assigned, position, -2 * k_count), axis=0)[:-1]
-    down = np.full(ranges.shape, 3 * k_count)  # nearest assigned position below, or far off
-    down[:-1] = np.minimum.accumulate(
-        np.where(assigned, position, 3 * k_count)[::-1], axis=0)[::-1][1:]
-    z_up = np.where(up >= 0, np.take_along_axis(ranges, np.clip(up, 0, k_count - 1), 0), np.inf)
-    z_down = np.where(down < k_count,
-                      np.take_along_axis(ranges, np.clip(down, 0, k_count - 1), 0), np.inf)
+    assigned = np.isfinite(ranges[:-1])
+    up = np.where(assigned, position, -2 * k_count)  # becomes: nearest assigned above
+    down = np.where(assigned, position, 3 * k_count)  # becomes: nearest assigned below
+    for k in range(1, k_count):  # K row operations beat ufunc.accumulate down axis 0
+        np.maximum(up[k - 1], up[k], out=up[k])
+        np.minimum(down[-k], down[-k - 1], out=down[-k - 1])
+    up = np.vstack([np.full((1, width), -2 * k_count), up[:-1]])
+    down = np.vstack([down[1:], np.full((1, width), 3 * k_count)])
+    column = np.arange(width)
+    flat = ranges.ravel()  # a missing neighbour reads the row of inf
+    z_up = flat[np.where(up >= 0, up, k_count) * width + column]
+    z_down = flat[np.minimum(down, k_count) * width + column]
     gap_up, gap_down = position - up, down - position
     nearest = np.where((gap_up < gap_down) | ((gap_up == gap_down) & (z_up <= z_down)),
                        z_up, z_down)
