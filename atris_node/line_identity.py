@@ -1,0 +1,283 @@
+"""Line identity where the two greedy matchings disagree: the cheapest alignment of lines
+and peaks in each column.
+
+The top-down and bottom-up greedy matchings of :func:`atris_node.lines.identify_lines` are
+the two extreme order-preserving matchings. When a line is missing in the middle of a
+column (occluded, in a shadow, off a small object) the true identity lies between them:
+the lines above the gap keep their rows, those below it keep theirs. Both greedy
+matchings then shift a run of lines by one, and a shifted line is triangulated at a range
+that can be metres off (a phantom obstacle, or a near one taken for far).
+
+:func:`cheapest_alignment` finds, per column, the order-preserving assignment of lines to
+peaks (each line in its band) of least cost, by the sequence alignment recursion
+
+    D[j, i] = min(D[j-1, i-1] + match(j-1, i-1),   line j-1 takes peak i-1
+                  D[j-1, i] + SKIP_PX,              line j-1 has no peak
+                  D[j, i-1] + spare(i-1))           peak i-1 belongs to no line
+
+with the costs in pixels: a match costs the distance of the peak to the line's row in the
+neighbouring columns (continuity), plus BEYOND_PX when the row is past the line's z_max
+row (the sample would be no return, while the same peak may be a near range of the next
+line); a missing line costs SKIP_PX; a spare peak inside a band costs SPARE_PX (it would
+count as foreign light). The recursion over peaks is one prefix minimum, so a column costs
+K vector steps. All rows are int64 px; costs float64 px, finite (absent peaks cost 0 as
+spares and cannot be matched).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: cost (px) of a line without a peak in a column
+SKIP_PX = 10.0
+#: cost (px) of a peak inside a band that no line takes
+SPARE_PX = 40.0
+#: extra cost (px) of a row past the line's z_max row
+BEYOND_PX = 10.0
+#: stands for an unknown continuity reference: matches cost nothing but order and bands
+_NO_REF = np.inf
+
+
+def match_costs(rows: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
+                beyond: FloatArray) -> FloatArray:
+    """(K, M, n) cost of line k taking peak m in column c, inf outside line k's band.
+
+    Args:
+        rows: (M, n) peak rows sorted top to bottom, absent peaks as a row below every band.
+        lo, hi: (K,) band rows ``[lo, hi)`` in image order.
+        ref: (K, n) continuity reference row per line (inf: unknown, distance counts 0).
+        beyond: (K,) first row past each line's z_max range (inf: no such row).
+    """
+    r = rows[None, :, :].astype(np.float64)
+    inside = (r >= lo[:, None, None]) & (r < hi[:, None, None])
+    known = np.isfinite(ref)[:, None, :]
+    distance = np.where(known, np.abs(r - np.where(known, ref[:, None, :], 0.0)), 0.0)
+    cost = distance + np.where(r >= beyond[:, None, None], BEYOND_PX, 0.0)
+    return np.where(inside, cost, np.inf)
+
+
+def cheapest_alignment(costs: FloatArray, spare: FloatArray) -> tuple[IntArray, FloatArray]:
+    """(K, n) index of the peak each line takes (-1: none) and (n,) the total cost.
+
+    Args:
+        costs: (K, M, n) from :func:`match_costs`.
+        spare: (M, n) cost of leaving each peak to no line.
+    """
+    k_count, m_count, n = costs.shape
+    before = np.zeros((m_count + 1, n))
+    before[1:] = np.cumsum(spare, axis=0)  # C[i]: spare cost of peaks 0..i-1
+    d = before.copy()  # D[0, i]: every peak so far spare
+    took = np.zeros((k_count, m_count + 1, n), dtype=np.bool_)
+    skipped = np.zeros((k_count, m_count + 1, n), dtype=np.bool_)
+    for j in range(k_count):
+        match = np.full((m_count + 1, n), np.inf)
+        match[1:] = d[:-1] + costs[j]
+        skip = d + SKIP_PX
+        best = np.minimum(match, skip)
+        d = before + np.minimum.accumulate(best - before, axis=0)
+        via_spare = np.full((m_count + 1, n), np.inf)
+        via_spare[1:] = d[:-1] + spare
+        direct = best <= via_spare
+        took[j] = direct & (match <= skip)
+        skipped[j] = direct & (skip < match)
+    return _backtrack(took, skipped), d[-1]
+
+
+def _backtrack(took: BoolArray, skipped: BoolArray) -> IntArray:
+    """(K, n) peak index per line from the choices of :func:`cheapest_alignment`."""
+    k_count, m_plus, n = took.shape
+    cols = np.arange(n)
+    j = np.full(n, k_count)
+    i = np.full(n, m_plus - 1)
+    out = np.full((k_count, n), -1, dtype=np.int64)
+    for _ in range(k_count + m_plus):
+        active = j > 0
+        if not active.any():
+            break
+        jj = np.maximum(j - 1, 0)
+        take = active & took[jj, i, cols] & (i > 0)
+        skip = active & ~take & (skipped[jj, i, cols] | (i == 0))
+        out[jj[take], cols[take]] = i[take] - 1
+        j = np.where(take | skip, j - 1, j)
+        i = np.where(take | (active & ~take & ~skip), i - 1, i)
+    return out
+
+
+def assignment_cost(index: IntArray, costs: FloatArray, spare: FloatArray) -> FloatArray:
+    """(n,) cost of a given assignment (K, n) of peak indices (-1: none) in those terms."""
+    k_count, m_count, n = costs.shape
+    cols = np.arange(n)
+    taken = index >= 0
+    safe = np.where(taken, index, 0)
+    matched = np.where(taken, costs[np.arange(k_count)[:, None], safe, cols[None, :]], 0.0)
+    used = np.zeros((m_count, n), dtype=np.bool_)
+    used[safe[taken], np.broadcast_to(cols, index.shape)[taken]] = True
+    spare_cost = np.where(used, 0.0, spare).sum(axis=0)
+    return np.asarray(matched.sum(axis=0) + SKIP_PX * (~taken).sum(axis=0) + spare_cost)
+
+
+def _indices(rows: IntArray, ordered: IntArray) -> IntArray:
+    """(K, n) index in ``ordered`` (M, n) of each assigned row of ``rows`` (-1 kept)."""
+    index = (ordered[None, :, :] < rows[:, None, :]).sum(axis=1)
+    return np.where(rows >= 0, index, -1).astype(np.int64)
+
+
+def _rows_of(index: IntArray, ordered: IntArray) -> IntArray:
+    cols = np.arange(ordered.shape[1])
+    return np.where(index >= 0, ordered[np.maximum(index, 0), cols[None, :]], -1)
+
+
+def alternatives(peaks: IntArray, bands: tuple[tuple[int, int], ...],
+                 candidates: list[IntArray], ref: FloatArray, beyond: FloatArray
+                 ) -> tuple[list[IntArray], FloatArray]:
+    """The cheapest alignment and the ``candidates``, as rows, with their costs.
+
+    Args:
+        peaks: (M, n) peak rows of the columns to resolve, -1 = none, any order.
+        bands: (lo, hi) of each line, in image order.
+        candidates: (K, n) row assignments to compare with the alignment (the greedy
+            matchings), lines in image order, -1 = none.
+        ref: (K, n) continuity reference rows (inf: unknown).
+        beyond: (K,) first row past each line's z_max range.
+
+    Returns:
+        [alignment, *candidates] as (K, n) rows, and their (C, n) costs in px.
+    """
+    below = np.iinfo(np.int64).max // 4
+    ordered = np.sort(np.where(peaks >= 0, peaks, below), axis=0)
+    ordered = ordered[:max(int((ordered < below).sum(axis=0).max(initial=0)), 1)]
+    lo = np.array([b[0] for b in bands], dtype=np.int64)
+    hi = np.array([b[1] for b in bands], dtype=np.int64)
+    costs = match_costs(ordered, lo, hi, ref, beyond)
+    in_band = ((ordered[None] >= lo[:, None, None]) & (ordered[None] < hi[:, None, None])).any(0)
+    spare = np.where(in_band, SPARE_PX, 0.0)
+    best, best_cost = cheapest_alignment(costs, spare)
+    others = [_indices(c, ordered) for c in candidates]
+    totals = np.stack([best_cost, *(assignment_cost(o, costs, spare) for o in others)])
+    return [_rows_of(best, ordered), *candidates], totals
+
+
+def choose(options: list[IntArray], totals: FloatArray, sep: float) -> tuple[IntArray,
+                                                                          BoolArray]:
+    """(K, n) rows of the cheapest option per column and (K, n) True where an option
+    within ``sep`` px of that cost assigns a line differently (ambiguous)."""
+    pick = np.argmin(totals, axis=0)
+    cols = np.arange(totals.shape[1])
+    chosen = np.choose(pick, options)
+    rival = np.zeros(chosen.shape, dtype=np.bool_)
+    for option, total in zip(options, totals, strict=True):
+        close = total - totals[pick, cols] < sep
+        rival |= (option != chosen) & close[None, :]
+    return chosen, rival
+
+
+#: cost (px) of a line missing without a reason (:meth:`VisibilityPrior.unexplained`)
+UNEXPLAINED_PX = 10.0
+#: least saving (px) for which the alignment replaces the greedy choice: one missing line
+SWITCH_PX = 10.0
+
+
+class Prior(Protocol):
+    """What :func:`improve` needs of :class:`atris_node.lines.VisibilityPrior`."""
+
+    cot_alpha: FloatArray
+    focal_px: float
+    cy_px: float
+    baseline_m: float
+    z_max_m: float
+    ground_range_m: FloatArray
+
+    def unexplained(self, rows: IntArray) -> IntArray: ...
+
+
+def beyond_rows(prior: Prior | None, order: IntArray) -> FloatArray:
+    """(K,) first integer row past each line's z_max range, lines in ``order`` (inf
+    without a prior): observed rows, no lens correction (a plausibility bound)."""
+    if prior is None:
+        return np.full(order.size, np.inf)
+    f = prior.focal_px
+    row = prior.cy_px + f * prior.cot_alpha - f * prior.baseline_m / prior.z_max_m
+    return np.asarray(np.floor(row[order]) + 1.0)
+
+
+def _by_line(rows: IntArray, order: IntArray) -> IntArray:
+    """(K, n) rows in image order -> the same rows indexed by line."""
+    out = np.empty_like(rows)
+    out[order] = rows
+    return out
+
+
+def _excess(rows: IntArray, ref: FloatArray, beyond: FloatArray) -> FloatArray:
+    """(n,) match cost of assigned ``rows`` (K, n) beyond what no alignment can avoid:
+    distances to known references plus BEYOND_PX past z_max (lines in image order)."""
+    taken = rows >= 0
+    known = taken & np.isfinite(ref)
+    distance = np.where(known, np.abs(rows - np.where(known, ref, 0.0)), 0.0)
+    past = taken & (rows >= beyond[:, None])
+    return np.asarray(distance.sum(axis=0) + BEYOND_PX * past.sum(axis=0))
+
+
+def _missing_cost(prior: Prior | None, rows: IntArray, order: IntArray,
+                  cols: IntArray) -> FloatArray:
+    """(n,) UNEXPLAINED_PX per line of ``rows`` (image order, columns ``cols``) missing
+    without a reason; zeros without a prior."""
+    if prior is None:
+        return np.zeros(cols.size)
+    sub = replace(prior, ground_range_m=prior.ground_range_m[:, cols])  # type: ignore[type-var]
+    return UNEXPLAINED_PX * sub.unexplained(_by_line(rows, order)).astype(np.float64)
+
+
+def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray,
+            greedy: tuple[IntArray, IntArray], unsettled: BoolArray, ref: FloatArray,
+            prior: Prior | None, sep: int) -> tuple[IntArray, IntArray]:
+    """The greedy identity ``greedy = (rows, unsure)`` ((K, W) by line, (W,)), replaced in
+    each column where the cheapest alignment costs at least max(SWITCH_PX, ``sep``) px
+    less and the greedy choice was not ambiguous.
+
+    Only columns where the greedy choice itself costs that much above the floor every
+    assignment pays (skips and spares; the greedy matching has the most pairs, so the
+    least floor) are aligned: elsewhere nothing can beat it by that margin.
+
+    Args:
+        peaks: (M, W) peak rows, -1 = none.
+        bands: (lo, hi) per line in image order; ``order`` (K,) the line of each.
+        unsettled: (W,) columns where the two greedy matchings disagree.
+        ref: (K, W) continuity reference by line, from the columns where both greedy
+            matchings agree (inf: unknown).
+        prior: the visibility prior (adds UNEXPLAINED_PX per line missing without reason).
+        sep: px, the peak separation; a smaller saving never switches.
+
+    Returns:
+        rows (K, W) and (W,) unsure counts. A peak the greedy choice used that the
+        alignment leaves to no line counts as unsure, so the foreign-peak count (peaks in
+        the bands minus assigned minus unsure) is that of the greedy matching.
+    """
+    rows, unsure = greedy
+    cols = np.flatnonzero(unsettled & (unsure == 0))
+    beyond = beyond_rows(prior, order)
+    old, near = rows[order][:, cols], ref[order][:, cols]
+    old_missing = _missing_cost(prior, old, order, cols)
+    margin = max(SWITCH_PX, float(sep))
+    look = _excess(old, near, beyond) + old_missing >= margin
+    if not look.any():
+        return rows, unsure
+    cols, old, near, old_missing = cols[look], old[:, look], near[:, look], old_missing[look]
+    options, totals = alternatives(peaks[:, cols], bands, [old], near, beyond)
+    totals[0] += _missing_cost(prior, options[0], order, cols)
+    totals[1] += old_missing
+    better = totals[0] + margin <= totals[1]
+    if not better.any():
+        return rows, unsure
+    switched, new = cols[better], options[0][:, better]
+    out, count = rows.copy(), unsure.copy()
+    out[np.ix_(order, switched)] = new
+    count[switched] = np.maximum((old[:, better] >= 0).sum(axis=0) - (new >= 0).sum(axis=0), 0)
+    return out, count

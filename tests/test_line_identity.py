@@ -1,0 +1,93 @@
+"""The cheapest line-to-peak alignment (atris_node.line_identity): it is the optimum of its
+cost by exhaustive search, and it restores the identity where a line is missing in the
+middle of a column, where both greedy matchings shift a run of lines."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from atris_node import line_identity as li
+
+BANDS = ((10, 60), (30, 80), (50, 100))
+
+
+def _brute_force(costs: np.ndarray, spare: np.ndarray) -> float:
+    """Least cost over every order-preserving partial assignment, by enumeration."""
+    k_count, m_count = costs.shape[:2]
+    best = np.inf
+    for choice in itertools.product(range(-1, m_count), repeat=k_count):
+        used = [c for c in choice if c >= 0]
+        if used != sorted(set(used)):
+            continue
+        total = sum(costs[k, c, 0] if c >= 0 else li.SKIP_PX for k, c in enumerate(choice))
+        total += sum(spare[m, 0] for m in range(m_count) if m not in used)
+        best = min(best, total)
+    return float(best)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.integers(0, 110), min_size=0, max_size=5),
+       st.lists(st.one_of(st.none(), st.integers(0, 110)), min_size=3, max_size=3))
+def test_alignment_is_the_optimum_of_its_cost(peak_rows: list[int],
+                                              refs: list[int | None]) -> None:
+    rows = np.array(sorted(peak_rows) + [10**9] * (5 - len(peak_rows)), dtype=np.int64)[:, None]
+    lo = np.array([b[0] for b in BANDS])
+    hi = np.array([b[1] for b in BANDS])
+    ref = np.array([[np.inf if r is None else float(r)] for r in refs])
+    costs = li.match_costs(rows, lo, hi, ref, np.array([55.0, 75.0, np.inf]))
+    spare = np.where((rows < 10**9) & (rows >= 10) & (rows < 100), li.SPARE_PX, 0.0)
+    index, total = li.cheapest_alignment(costs, spare)
+    assert np.isclose(total[0], _brute_force(costs, spare))
+    assert np.isclose(li.assignment_cost(index, costs, spare)[0], total[0])
+    taken = index[:, 0][index[:, 0] >= 0]
+    assert list(taken) == sorted(set(taken))  # order kept, each peak once
+
+
+def test_a_line_missing_in_the_middle_keeps_the_others_on_their_rows() -> None:
+    """Lines at 20, 40, 60, 80 elsewhere; in this column the line at 40 is missing. Both
+    greedy matchings shift a run of lines by one; the alignment does not."""
+    bands = ((5, 45), (25, 65), (45, 85), (65, 100))
+    peaks = np.array([[20], [60], [80], [-1]])
+    ref = np.array([[20.0], [40.0], [60.0], [80.0]])
+    down = np.array([[20], [60], [80], [-1]])
+    up = np.array([[-1], [20], [60], [80]])
+    options, totals = li.alternatives(peaks, bands, [down, up], ref, np.full(4, np.inf))
+    assert options[0][:, 0].tolist() == [20, -1, 60, 80]
+    assert totals[0, 0] + li.SWITCH_PX <= totals[1:, 0].min()
+    chosen, rival = li.choose(options, totals, 3.0)
+    assert chosen[:, 0].tolist() == [20, -1, 60, 80] and not rival.any()
+
+
+def test_a_row_past_z_max_goes_to_the_next_line_when_it_is_as_close() -> None:
+    """A peak between line 0's z_max row and its far band edge: as line 0 it would be a
+    no-return sample; the same peak is a near range of line 1."""
+    bands = ((10, 40), (20, 60))
+    peaks = np.array([[35], [-1]])
+    ref = np.array([[31.0], [44.0]])
+    beyond = np.array([33.0, np.inf])
+    options, totals = li.alternatives(peaks, bands, [np.array([[35], [-1]])], ref, beyond)
+    assert options[0][:, 0].tolist() == [-1, 35]
+    assert totals[0, 0] < totals[1, 0]
+
+
+def test_choose_marks_options_within_sep_that_disagree() -> None:
+    a = np.array([[1], [2]])
+    b = np.array([[1], [3]])
+    chosen, rival = li.choose([a, b], np.array([[5.0], [6.0]]), 3.0)
+    assert chosen[:, 0].tolist() == [1, 2]
+    assert rival[:, 0].tolist() == [False, True]
+    _, rival = li.choose([a, b], np.array([[5.0], [9.0]]), 3.0)
+    assert not rival.any()
+
+
+def test_costs_are_finite_and_absent_peaks_cannot_be_taken() -> None:
+    rows = np.array([[15], [10**9]], dtype=np.int64)
+    costs = li.match_costs(rows, np.array([10]), np.array([20]), np.array([[np.inf]]),
+                           np.array([np.inf]))
+    assert costs[0, 0, 0] == 0.0 and np.isinf(costs[0, 1, 0])
+    index, total = li.cheapest_alignment(costs, np.zeros((2, 1)))
+    assert index[0, 0] == 0 and np.isfinite(total).all()
