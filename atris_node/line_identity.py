@@ -188,12 +188,18 @@ SWITCH_PX = 10.0
 class Prior(Protocol):
     """What :func:`improve` needs of :class:`atris_node.lines.VisibilityPrior`."""
 
-    cot_alpha: FloatArray
-    focal_px: float
-    cy_px: float
-    baseline_m: float
-    z_max_m: float
-    ground_range_m: FloatArray
+    @property
+    def cot_alpha(self) -> FloatArray: ...
+    @property
+    def focal_px(self) -> float: ...
+    @property
+    def cy_px(self) -> float: ...
+    @property
+    def baseline_m(self) -> float: ...
+    @property
+    def z_max_m(self) -> float: ...
+    @property
+    def ground_range_m(self) -> FloatArray: ...
 
     def unexplained(self, rows: IntArray) -> IntArray: ...
 

@@ -25,6 +25,7 @@ from atris_node.calibration import Calibration
 from atris_node.errors import ConfigError
 from atris_node.geometry import Points, triangulate, undistort_pixels
 from atris_node.lines import (
+    IDENTITY_MODES,
     PEAK_METHODS,
     Band,
     Extraction,
@@ -98,6 +99,7 @@ class PipelineConfig:
     smooth_columns: int = 5  # median of this many columns along each line (1 = off)
     drop_lone_samples: bool = True  # a sample needs a neighbour on its line (±2 columns)
     roi_narrowing: bool = False  # search lines near their recent rows (atris_node.roi)
+    identity: str = "greedy"  # or "aligned": also the cheapest alignment (line_identity)
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
 
     def __post_init__(self) -> None:
@@ -105,6 +107,8 @@ class PipelineConfig:
                f"one of {PEAK_METHODS}")
         _check(self.ground_plane in GROUND_MODES, "ground_plane", self.ground_plane,
                f"one of {GROUND_MODES}")
+        _check(self.identity in IDENTITY_MODES, "identity", self.identity,
+               f"one of {IDENTITY_MODES}")
         _check(0.0 < self.z_min_m < self.z_max_m, "z_min_m", self.z_min_m,
                f"> 0 and below z_max_m ({self.z_max_m})")
         for name in ("snr_min", "stripe_sigma_px", "fov_deg", "object_eps_m"):
@@ -124,7 +128,8 @@ class PipelineConfig:
 
     def extractor(self) -> ExtractorSettings:
         """The line-extraction part of the configuration."""
-        return ExtractorSettings(self.peak_method, self.snr_min, self.stripe_sigma_px)
+        return ExtractorSettings(self.peak_method, self.snr_min, self.stripe_sigma_px,
+                                 identity=self.identity)
 
     def sectors(self) -> SectorSettings:
         """The sector part of the configuration."""

@@ -97,7 +97,7 @@ def pipeline_config(config: Config) -> PipelineConfig:
                           roi_bands=p["roi_bands"], sector_count=p["sector_count"],
                           fov_deg=p["fov_deg"], min_points=p["min_points"],
                           objects=p["objects"], roi_narrowing=p["roi_narrowing"],
-                          roi_full_every=p["roi_full_every"],
+                          roi_full_every=p["roi_full_every"], identity=p["identity"],
                           invalid_on_interference=p["invalid_on_interference"])
 
 

@@ -91,3 +91,51 @@ def test_costs_are_finite_and_absent_peaks_cannot_be_taken() -> None:
     assert costs[0, 0, 0] == 0.0 and np.isinf(costs[0, 1, 0])
     index, total = li.cheapest_alignment(costs, np.zeros((2, 1)))
     assert index[0, 0] == 0 and np.isfinite(total).all()
+
+
+def _range_errors(scene: str, identity: str) -> np.ndarray:
+    """Camera-range errors (m) of every valid sample over three block maps of a scene."""
+    from atris_node.bench.accuracy import range_errors
+    from atris_node.demod import BlockDemodulator
+    from atris_node.pipeline import Pipeline, PipelineConfig
+    from atris_node.sim import Simulator, load_scene
+
+    sim = Simulator(load_scene(scene), seed=1)
+    demod = BlockDemodulator(sim.chips, bits=sim.camera.bits)
+    config = PipelineConfig(identity=identity)
+    pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
+    errors = []
+    for seq in range(3 * sim.chips.size):
+        dmap = demod.push(sim.render(seq))
+        if dmap is not None:
+            truth = sim.truth(dmap.last_sequence, config.layout())
+            errors.append(range_errors(pipe.process(dmap), truth))
+    return np.concatenate(errors)
+
+
+def _gross(errors: np.ndarray) -> int:
+    """Samples off by more than 0.2 m: a wrong line identity, not noise."""
+    return int((np.abs(errors) > 0.2).sum())
+
+
+def _rmse(errors: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(errors**2)))
+
+
+def test_aligned_identity_lowers_the_range_error_where_lines_go_missing() -> None:
+    """window_sun (a crate hides lines in the middle of columns) and parking_pedestrian:
+    the greedy matchings shift runs of lines there; the alignment puts many back
+    (measured: gross errors 111 -> 96 and 283 -> 266, RMSE 0.204 -> 0.189 m and
+    0.349 -> 0.160 m over three maps)."""
+    for scene, rmse_ratio in (("window_sun", 1.0), ("parking_pedestrian", 0.6)):
+        greedy, aligned = _range_errors(scene, "greedy"), _range_errors(scene, "aligned")
+        assert _gross(aligned) < _gross(greedy), scene
+        assert _rmse(aligned) < rmse_ratio * _rmse(greedy), scene
+
+
+def test_aligned_identity_changes_nothing_where_the_greedy_choice_is_clear() -> None:
+    for scene in ("two_units_orthogonal", "jammer_line"):
+        assert np.array_equal(_range_errors(scene, "greedy"), _range_errors(scene, "aligned"))
+    greedy, aligned = _range_errors("indoor_lab", "greedy"), _range_errors("indoor_lab",
+                                                                          "aligned")
+    assert _gross(greedy) == _gross(aligned) == 0 and aligned.size >= greedy.size

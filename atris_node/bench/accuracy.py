@@ -18,6 +18,7 @@ map; demodulation is timed once per sub-frame as it streams. ``--quick`` runs on
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import logging
 import time
@@ -30,7 +31,7 @@ import numpy as np
 
 from atris_node import codes
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
-from atris_node.lines import PEAK_METHODS
+from atris_node.lines import IDENTITY_MODES, PEAK_METHODS
 from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
 from atris_node.progress import progress
 from atris_node.sim import Simulator, Truth, load_scene, shipped_scenes
@@ -58,6 +59,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="shipped scene names (default: all)")
     parser.add_argument("--plot", type=Path, default=None, metavar="PNG",
                         help="write the work-precision diagram (matplotlib, Agg)")
+    parser.add_argument("--identity", nargs="+", default=["greedy"], choices=IDENTITY_MODES,
+                        help="line identity modes to compare (default: greedy)")
 
 
 @dataclass(frozen=True)
@@ -70,15 +73,17 @@ class Grid:
     demods: tuple[str, ...] = tuple(DEMODS)
     methods: tuple[str, ...] = PEAK_METHODS
     roi: tuple[bool, ...] = (True, False)
+    identities: tuple[str, ...] = ("greedy",)
 
 
 def grid_of(args: argparse.Namespace) -> Grid:
     """The full grid, or the ``--quick`` subset, over the chosen scenes."""
     scenes = tuple(args.scenes or shipped_scenes())
+    identities = tuple(getattr(args, "identity", None) or ("greedy",))
     if args.quick:
         return Grid(scenes=tuple(args.scenes or ("indoor_lab",)), code_lengths=(16,),
-                    resolutions=((640, 400),), demods=("block",))
-    return Grid(scenes=scenes)
+                    resolutions=((640, 400),), demods=("block",), identities=identities)
+    return Grid(scenes=scenes, identities=identities)
 
 
 def scaled(scene: Scene, width: int, height: int) -> Scene:
@@ -138,24 +143,23 @@ def _timed(pipe: Pipeline, dmap: DistortionMap) -> tuple[PipelineResult, float]:
 
 def _pipeline_rows(sim: Simulator, maps: list[DistortionMap], truths: list[Truth],
                    grid: Grid, k: float) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
-    """(config part, measurement part) per peak method and ROI setting."""
-    for method in grid.methods:
-        for roi in grid.roi:
-            config = PipelineConfig(peak_method=method, roi_bands=roi,
-                                    stripe_sigma_px=STRIPE_SIGMA_PX * k)
-            pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
-            times, errors, valid = [], [], []
-            for dmap, truth in zip(maps, truths, strict=True):
-                result, ms = _timed(pipe, dmap)
-                times.append(ms)
-                errors.append(range_errors(result, truth))
-                valid.append(result.diagnostics.valid_fraction)
-            err = np.concatenate(errors)
-            yield ({"peak_method": method, "roi_bands": roi}, {
-                "pipeline_ms": float(np.median(times)),
-                "range_rmse_m": float(np.sqrt(np.mean(err**2))) if err.size else None,
-                "median_abs_error_m": float(np.median(np.abs(err))) if err.size else None,
-                "valid_fraction": float(np.mean(valid))})
+    """(config part, measurement part) per peak method, ROI setting and identity mode."""
+    for method, roi, identity in itertools.product(grid.methods, grid.roi, grid.identities):
+        config = PipelineConfig(peak_method=method, roi_bands=roi, identity=identity,
+                                stripe_sigma_px=STRIPE_SIGMA_PX * k)
+        pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
+        times, errors, valid = [], [], []
+        for dmap, truth in zip(maps, truths, strict=True):
+            result, ms = _timed(pipe, dmap)
+            times.append(ms)
+            errors.append(range_errors(result, truth))
+            valid.append(result.diagnostics.valid_fraction)
+        err = np.concatenate(errors)
+        yield ({"peak_method": method, "roi_bands": roi, "identity": identity}, {
+            "pipeline_ms": float(np.median(times)),
+            "range_rmse_m": float(np.sqrt(np.mean(err**2))) if err.size else None,
+            "median_abs_error_m": float(np.median(np.abs(err))) if err.size else None,
+            "valid_fraction": float(np.mean(valid))})
 
 
 def scene_rows(name: str, grid: Grid) -> Iterator[dict[str, Any]]:
@@ -237,7 +241,8 @@ def _line(row: dict[str, Any]) -> str:
     rmse = "-" if row["range_rmse_m"] is None else f"{row['range_rmse_m']:.4f}"
     return (f"{row.get('scene', 'all'):26s} N={c['code_length']:<3d} {c['resolution']:9s} "
             f"{c['demod']:8s} {c['peak_method']:12s} roi={'on ' if c['roi_bands'] else 'off'} "
-            f"{row['ms_per_frame']:8.2f} ms  rmse {rmse:>7s} m  valid {row['valid_fraction']:.3f}")
+            f"{c.get('identity', 'greedy'):7s} {row['ms_per_frame']:8.2f} ms  "
+            f"rmse {rmse:>7s} m  valid {row['valid_fraction']:.3f}")
 
 
 def run(args: argparse.Namespace) -> int:
