@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import logging
 from types import SimpleNamespace
+
+import pytest
 
 from atris_node.fleetview import _unit_rows
 
@@ -37,3 +40,17 @@ def test_an_age_beyond_max_age_is_marked_stale() -> None:
     assert measured.endswith("age 1.12 s (stale)")
     measured, _ = _unit_rows(unit, {"data_age_s": 0.4})
     assert measured.endswith("age 0.40 s")
+
+
+def test_a_table_that_cannot_be_drawn_is_logged_and_the_fleet_runs_on(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from atris_node.cli import launch as launch_cli
+
+    def broken(runner: object, monitor: object) -> str:
+        raise ValueError("bad frame content")
+
+    monkeypatch.setattr(launch_cli, "fleet_table", broken)
+    with caplog.at_level(logging.ERROR):
+        launch_cli._show(SimpleNamespace(), SimpleNamespace(), live=False)  # type: ignore[arg-type]
+    assert "could not be drawn" in caplog.text and capsys.readouterr().out == ""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import threading
 import time
@@ -24,6 +25,8 @@ from atris_node.bus.monitor import BusMonitor
 from atris_node.fleetview import fleet_table
 from atris_node.launch import LaunchSpec, describe, load_launch
 from atris_node.runner import FleetRun, ProcessRun, stop_on_signals
+
+logger = logging.getLogger(__name__)
 
 CLEAR = "\x1b[H\x1b[2J"
 E2E_ERRORS = (E2EState.WRONG_CRC, E2EState.WRONG_SEQUENCE, E2EState.REPEATED)
@@ -93,9 +96,18 @@ def _watch(runner: FleetRun | ProcessRun, monitor: BusMonitor, duration_s: float
         runner.check()
         if refresh_s is not None and time.monotonic() >= next_table:
             next_table += refresh_s
-            table = fleet_table(runner, monitor)
-            sys.stdout.write((CLEAR if live else "") + table + "\n")
-            sys.stdout.flush()
+            _show(runner, monitor, live)
+
+
+def _show(runner: FleetRun | ProcessRun, monitor: BusMonitor, live: bool) -> None:
+    """Draw the live table; a display that fails is logged, the fleet runs on."""
+    try:
+        table = fleet_table(runner, monitor)
+    except Exception:
+        logger.exception("the fleet table could not be drawn")
+        return
+    sys.stdout.write((CLEAR if live else "") + table + "\n")
+    sys.stdout.flush()
 
 
 def e2e_errors_by_unit(monitor: BusMonitor) -> dict[int, int]:
