@@ -192,7 +192,7 @@ def test_full_scale_pixel_is_flagged_for_the_windows_that_hold_it(cls: type[Demo
 def test_saturation_masks_are_exact_across_row_chunks(cls: type[Demod]) -> None:
     """Frames of several cached row chunks; full-scale pixels come and go in different ones."""
     rng = np.random.default_rng(5)
-    n, shape = 4, (300, 640)  # 640 int16 columns: about 100 rows per chunk
+    n, shape = 4, (300, 640)  # 640 int16 columns: 204 (block) or 102 (sliding) rows a chunk
     frames = {s: rng.integers(0, 4000, shape) for s in range(20)}
     for s, (row, col) in {3: (5, 7), 6: (250, 600), 7: (150, 3), 12: (299, 639)}.items():
         frames[s][row, col] = 4095
@@ -290,6 +290,22 @@ def test_values_above_full_scale_are_refused_and_re_prime(cls: type[Demod]) -> N
         demod.push(_sub(np.full((2, 2), 1024), 1, 10))
     maps = _run(demod, [_sub(np.full((2, 2), 5), s, 10) for s in range(2, 6)])
     assert maps[0].first_sequence == 2
+
+
+@pytest.mark.parametrize("value", [1024, 40000, 65535])
+def test_values_above_full_scale_are_refused_while_sliding(value: int) -> None:
+    """Over range in the last row chunk of a sliding update, also where the pixel's int16
+    view (how the accumulator adds it) reads negative: refused, and the window re-primes."""
+    n, bits, shape = 4, 10, (300, 640)
+    demod = SlidingDemodulator(codes.walsh_chips(n, 3), bits)
+    assert _run(demod, [_sub(np.full(shape, 200), s, bits) for s in range(2 * n)])
+    bad = np.full(shape, 200)
+    bad[-1, -1] = value
+    with pytest.raises(DemodulationError, match=f"value {value} above the full scale 1023"):
+        demod.push(_sub(bad, 2 * n, bits))
+    maps = _run(demod, [_sub(np.full(shape, 200), s, bits) for s in range(2 * n + 1, 4 * n)])
+    assert maps[0].first_sequence == 2 * n + 1
+    assert all(not m.values.any() and not m.saturated.any() for m in maps)
 
 
 def test_bad_codes_and_bit_depths_are_refused() -> None:

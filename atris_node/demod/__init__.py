@@ -23,7 +23,9 @@ the rows 2, 3, 5, 9, ... (index ``2^j``).
 Accumulators are int16 when ``N * (2**bits - 1) <= 32767``, else int32, so no sum can
 overflow; uint16 sub-frames are added through an int16 view when the accumulator is
 int16 (values below 2**15 read the same), never cast. Work is done in row chunks that
-stay in cache, so the full-scale check reads pixels the addition has just loaded.
+stay in cache (CHUNK_BYTES, SLIDE_CHUNK_BYTES of accumulator), so the full-scale check
+reads pixels the arithmetic has just loaded; it reads the raw pixels, so a value above
+full scale is refused even where its int16 view is negative.
 
 Ownership: the demodulators keep references to pushed pixel arrays (no copy); a camera
 backend must hand over a fresh array per sub-frame and not write into it afterwards.
@@ -43,7 +45,7 @@ Example:
 from __future__ import annotations
 
 from atris_node.demod.base import Demodulator
-from atris_node.demod.kernels import CHUNK_BYTES, Kernels, accumulator_dtype
+from atris_node.demod.kernels import CHUNK_BYTES, SLIDE_CHUNK_BYTES, Kernels, accumulator_dtype
 from atris_node.demod.lock import LOCK_HISTORY, LOCK_SIGMAS, PhaseLock
 from atris_node.demod.stats import (
     RESIDUAL_FLOOR_DN,
@@ -60,6 +62,7 @@ __all__ = [
     "LOCK_HISTORY",
     "LOCK_SIGMAS",
     "RESIDUAL_FLOOR_DN",
+    "SLIDE_CHUNK_BYTES",
     "STRIP_POSITIONS",
     "STRIP_WIDTH",
     "BlockDemodulator",

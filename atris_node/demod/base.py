@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node import codes
-from atris_node.demod.kernels import Array, Kernels, accumulator_dtype
+from atris_node.demod.kernels import CHUNK_BYTES, Array, Kernels, accumulator_dtype
 from atris_node.demod.lock import PhaseLock
 from atris_node.demod.stats import measure_gain, strip_level
 from atris_node.errors import CodeError, DemodulationError
@@ -228,7 +228,7 @@ class Demodulator:
     def _kernels_for(self, pixels: Array) -> Kernels:
         if self._kernels is None or self._kernels.shape != pixels.shape:
             self._kernels = Kernels(self._dtype, (pixels.shape[0], pixels.shape[1]),
-                                     self._full_scale)
+                                     self._full_scale, self._chunk_bytes)
         return self._kernels
 
     def _info(self, sub: SubFrame, level: float | None,
@@ -276,6 +276,7 @@ class Demodulator:
 
     # --- per window, in the subclasses ---------------------------------------------------
 
+    _chunk_bytes = CHUNK_BYTES  # accumulator bytes per row chunk of the updates
     _clear_mask: npt.NDArray[np.bool_] | None = None
     _ambient_cache: tuple[int, float] | None = None
 

@@ -10,8 +10,12 @@ import numpy.typing as npt
 from atris_node.errors import DemodulationError
 
 Array = npt.NDArray[np.generic]
-#: accumulator bytes processed per chunk (fits the L2 cache with its sub-frame rows)
+#: accumulator bytes per chunk of a block update, which streams two arrays (accumulator,
+#: sub-frame); measured best at 2048x1088 among 64..512 KiB
 CHUNK_BYTES = 256 * 1024
+#: accumulator bytes per chunk of a sliding update, which streams four (previous map, new
+#: and old sub-frame, new map) and a scratch chunk; measured best among 64..512 KiB
+SLIDE_CHUNK_BYTES = 128 * 1024
 INT16_MAX = int(np.iinfo(np.int16).max)
 
 
@@ -42,17 +46,19 @@ class Kernels:
 
     Each chunk of rows is loaded once into cache; there it is summed, its maximum is taken
     and, only if that maximum is full scale, ``enter`` marks its saturated pixels. Each
-    update returns the frame's maximum and the indices of its full-scale chunks.
+    update returns the frame's maximum and the indices of its full-scale chunks. A chunk
+    holds ``chunk_bytes`` of accumulator (at least one row).
     """
 
     def __init__(self, dtype: np.dtype[np.signedinteger], shape: tuple[int, int],
-                 full_scale: int) -> None:
+                 full_scale: int, chunk_bytes: int = CHUNK_BYTES) -> None:
         self.dtype = dtype
         self.shape = shape
         self.full_scale = full_scale
-        rows = max(1, CHUNK_BYTES // (shape[1] * dtype.itemsize))
-        self.chunks = [slice(r, r + rows) for r in range(0, shape[0], rows)]
-        self._diff = np.empty((rows, shape[1]), dtype=dtype)
+        rows = max(1, chunk_bytes // (shape[1] * dtype.itemsize))
+        self.chunks = [slice(r, min(r + rows, shape[0])) for r in range(0, shape[0], rows)]
+        diff = np.empty((rows, shape[1]), dtype=dtype)
+        self._diffs = [diff[: c.stop - c.start] for c in self.chunks]
 
     def signed(self, frame: Array) -> Array:
         """The frame as the accumulator adds it: int16 view of uint16 when exact."""
@@ -61,13 +67,16 @@ class Kernels:
         return frame
 
     def _check(self, rows: slice, chunk: Array, enter: ChunkHook | None) -> int:
-        top = int(chunk.max())
+        top = int(np.maximum.reduce(chunk, None))
         if top == self.full_scale and enter is not None:
             enter(rows, chunk)
         return top
 
     def _hot(self, tops: list[int]) -> tuple[int, tuple[int, ...]]:
-        return max(tops), tuple(i for i, t in enumerate(tops) if t >= self.full_scale)
+        peak = max(tops)
+        if peak < self.full_scale:
+            return peak, ()
+        return peak, tuple(i for i, t in enumerate(tops) if t >= self.full_scale)
 
     def start(self, out: Array, frame: Array, sign: int,
               enter: ChunkHook | None = None) -> tuple[int, tuple[int, ...]]:
@@ -95,17 +104,23 @@ class Kernels:
     def slide(self, out: Array, prev: Array, new: Array, old: tuple[Array, tuple[int, ...]],
               sign: int, hooks: tuple[ChunkHook, ChunkHook] | None = None
               ) -> tuple[int, tuple[int, ...]]:
-        """``out = prev + sign * (new - old)``; ``hooks`` = (enter new, leave old) chunk."""
+        """``out = prev + sign * (new - old)``; ``hooks`` = (enter new, leave old) chunk.
+
+        Per chunk: ``new - old`` into a scratch chunk that stays in cache, the full-scale
+        check of the raw ``new`` pixels while that subtraction has them cached, then
+        ``prev +- diff`` into ``out``. For pixels in 0..F nothing overflows: ``|new - old|
+        <= F`` and the result is a window sum, within ``N/2 * F``, which
+        :func:`accumulator_dtype` holds; a pixel above F may wrap, but it is in the returned
+        maximum and the caller refuses the sub-frame.
+        """
         old_frame, old_hot = old
         src_new, src_old, tops = self.signed(new), self.signed(old_frame), []
         op = np.add if sign > 0 else np.subtract
         enter, leave = hooks if hooks is not None else (None, None)
-        for i, rows in enumerate(self.chunks):
-            target = out[rows]
-            diff = self._diff[: target.shape[0]]
-            np.subtract(src_new[rows], src_old[rows], out=diff, dtype=self.dtype)
-            op(prev[rows], diff, out=target)
+        for i, (rows, diff) in enumerate(zip(self.chunks, self._diffs, strict=True)):
+            np.subtract(src_new[rows], src_old[rows], diff, dtype=self.dtype)
             tops.append(self._check(rows, new[rows], enter))
+            op(prev[rows], diff, out[rows])
             if leave is not None and i in old_hot:
                 leave(rows, old_frame[rows])
         return self._hot(tops)

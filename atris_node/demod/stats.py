@@ -7,6 +7,7 @@ short contiguous runs of each row that touch few cache lines.
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import numpy.typing as npt
@@ -52,20 +53,20 @@ def measure_gain(values: Array, code_length: int) -> tuple[float, float, float, 
     ``delta = I_B`` the RMS of the others (floored at RESIDUAL_FLOOR_DN). Then
     ``l = 2 (I_S - delta) / N``, ``PG = I_S / l``, ``SNR = I_S / delta``. Returns
     (PG, SNR, I_S, delta), all finite; PG = SNR = 0.0 when no laser signal is found.
+    Sums run in float32 over the strip sample (16 values a row).
     """
     sample = strip_sample(values).ravel().astype(np.float32)
     negative = np.minimum(sample, 0.0)
-    sigma = float(np.sqrt(2.0 * float(negative @ negative) / sample.size))
-    threshold = max(6.0 * sigma, 0.25 * float(sample.max()), 1.0)
-    signal = sample > threshold
-    count = int(np.count_nonzero(signal))
-    background_energy = float(sample @ sample) - float(sample[signal] @ sample[signal])
-    background = sample.size - count
-    delta = max(np.sqrt(max(background_energy, 0.0) / background) if background else 0.0,
+    sigma = math.sqrt(2.0 * float(negative @ negative) / sample.size)
+    threshold = max(6.0 * sigma, 0.25 * float(np.maximum.reduce(sample)), 1.0)
+    signal = sample[sample > threshold]
+    background_energy = float(sample @ sample) - float(signal @ signal)
+    background = sample.size - signal.size
+    delta = max(math.sqrt(max(background_energy, 0.0) / background) if background else 0.0,
                 RESIDUAL_FLOOR_DN)
-    if not count:
+    if not signal.size:
         return 0.0, 0.0, 0.0, delta
-    i_s = float(sample[signal].mean())
+    i_s = float(np.add.reduce(signal)) / signal.size
     laser = 2.0 * (i_s - delta) / code_length
     if laser <= 0.0:
         return 0.0, 0.0, i_s, delta

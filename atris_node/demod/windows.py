@@ -8,7 +8,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.demod.base import Demodulator, Info
-from atris_node.demod.kernels import Array, Kernels
+from atris_node.demod.kernels import SLIDE_CHUNK_BYTES, Array, Kernels
 from atris_node.types import DistortionMap, SubFrame
 
 
@@ -51,6 +51,8 @@ class SlidingDemodulator(Demodulator):
     ambient and orthogonal interferers cancel as in the block sum. Pixels at full scale are
     counted per pixel over the ring, only in the row chunks that hold any.
     """
+
+    _chunk_bytes = SLIDE_CHUNK_BYTES
 
     def _clear_window(self) -> None:
         self._ring: collections.deque[tuple[Array, Info]] = collections.deque(maxlen=self._n)
