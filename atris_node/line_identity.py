@@ -271,19 +271,35 @@ def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray
     beyond = beyond_rows(prior, order)
     old, near = rows[order][:, cols], ref[order][:, cols]
     old_missing = _missing_cost(prior, old, order, cols)
+    excess = _excess(old, near, beyond) + old_missing
     margin = max(SWITCH_PX, float(sep))
-    look = _excess(old, near, beyond) + old_missing >= margin
+    look = excess >= margin
     if not look.any():
         return rows, unsure
-    cols, old, near, old_missing = cols[look], old[:, look], near[:, look], old_missing[look]
-    options, totals = alternatives(peaks[:, cols], bands, [old], near, beyond)
-    totals[0] += _missing_cost(prior, options[0], order, cols)
-    totals[1] += old_missing
-    better = totals[0] + margin <= totals[1]
+    cols, old, near = cols[look], old[:, look], near[:, look]
+    old_total = excess[look] + _floor(old, peaks[:, cols], bands)
+    options, totals = alternatives(peaks[:, cols], bands, [], near, beyond)
+    new, new_total = options[0], totals[0]
+    maybe = np.flatnonzero(new_total + margin <= old_total)
+    if maybe.size:  # the prior's cost can only raise the alignment's total
+        new_total[maybe] += _missing_cost(prior, new[:, maybe], order, cols[maybe])
+    better = new_total + margin <= old_total
     if not better.any():
         return rows, unsure
-    switched, new = cols[better], options[0][:, better]
+    switched, new = cols[better], new[:, better]
     out, count = rows.copy(), unsure.copy()
     out[np.ix_(order, switched)] = new
     count[switched] = np.maximum((old[:, better] >= 0).sum(axis=0) - (new >= 0).sum(axis=0), 0)
     return out, count
+
+
+def _floor(rows: IntArray, peaks: IntArray, bands: tuple[tuple[int, int], ...]) -> FloatArray:
+    """(n,) skip and spare cost of ``rows`` (K, n, image order; each assigned row one of
+    the (M, n) ``peaks``, -1 = none): SKIP_PX per missing line, SPARE_PX per peak inside a
+    band that no line takes."""
+    in_band = np.zeros(peaks.shape, dtype=np.bool_)
+    for lo, hi in bands:
+        in_band |= (peaks >= lo) & (peaks < hi)
+    assigned = (rows >= 0).sum(axis=0)
+    return np.asarray(SKIP_PX * (rows.shape[0] - assigned)
+                      + SPARE_PX * (in_band.sum(axis=0) - assigned))

@@ -85,7 +85,7 @@ class ExtractorSettings:
     snr_min: float = 6.0
     stripe_sigma_px: float = 1.5
     min_separation_px: int = 3
-    identity: str = "greedy"
+    identity: str = "aligned"
 
     def __post_init__(self) -> None:
         if self.peak_method not in PEAK_METHODS:

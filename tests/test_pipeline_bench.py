@@ -21,11 +21,13 @@ def test_rows_carry_the_documented_fields() -> None:
         assert set(row) >= {"config", "scene", "ms_per_frame", "range_rmse_m",
                             "valid_fraction"}
         assert row["config"] == {"peak_method": "steger", "roi_bands": True,
-                                 "identity": "greedy", "code_length": 4,
+                                 "identity": "aligned", "code_length": 4,
                                  "resolution": "640x400", "demod": "sliding"}
         assert row["ms_per_frame"] > row["demod_ms"] > 0
         assert 0.0 < row["valid_fraction"] <= 1.0
         assert row["range_rmse_m"] is not None and 0.0 < row["range_rmse_m"] < 0.5
+        assert row["sectors_valid"] > 0
+        assert row["sectors_too_near"] + row["sectors_too_far"] <= row["sectors_valid"]
 
 
 def test_scaling_keeps_the_optics() -> None:

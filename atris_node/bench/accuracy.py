@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from atris_node import codes
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
@@ -36,7 +37,7 @@ from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
 from atris_node.progress import progress
 from atris_node.sim import Simulator, Truth, load_scene, shipped_scenes
 from atris_node.sim.scene import Scene
-from atris_node.types import DistortionMap
+from atris_node.types import DistortionMap, SectorState
 
 logger = logging.getLogger(__name__)
 
@@ -59,8 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="shipped scene names (default: all)")
     parser.add_argument("--plot", type=Path, default=None, metavar="PNG",
                         help="write the work-precision diagram (matplotlib, Agg)")
-    parser.add_argument("--identity", nargs="+", default=["greedy"], choices=IDENTITY_MODES,
-                        help="line identity modes to compare (default: greedy)")
+    parser.add_argument("--identity", nargs="+", default=["aligned"], choices=IDENTITY_MODES,
+                        help="line identity modes to compare (default: aligned)")
 
 
 @dataclass(frozen=True)
@@ -73,13 +74,13 @@ class Grid:
     demods: tuple[str, ...] = tuple(DEMODS)
     methods: tuple[str, ...] = PEAK_METHODS
     roi: tuple[bool, ...] = (True, False)
-    identities: tuple[str, ...] = ("greedy",)
+    identities: tuple[str, ...] = ("aligned",)
 
 
 def grid_of(args: argparse.Namespace) -> Grid:
     """The full grid, or the ``--quick`` subset, over the chosen scenes."""
     scenes = tuple(args.scenes or shipped_scenes())
-    identities = tuple(getattr(args, "identity", None) or ("greedy",))
+    identities = tuple(getattr(args, "identity", None) or ("aligned",))
     if args.quick:
         return Grid(scenes=tuple(args.scenes or ("indoor_lab",)), code_lengths=(16,),
                     resolutions=((640, 400),), demods=("block",), identities=identities)
@@ -128,6 +129,26 @@ def range_errors(result: PipelineResult, truth: Truth) -> np.ndarray:
                                                                             col[seen], 2])
 
 
+#: per-row counts of sector verdicts (see :func:`sector_verdicts`)
+SECTOR_COUNTS = ("sectors_valid", "sectors_too_near", "sectors_too_far")
+
+
+def sector_verdicts(result: PipelineResult, truth: Truth) -> npt.NDArray[np.int64]:
+    """(3,) VALID sectors, those nearer than the truth by more than 5 % + 5 cm (or with no
+    true obstacle: a phantom), and those farther by as much (a missed near obstacle)."""
+    out = np.zeros(3, dtype=np.int64)
+    for sector, true_m in zip(result.measurement.sectors, truth.sector_distance_m,
+                              strict=True):
+        if sector.state is not SectorState.VALID:
+            continue
+        out[0] += 1
+        if true_m is None or sector.distance_m < 0.95 * true_m - 0.05:
+            out[1] += 1
+        elif sector.distance_m > 1.05 * true_m + 0.05:
+            out[2] += 1
+    return out
+
+
 def _timed(pipe: Pipeline, dmap: DistortionMap) -> tuple[PipelineResult, float]:
     """The result of ``pipe.process(dmap)`` and the best of TIMING_REPEATS runs, ms (the
     machine is shared: the best run is the one least disturbed by other work)."""
@@ -149,17 +170,21 @@ def _pipeline_rows(sim: Simulator, maps: list[DistortionMap], truths: list[Truth
                                 stripe_sigma_px=STRIPE_SIGMA_PX * k)
         pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
         times, errors, valid = [], [], []
+        verdicts = np.zeros(3, dtype=np.int64)
         for dmap, truth in zip(maps, truths, strict=True):
             result, ms = _timed(pipe, dmap)
             times.append(ms)
             errors.append(range_errors(result, truth))
             valid.append(result.diagnostics.valid_fraction)
+            verdicts += sector_verdicts(result, truth)
         err = np.concatenate(errors)
         yield ({"peak_method": method, "roi_bands": roi, "identity": identity}, {
             "pipeline_ms": float(np.median(times)),
             "range_rmse_m": float(np.sqrt(np.mean(err**2))) if err.size else None,
             "median_abs_error_m": float(np.median(np.abs(err))) if err.size else None,
-            "valid_fraction": float(np.mean(valid))})
+            "valid_fraction": float(np.mean(valid)),
+            "sectors_valid": int(verdicts[0]), "sectors_too_near": int(verdicts[1]),
+            "sectors_too_far": int(verdicts[2])})
 
 
 def scene_rows(name: str, grid: Grid) -> Iterator[dict[str, Any]]:
@@ -199,7 +224,8 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         out.append({"config": group[0]["config"],
                     "ms_per_frame": float(np.mean([r["ms_per_frame"] for r in group])),
                     "range_rmse_m": float(np.median(rmse)) if rmse else None,
-                    "valid_fraction": float(np.mean([r["valid_fraction"] for r in group]))})
+                    "valid_fraction": float(np.mean([r["valid_fraction"] for r in group])),
+                    **{k: sum(int(r.get(k, 0)) for r in group) for k in SECTOR_COUNTS}})
     return out
 
 
@@ -242,7 +268,9 @@ def _line(row: dict[str, Any]) -> str:
     return (f"{row.get('scene', 'all'):26s} N={c['code_length']:<3d} {c['resolution']:9s} "
             f"{c['demod']:8s} {c['peak_method']:12s} roi={'on ' if c['roi_bands'] else 'off'} "
             f"{c.get('identity', 'greedy'):7s} {row['ms_per_frame']:8.2f} ms  "
-            f"rmse {rmse:>7s} m  valid {row['valid_fraction']:.3f}")
+            f"rmse {rmse:>7s} m  valid {row['valid_fraction']:.3f}  sectors too near/far "
+            f"{row.get('sectors_too_near', 0)}/{row.get('sectors_too_far', 0)} of "
+            f"{row.get('sectors_valid', 0)}")
 
 
 def run(args: argparse.Namespace) -> int:
