@@ -42,8 +42,10 @@ SKIP_PX = 10.0
 SPARE_PX = 40.0
 #: extra cost (px) of a row past the line's z_max row
 BEYOND_PX = 10.0
-#: stands for an unknown continuity reference: matches cost nothing but order and bands
-_NO_REF = np.inf
+#: cost (px) of a line missing without a reason (:meth:`VisibilityPrior.unexplained`)
+UNEXPLAINED_PX = 10.0
+#: least saving (px) for which the alignment replaces the greedy choice: one missing line
+SWITCH_PX = 10.0
 
 
 def match_costs(rows: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
@@ -165,24 +167,6 @@ def alternatives(peaks: IntArray, bands: tuple[tuple[int, int], ...],
     return [_rows_of(best, ordered), *candidates], totals
 
 
-def choose(options: list[IntArray], totals: FloatArray, sep: float) -> tuple[IntArray,
-                                                                          BoolArray]:
-    """(K, n) rows of the cheapest option per column and (K, n) True where an option
-    within ``sep`` px of that cost assigns a line differently (ambiguous)."""
-    pick = np.argmin(totals, axis=0)
-    cols = np.arange(totals.shape[1])
-    chosen = np.choose(pick, options)
-    rival = np.zeros(chosen.shape, dtype=np.bool_)
-    for option, total in zip(options, totals, strict=True):
-        close = total - totals[pick, cols] < sep
-        rival |= (option != chosen) & close[None, :]
-    return chosen, rival
-
-
-#: cost (px) of a line missing without a reason (:meth:`VisibilityPrior.unexplained`)
-UNEXPLAINED_PX = 10.0
-#: least saving (px) for which the alignment replaces the greedy choice: one missing line
-SWITCH_PX = 10.0
 
 
 class Prior(Protocol):

@@ -58,8 +58,6 @@ def test_a_line_missing_in_the_middle_keeps_the_others_on_their_rows() -> None:
     options, totals = li.alternatives(peaks, bands, [down, up], ref, np.full(4, np.inf))
     assert options[0][:, 0].tolist() == [20, -1, 60, 80]
     assert totals[0, 0] + li.SWITCH_PX <= totals[1:, 0].min()
-    chosen, rival = li.choose(options, totals, 3.0)
-    assert chosen[:, 0].tolist() == [20, -1, 60, 80] and not rival.any()
 
 
 def test_a_row_past_z_max_goes_to_the_next_line_when_it_is_as_close() -> None:
@@ -72,16 +70,6 @@ def test_a_row_past_z_max_goes_to_the_next_line_when_it_is_as_close() -> None:
     options, totals = li.alternatives(peaks, bands, [np.array([[35], [-1]])], ref, beyond)
     assert options[0][:, 0].tolist() == [-1, 35]
     assert totals[0, 0] < totals[1, 0]
-
-
-def test_choose_marks_options_within_sep_that_disagree() -> None:
-    a = np.array([[1], [2]])
-    b = np.array([[1], [3]])
-    chosen, rival = li.choose([a, b], np.array([[5.0], [6.0]]), 3.0)
-    assert chosen[:, 0].tolist() == [1, 2]
-    assert rival[:, 0].tolist() == [False, True]
-    _, rival = li.choose([a, b], np.array([[5.0], [9.0]]), 3.0)
-    assert not rival.any()
 
 
 def test_costs_are_finite_and_absent_peaks_cannot_be_taken() -> None:
