@@ -44,7 +44,7 @@ import numpy.typing as npt
 
 from atris_node.assessment import SceneAssessment
 from atris_node.config import Config
-from atris_node.errors import ConfigError
+from atris_node.errors import check_setting
 from atris_node.types import Measurement, SectorState
 
 logger = logging.getLogger(__name__)
@@ -53,8 +53,7 @@ Chips = Sequence[int] | npt.NDArray[np.integer]
 
 
 def _check(ok: bool, name: str, value: object, accepted: str) -> None:
-    if not ok:
-        raise ConfigError(f"adaptive.{name} = {value!r} is not accepted; it must be {accepted}")
+    check_setting(ok, f"adaptive.{name}", value, accepted)
 
 
 def _power_of_two(value: int) -> bool:

@@ -17,6 +17,13 @@ class ConfigError(AtrisError, ValueError):
     """A parameter, launch file, scene file or calibration file is invalid."""
 
 
+def check_setting(ok: bool, key: str, value: object, accepted: str) -> None:
+    """Raise :class:`ConfigError` naming ``key`` (e.g. ``pipeline.snr_min``), the value
+    and what is accepted, unless ``ok``."""
+    if not ok:
+        raise ConfigError(f"{key} = {value!r} is not accepted; it must be {accepted}")
+
+
 class CodeError(AtrisError, ValueError):
     """A code length, code row or code set that cannot exist or is not allowed."""
 

@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from atris_node import objects as objects_mod
 from atris_node.calibration import Calibration
-from atris_node.errors import ConfigError
+from atris_node.errors import ConfigError, check_setting
 from atris_node.geometry import Points, triangulate, undistort_pixels
 from atris_node.lines import (
     IDENTITY_MODES,
@@ -138,8 +138,7 @@ class PipelineConfig:
 
 
 def _check(ok: bool, name: str, value: object, accepted: str) -> None:
-    if not ok:
-        raise ConfigError(f"pipeline.{name} = {value!r} is not accepted; it must be {accepted}")
+    check_setting(ok, f"pipeline.{name}", value, accepted)
 
 
 @dataclass(frozen=True)
