@@ -668,37 +668,46 @@ def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float
                  for lo, hi, n in zip(lower, upper, size, strict=True))
 
 
+def _runs(mask: BoolArray) -> list[tuple[int, int]]:
+    """Intervals ``[lo, hi)`` where the (H,) ``mask`` is True."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([False], mask, [False]))))
+    return [(int(lo), int(hi)) for lo, hi in zip(edges[::2], edges[1::2], strict=True)]
+
+
+@dataclass(frozen=True)
+class _Search:
+    """Where :func:`strong_maxima` looks: ``scan`` spans, the (H,) ``inside`` rows whose
+    maxima count (None: every row of ``scan``), the ``elsewhere`` spans read but skipped."""
+
+    scan: list[tuple[int, int]]
+    inside: BoolArray | None = None
+    elsewhere: tuple[tuple[int, int], ...] = ()
+
+
 def _search_rows(spans: list[tuple[int, int]], search: list[tuple[int, int]] | None,
-                 sep: int, height: int) -> tuple[list[tuple[int, int]], BoolArray | None]:
-    """Spans to scan for maxima and the (H,) rows whose maxima count: ``search`` within
-    ``spans``, scanned ``sep`` rows wider so edge rows compare as in the whole span."""
+                 sep: int, height: int) -> _Search:
+    """``search`` within ``spans``, scanned ``sep`` rows wider so edge rows compare as in
+    the whole span; the rows of ``spans`` left out are ``elsewhere``."""
     if search is None:
-        return spans, None
-    read = np.zeros(height + 1, dtype=np.bool_)
+        return _Search(spans)
+    read = np.zeros(height, dtype=np.bool_)
     for lo, hi in spans:
         read[lo:hi] = True
     inside = np.zeros(height, dtype=np.bool_)
-    scan = np.zeros(height + 1, dtype=np.bool_)
+    scan = np.zeros(height, dtype=np.bool_)
     for lo, hi in search:
         inside[max(lo, 0):max(hi, 0)] = True
         scan[max(lo - sep, 0):max(hi + sep, 0)] = True
-    inside &= read[:height]
-    scan &= read
-    edges = np.flatnonzero(np.diff(np.concatenate(([False], scan))))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)], inside
+    inside &= read
+    return _Search(_runs(scan & read), inside, tuple(_runs(read & ~inside)))
 
 
 def _above_elsewhere(values: npt.NDArray[Any], threshold_dn: npt.NDArray[np.float32],
-                     spans: list[tuple[int, int]], inside: BoolArray) -> bool:
-    """True when a pixel of ``spans`` outside the ``inside`` rows reaches ``threshold_dn``.
-    Every maximum :func:`strong_maxima` keeps reaches it, so False proves that searching
-    the ``inside`` rows alone finds every maximum of ``spans``."""
-    outside = np.zeros(values.shape[0] + 1, dtype=np.bool_)
-    for lo, hi in spans:
-        outside[lo:hi] = ~inside[lo:hi]
-    edges = np.flatnonzero(np.diff(np.concatenate(([False], outside))))
-    return any(bool((values[a:b] >= threshold_dn[a:b]).any())
-               for a, b in zip(edges[::2], edges[1::2], strict=True))
+                     elsewhere: tuple[tuple[int, int], ...]) -> bool:
+    """True when a pixel of the ``elsewhere`` rows reaches ``threshold_dn``. Every maximum
+    :func:`strong_maxima` keeps reaches it, so False proves that searching the other rows
+    alone finds every maximum of the rows read."""
+    return any(bool((values[lo:hi] >= threshold_dn[lo:hi]).any()) for lo, hi in elsewhere)
 
 
 def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
@@ -727,11 +736,11 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     background, noise = noise_floor(values, spans)
     local = noise_map(values, spans)
     threshold = local.threshold(settings.snr_min)
-    hunt, inside = _search_rows(spans, search, settings.min_separation_px, height)
-    if inside is not None and _above_elsewhere(values, threshold, spans, inside):
-        hunt, inside = spans, None  # something outside the recent rows: search them all
-    peaks = strong_maxima(values, hunt, threshold, settings.min_separation_px,
-                          len(bands) + EXTRA_PEAKS, inside)
+    where = _search_rows(spans, search, settings.min_separation_px, height)
+    if _above_elsewhere(values, threshold, where.elsewhere):
+        where = _Search(spans)  # something outside the recent rows: search them all
+    peaks = strong_maxima(values, where.scan, threshold, settings.min_separation_px,
+                          len(bands) + EXTRA_PEAKS, where.inside)
     rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
                                   aligned=settings.identity == "aligned")
     ambiguous = int(unsure.sum())
@@ -752,7 +761,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       rows_read=sum(hi - lo for lo, hi in spans),
                       unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
-                      narrowed=inside is not None)
+                      narrowed=where.inside is not None)
 
 
 def smooth_along_lines(samples: LineSamples, lines: int, width: int,
