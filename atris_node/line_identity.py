@@ -113,45 +113,20 @@ def _backtrack(took: BoolArray, skipped: BoolArray) -> IntArray:
     return out
 
 
-def assignment_cost(index: IntArray, costs: FloatArray, spare: FloatArray) -> FloatArray:
-    """(n,) cost of a given assignment (K, n) of peak indices (-1: none) in those terms."""
-    k_count, m_count, n = costs.shape
-    cols = np.arange(n)
-    taken = index >= 0
-    safe = np.where(taken, index, 0)
-    matched = np.where(taken, costs[np.arange(k_count)[:, None], safe, cols[None, :]], 0.0)
-    used = np.zeros((m_count, n), dtype=np.bool_)
-    used[safe[taken], np.broadcast_to(cols, index.shape)[taken]] = True
-    spare_cost = np.where(used, 0.0, spare).sum(axis=0)
-    return np.asarray(matched.sum(axis=0) + SKIP_PX * (~taken).sum(axis=0) + spare_cost)
-
-
-def _indices(rows: IntArray, ordered: IntArray) -> IntArray:
-    """(K, n) index in ``ordered`` (M, n) of each assigned row of ``rows`` (-1 kept)."""
-    index = (ordered[None, :, :] < rows[:, None, :]).sum(axis=1)
-    return np.where(rows >= 0, index, -1).astype(np.int64)
-
-
 def _rows_of(index: IntArray, ordered: IntArray) -> IntArray:
     cols = np.arange(ordered.shape[1])
     return np.where(index >= 0, ordered[np.maximum(index, 0), cols[None, :]], -1)
 
 
-def alternatives(peaks: IntArray, bands: tuple[tuple[int, int], ...],
-                 candidates: list[IntArray], ref: FloatArray, beyond: FloatArray
-                 ) -> tuple[list[IntArray], FloatArray]:
-    """The cheapest alignment and the ``candidates``, as rows, with their costs.
+def align(peaks: IntArray, bands: tuple[tuple[int, int], ...], ref: FloatArray,
+          beyond: FloatArray) -> tuple[IntArray, FloatArray]:
+    """The cheapest alignment as (K, n) rows (-1 = none) and its (n,) cost in px.
 
     Args:
         peaks: (M, n) peak rows of the columns to resolve, -1 = none, any order.
         bands: (lo, hi) of each line, in image order.
-        candidates: (K, n) row assignments to compare with the alignment (the greedy
-            matchings), lines in image order, -1 = none.
         ref: (K, n) continuity reference rows (inf: unknown).
         beyond: (K,) first row past each line's z_max range.
-
-    Returns:
-        [alignment, *candidates] as (K, n) rows, and their (C, n) costs in px.
     """
     below = np.iinfo(np.int64).max // 4
     ordered = np.sort(np.where(peaks >= 0, peaks, below), axis=0)
@@ -159,14 +134,17 @@ def alternatives(peaks: IntArray, bands: tuple[tuple[int, int], ...],
     lo = np.array([b[0] for b in bands], dtype=np.int64)
     hi = np.array([b[1] for b in bands], dtype=np.int64)
     costs = match_costs(ordered, lo, hi, ref, beyond)
-    in_band = ((ordered[None] >= lo[:, None, None]) & (ordered[None] < hi[:, None, None])).any(0)
-    spare = np.where(in_band, SPARE_PX, 0.0)
-    best, best_cost = cheapest_alignment(costs, spare)
-    others = [_indices(c, ordered) for c in candidates]
-    totals = np.stack([best_cost, *(assignment_cost(o, costs, spare) for o in others)])
-    return [_rows_of(best, ordered), *candidates], totals
+    spare = np.where(_in_bands(ordered, bands), SPARE_PX, 0.0)
+    best, cost = cheapest_alignment(costs, spare)
+    return _rows_of(best, ordered), cost
 
 
+def rows_cost(rows: IntArray, peaks: IntArray, bands: tuple[tuple[int, int], ...],
+              ref: FloatArray, beyond: FloatArray) -> FloatArray:
+    """(n,) cost in px of a given assignment ``rows`` (K, n, image order, -1 = none; each
+    assigned row one of the (M, n) ``peaks`` inside its band), in the terms of
+    :func:`align`: what the alignment minimises, so the two compare."""
+    return _excess(rows, ref, beyond) + _floor(rows, peaks, bands)
 
 
 class Prior(Protocol):
@@ -255,15 +233,13 @@ def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray
     beyond = beyond_rows(prior, order)
     old, near = rows[order][:, cols], ref[order][:, cols]
     old_missing = _missing_cost(prior, old, order, cols)
-    excess = _excess(old, near, beyond) + old_missing
     margin = max(SWITCH_PX, float(sep))
-    look = excess >= margin
+    look = _excess(old, near, beyond) + old_missing >= margin
     if not look.any():
         return rows, unsure
     cols, old, near = cols[look], old[:, look], near[:, look]
-    old_total = excess[look] + _floor(old, peaks[:, cols], bands)
-    options, totals = alternatives(peaks[:, cols], bands, [], near, beyond)
-    new, new_total = options[0], totals[0]
+    old_total = rows_cost(old, peaks[:, cols], bands, near, beyond) + old_missing[look]
+    new, new_total = align(peaks[:, cols], bands, near, beyond)
     maybe = np.flatnonzero(new_total + margin <= old_total)
     if maybe.size:  # the prior's cost can only raise the alignment's total
         new_total[maybe] += _missing_cost(prior, new[:, maybe], order, cols[maybe])
@@ -281,9 +257,14 @@ def _floor(rows: IntArray, peaks: IntArray, bands: tuple[tuple[int, int], ...]) 
     """(n,) skip and spare cost of ``rows`` (K, n, image order; each assigned row one of
     the (M, n) ``peaks``, -1 = none): SKIP_PX per missing line, SPARE_PX per peak inside a
     band that no line takes."""
-    in_band = np.zeros(peaks.shape, dtype=np.bool_)
-    for lo, hi in bands:
-        in_band |= (peaks >= lo) & (peaks < hi)
     assigned = (rows >= 0).sum(axis=0)
     return np.asarray(SKIP_PX * (rows.shape[0] - assigned)
-                      + SPARE_PX * (in_band.sum(axis=0) - assigned))
+                      + SPARE_PX * (_in_bands(peaks, bands).sum(axis=0) - assigned))
+
+
+def _in_bands(peaks: IntArray, bands: tuple[tuple[int, int], ...]) -> BoolArray:
+    """(M, n) True for the peaks inside at least one band (-1 and sentinels are not)."""
+    inside = np.zeros(peaks.shape, dtype=np.bool_)
+    for lo, hi in bands:
+        inside |= (peaks >= lo) & (peaks < hi)
+    return inside

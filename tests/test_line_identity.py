@@ -38,11 +38,13 @@ def test_alignment_is_the_optimum_of_its_cost(peak_rows: list[int],
     lo = np.array([b[0] for b in BANDS])
     hi = np.array([b[1] for b in BANDS])
     ref = np.array([[np.inf if r is None else float(r)] for r in refs])
-    costs = li.match_costs(rows, lo, hi, ref, np.array([55.0, 75.0, np.inf]))
+    beyond = np.array([55.0, 75.0, np.inf])
+    costs = li.match_costs(rows, lo, hi, ref, beyond)
     spare = np.where((rows < 10**9) & (rows >= 10) & (rows < 100), li.SPARE_PX, 0.0)
     index, total = li.cheapest_alignment(costs, spare)
     assert np.isclose(total[0], _brute_force(costs, spare))
-    assert np.isclose(li.assignment_cost(index, costs, spare)[0], total[0])
+    assigned = np.where(index >= 0, rows[np.maximum(index, 0), 0], -1)
+    assert np.isclose(li.rows_cost(assigned, rows, BANDS, ref, beyond)[0], total[0])
     taken = index[:, 0][index[:, 0] >= 0]
     assert list(taken) == sorted(set(taken))  # order kept, each peak once
 
@@ -50,14 +52,16 @@ def test_alignment_is_the_optimum_of_its_cost(peak_rows: list[int],
 def test_a_line_missing_in_the_middle_keeps_the_others_on_their_rows() -> None:
     """Lines at 20, 40, 60, 80 elsewhere; in this column the line at 40 is missing. Both
     greedy matchings shift a run of lines by one; the alignment does not."""
-    bands = ((5, 45), (25, 65), (45, 85), (65, 100))
+    bands = ((5, 50), (15, 70), (35, 90), (55, 100))
     peaks = np.array([[20], [60], [80], [-1]])
     ref = np.array([[20.0], [40.0], [60.0], [80.0]])
-    down = np.array([[20], [60], [80], [-1]])
-    up = np.array([[-1], [20], [60], [80]])
-    options, totals = li.alternatives(peaks, bands, [down, up], ref, np.full(4, np.inf))
-    assert options[0][:, 0].tolist() == [20, -1, 60, 80]
-    assert totals[0, 0] + li.SWITCH_PX <= totals[1:, 0].min()
+    beyond = np.full(4, np.inf)
+    down = np.array([[20], [60], [80], [-1]])  # what the top-down greedy matching takes
+    up = np.array([[-1], [20], [60], [80]])  # and the bottom-up one
+    aligned, cost = li.align(peaks, bands, ref, beyond)
+    assert aligned[:, 0].tolist() == [20, -1, 60, 80]
+    greedy = min(li.rows_cost(g, peaks, bands, ref, beyond)[0] for g in (down, up))
+    assert cost[0] + li.SWITCH_PX <= greedy
 
 
 def test_a_row_past_z_max_goes_to_the_next_line_when_it_is_as_close() -> None:
@@ -67,9 +71,9 @@ def test_a_row_past_z_max_goes_to_the_next_line_when_it_is_as_close() -> None:
     peaks = np.array([[35], [-1]])
     ref = np.array([[31.0], [44.0]])
     beyond = np.array([33.0, np.inf])
-    options, totals = li.alternatives(peaks, bands, [np.array([[35], [-1]])], ref, beyond)
-    assert options[0][:, 0].tolist() == [-1, 35]
-    assert totals[0, 0] < totals[1, 0]
+    aligned, cost = li.align(peaks, bands, ref, beyond)
+    assert aligned[:, 0].tolist() == [-1, 35]
+    assert cost[0] < li.rows_cost(np.array([[35], [-1]]), peaks, bands, ref, beyond)[0]
 
 
 def test_costs_are_finite_and_absent_peaks_cannot_be_taken() -> None:
