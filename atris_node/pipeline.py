@@ -255,7 +255,7 @@ class Pipeline:
         self._ground = GroundPlane()
         self._prior = visibility_prior(calibration, mounting, self._ground, config)
         self._counter = 0
-        self.roi = (RoiTracker(self.bands, cam.width_px, RoiSettings(
+        self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
         logger.debug("pipeline bands: %s", self.bands)

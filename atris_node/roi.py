@@ -57,13 +57,11 @@ class RoiTracker:
 
     Args:
         bands: the full band of every line (:func:`atris_node.lines.line_bands`).
-        width: map width, px.
         settings: :class:`RoiSettings`.
     """
 
-    def __init__(self, bands: tuple[Band, ...], width: int, settings: RoiSettings) -> None:
+    def __init__(self, bands: tuple[Band, ...], settings: RoiSettings) -> None:
         self.bands = bands
-        self.width = width
         self.settings = settings
         self._recent: deque[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]] = deque(
             maxlen=settings.history)

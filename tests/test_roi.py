@@ -99,7 +99,7 @@ BANDS = (Band(0, 10, 110), Band(1, 40, 140))
 
 
 def test_tracker_searches_recent_rows_plus_margin_and_all_rows_when_due() -> None:
-    tracker = RoiTracker(BANDS, 64, RoiSettings(history=2, margin_px=3, full_every=4))
+    tracker = RoiTracker(BANDS, RoiSettings(history=2, margin_px=3, full_every=4))
     seen = _samples([0, 0, 1], [50.2, 52.7, 90.0])
     searches = []
     for _ in range(8):
@@ -112,7 +112,7 @@ def test_tracker_searches_recent_rows_plus_margin_and_all_rows_when_due() -> Non
 
 
 def test_tracker_searches_everything_for_a_missing_line_or_after_foreign_light() -> None:
-    tracker = RoiTracker(BANDS, 64, RoiSettings(history=1, full_every=100))
+    tracker = RoiTracker(BANDS, RoiSettings(history=1, full_every=100))
     tracker.update(_samples([0], [50.0]), full=True, foreign=False)
     assert tracker.search_rows() is None  # line 1 not seen: it may be anywhere
     tracker.update(_samples([0, 1], [50.0, 90.0]), full=True, foreign=True)
