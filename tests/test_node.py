@@ -9,6 +9,7 @@ from typing import Any
 
 import can
 import pytest
+from listened_bus import listened_bus
 
 from atris_node import config as cfg
 from atris_node.bus.frames import FrameCodec
@@ -50,15 +51,9 @@ class Frames(can.Listener):
 
 @pytest.fixture
 def bus_pair(request: pytest.FixtureRequest) -> Iterator[tuple[can.BusABC, Frames]]:
-    channel = f"node-{request.node.name}"
-    tx = can.Bus(interface="virtual", channel=channel)
-    rx = can.Bus(interface="virtual", channel=channel)
     frames = Frames()
-    notifier = can.Notifier(rx, [frames], timeout=0.02)
-    yield tx, frames
-    notifier.stop()
-    rx.shutdown()
-    tx.shutdown()
+    with listened_bus(f"node-{request.node.name}", frames) as tx:
+        yield tx, frames
 
 
 def make_unit(bus: can.BusABC, *extra: str, opener: Any = None) -> Unit:

@@ -14,6 +14,7 @@ from typing import Any
 
 import can
 import pytest
+from listened_bus import listened_bus
 
 from atris_node import config as cfg
 from atris_node.bus.frames import FrameCodec
@@ -53,15 +54,9 @@ class SectorFrames(can.Listener):
 
 @pytest.fixture
 def bus_pair(request: pytest.FixtureRequest) -> Iterator[tuple[can.BusABC, SectorFrames]]:
-    channel = f"reliability-camera-{request.node.name}"
-    tx = can.Bus(interface="virtual", channel=channel)
-    rx = can.Bus(interface="virtual", channel=channel)
     frames = SectorFrames()
-    notifier = can.Notifier(rx, [frames], timeout=0.01)
-    yield tx, frames
-    notifier.stop()
-    rx.shutdown()
-    tx.shutdown()
+    with listened_bus(f"reliability-camera-{request.node.name}", frames, 0.01) as tx:
+        yield tx, frames
 
 
 def faulty_unit(bus: can.BusABC, faults: CameraFaults) -> tuple[Unit, list[FaultyCamera]]:
