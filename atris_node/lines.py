@@ -42,7 +42,7 @@ BoolArray = npt.NDArray[np.bool_]
 
 PEAK_METHODS = ("cog", "parabolic", "gaussian", "blais_rioux", "steger")
 #: greedy: the two greedy matchings, prior and continuity; aligned: also the cheapest
-#: alignment per column (atris_node.line_identity), about 1.5 ms more at 640x400
+#: alignment per column (atris_node.line_identity), about 2 ms more at 640x400
 IDENTITY_MODES = ("greedy", "aligned")
 #: distance from the median to the lower quartile of a normal distribution, in σ
 QUARTILE_TO_SIGMA = 0.6745

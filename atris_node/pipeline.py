@@ -99,7 +99,7 @@ class PipelineConfig:
     smooth_columns: int = 5  # median of this many columns along each line (1 = off)
     drop_lone_samples: bool = True  # a sample needs a neighbour on its line (±2 columns)
     roi_narrowing: bool = False  # search lines near their recent rows (atris_node.roi)
-    identity: str = "aligned"  # or "greedy": the greedy matchings only (~1.5 ms less)
+    identity: str = "aligned"  # or "greedy": the greedy matchings only (~2 ms less)
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
 
     def __post_init__(self) -> None:
