@@ -8,7 +8,7 @@ the lines above the gap keep their rows, those below it keep theirs. Both greedy
 matchings then shift a run of lines by one, and a shifted line is triangulated at a range
 that can be metres off (a phantom obstacle, or a near one taken for far).
 
-:func:`cheapest_alignment` finds, per column, the order-preserving assignment of lines to
+:func:`align` finds, per column, the order-preserving assignment of lines to
 peaks (each line in its band) of least cost, by the sequence alignment recursion
 
     D[j, i] = min(D[j-1, i-1] + match(j-1, i-1),   line j-1 takes peak i-1
@@ -19,18 +19,19 @@ with the costs in pixels: a match costs the distance of the peak to the line's r
 neighbouring columns (continuity), plus BEYOND_PX when the row is past the line's z_max
 row (the sample would be no return, while the same peak may be a near range of the next
 line); a missing line costs SKIP_PX; a spare peak inside a band costs SPARE_PX (it would
-count as foreign light). The recursion over peaks is one prefix minimum, so a column costs
-K vector steps. All rows are int64 px; costs float64 px, finite (absent peaks cost 0 as
-spares and cannot be matched).
+count as foreign light). A column costs K·M steps of a compiled loop
+(:func:`atris_node.line_kernels.align`). All rows are int64 px; costs float64 px,
+finite.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
+
+from atris_node import line_kernels as kernels
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -48,95 +49,25 @@ UNEXPLAINED_PX = 10.0
 SWITCH_PX = 10.0
 
 
-def match_costs(rows: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
-                beyond: FloatArray) -> FloatArray:
-    """(K, M, n) cost of line k taking peak m in column c, inf outside line k's band.
-
-    Args:
-        rows: (M, n) peak rows sorted top to bottom, absent peaks as a row below every band.
-        lo, hi: (K,) band rows ``[lo, hi)`` in image order.
-        ref: (K, n) continuity reference row per line (inf: unknown, distance counts 0).
-        beyond: (K,) first row past each line's z_max range (inf: no such row).
-    """
-    r = rows[None, :, :].astype(np.float64)
-    inside = (r >= lo[:, None, None]) & (r < hi[:, None, None])
-    known = np.isfinite(ref)[:, None, :]
-    distance = np.where(known, np.abs(r - np.where(known, ref[:, None, :], 0.0)), 0.0)
-    cost = distance + np.where(r >= beyond[:, None, None], BEYOND_PX, 0.0)
-    return np.where(inside, cost, np.inf)
-
-
-def cheapest_alignment(costs: FloatArray, spare: FloatArray) -> tuple[IntArray, FloatArray]:
-    """(K, n) index of the peak each line takes (-1: none) and (n,) the total cost.
-
-    Args:
-        costs: (K, M, n) from :func:`match_costs`.
-        spare: (M, n) cost of leaving each peak to no line.
-    """
-    k_count, m_count, n = costs.shape
-    before = np.zeros((m_count + 1, n))
-    before[1:] = np.cumsum(spare, axis=0)  # C[i]: spare cost of peaks 0..i-1
-    d = before.copy()  # D[0, i]: every peak so far spare
-    took = np.zeros((k_count, m_count + 1, n), dtype=np.bool_)
-    skipped = np.zeros((k_count, m_count + 1, n), dtype=np.bool_)
-    for j in range(k_count):
-        match = np.full((m_count + 1, n), np.inf)
-        match[1:] = d[:-1] + costs[j]
-        skip = d + SKIP_PX
-        best = np.minimum(match, skip)
-        d = before + np.minimum.accumulate(best - before, axis=0)
-        via_spare = np.full((m_count + 1, n), np.inf)
-        via_spare[1:] = d[:-1] + spare
-        direct = best <= via_spare
-        took[j] = direct & (match <= skip)
-        skipped[j] = direct & (skip < match)
-    return _backtrack(took, skipped), d[-1]
-
-
-def _backtrack(took: BoolArray, skipped: BoolArray) -> IntArray:
-    """(K, n) peak index per line from the choices of :func:`cheapest_alignment`."""
-    k_count, m_plus, n = took.shape
-    cols = np.arange(n)
-    j = np.full(n, k_count)
-    i = np.full(n, m_plus - 1)
-    out = np.full((k_count, n), -1, dtype=np.int64)
-    for _ in range(k_count + m_plus):
-        active = j > 0
-        if not active.any():
-            break
-        jj = np.maximum(j - 1, 0)
-        take = active & took[jj, i, cols] & (i > 0)
-        skip = active & ~take & (skipped[jj, i, cols] | (i == 0))
-        out[jj[take], cols[take]] = i[take] - 1
-        j = np.where(take | skip, j - 1, j)
-        i = np.where(take | (active & ~take & ~skip), i - 1, i)
-    return out
-
-
-def _rows_of(index: IntArray, ordered: IntArray) -> IntArray:
-    cols = np.arange(ordered.shape[1])
-    return np.where(index >= 0, ordered[np.maximum(index, 0), cols[None, :]], -1)
-
-
 def align(peaks: IntArray, bands: tuple[tuple[int, int], ...], ref: FloatArray,
           beyond: FloatArray) -> tuple[IntArray, FloatArray]:
     """The cheapest alignment as (K, n) rows (-1 = none) and its (n,) cost in px.
+
+    Ties go to a match over a skip, and to either over leaving a peak spare.
 
     Args:
         peaks: (M, n) peak rows of the columns to resolve, -1 = none, any order.
         bands: (lo, hi) of each line, in image order.
         ref: (K, n) continuity reference rows (inf: unknown).
-        beyond: (K,) first row past each line's z_max range.
+        beyond: (K,) first row past each line's z_max range (inf: none).
     """
-    below = np.iinfo(np.int64).max // 4
-    ordered = np.sort(np.where(peaks >= 0, peaks, below), axis=0)
-    ordered = ordered[:max(int((ordered < below).sum(axis=0).max(initial=0)), 1)]
     lo = np.array([b[0] for b in bands], dtype=np.int64)
     hi = np.array([b[1] for b in bands], dtype=np.int64)
-    costs = match_costs(ordered, lo, hi, ref, beyond)
-    spare = np.where(_in_bands(ordered, bands), SPARE_PX, 0.0)
-    best, cost = cheapest_alignment(costs, spare)
-    return _rows_of(best, ordered), cost
+    rows, cost = kernels.align(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
+                               np.ascontiguousarray(ref, dtype=np.float64),
+                               np.ascontiguousarray(beyond, dtype=np.float64),
+                               SKIP_PX, SPARE_PX, BEYOND_PX)
+    return np.asarray(rows), np.asarray(cost)
 
 
 def rows_cost(rows: IntArray, peaks: IntArray, bands: tuple[tuple[int, int], ...],
@@ -160,10 +91,8 @@ class Prior(Protocol):
     def baseline_m(self) -> float: ...
     @property
     def z_max_m(self) -> float: ...
-    @property
-    def ground_range_m(self) -> FloatArray: ...
 
-    def unexplained(self, rows: IntArray) -> IntArray: ...
+    def unexplained(self, rows: IntArray, columns: IntArray | None = None) -> IntArray: ...
 
 
 def beyond_rows(prior: Prior | None, order: IntArray) -> FloatArray:
@@ -199,8 +128,7 @@ def _missing_cost(prior: Prior | None, rows: IntArray, order: IntArray,
     without a reason; zeros without a prior."""
     if prior is None:
         return np.zeros(cols.size)
-    sub = replace(prior, ground_range_m=prior.ground_range_m[:, cols])  # type: ignore[type-var]
-    return UNEXPLAINED_PX * sub.unexplained(_by_line(rows, order)).astype(np.float64)
+    return UNEXPLAINED_PX * prior.unexplained(_by_line(rows, order), cols).astype(np.float64)
 
 
 def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray,

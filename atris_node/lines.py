@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node import line_identity
+from atris_node import line_kernels as kernels
 from atris_node.calibration import CameraModel, LaserCalibration
 from atris_node.errors import ConfigError
 from atris_node.geometry import distort_pixels, line_row_at_range
@@ -262,7 +263,11 @@ class NoiseMap:
 
     def threshold(self, snr_min: float) -> npt.NDArray[np.float32]:
         """(H, W) float32 ``background + snr_min · σ``, DN, computed per tile."""
-        return self._image(self.background_tiles + snr_min * self.sigma_tiles)
+        return self._image(self.threshold_tiles(snr_min))
+
+    def threshold_tiles(self, snr_min: float) -> npt.NDArray[np.float32]:
+        """(R + 1, C) float32 ``background + snr_min · σ`` per tile, DN."""
+        return self.background_tiles + np.float32(snr_min) * self.sigma_tiles
 
     def _image(self, tiles: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         """(H, W) float32 image of per-tile values (one broadcast copy)."""
@@ -402,70 +407,59 @@ def saturated_centre(saturated: BoolArray, rows: IntArray, cols: IntArray,
 # --------------------------------------------------------------------------- search
 
 
-def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]],
-                  threshold_dn: npt.NDArray[np.float32], sep: int, per_column: int,
+def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]], noise: NoiseMap,
+                  snr_min: float, sep: int, per_column: int,
                   inside: BoolArray | None = None) -> IntArray:
-    """(per_column, W) rows of the local maxima >= ``threshold_dn`` ((H, W) DN) in ``spans``,
-    sorted top to bottom in each column, -1 padded. A maximum is strictly above the ``sep``
-    rows over it and not below the ``sep`` rows under it (a plateau counts once). With
-    ``inside`` ((H,) bool) only maxima on those rows are kept; the rows around them are
-    still compared, so each kept maximum is one the whole span would have found."""
-    rows, cols = [], []
-    for lo, hi in spans:
-        block = values[lo:hi]
-        peak = block >= threshold_dn[lo:hi]
-        for d in range(1, sep + 1):
-            peak[d:] &= block[d:] > block[:-d]
-            peak[:-d] &= block[:-d] >= block[d:]
-        if inside is not None:
-            peak &= inside[lo:hi, None]
-        r, c = np.divmod(np.flatnonzero(peak), peak.shape[1])  # 10x faster than 2-D nonzero
-        rows.append(r + lo)
-        cols.append(c)
-    out = np.full((per_column, values.shape[1]), -1, dtype=np.int64)
-    if not rows:
-        return out
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    order = np.lexsort((r, c))
-    r, c = r[order], c[order]
-    pos = np.arange(r.size) - np.searchsorted(c, np.arange(values.shape[1]))[c]
-    keep = pos < per_column
-    out[pos[keep], c[keep]] = r[keep]
+    """(per_column, W) rows of the local maxima in ``spans`` that reach the local threshold
+    ``background + snr_min · σ`` of ``noise`` (DN), sorted top to bottom in each column,
+    -1 padded. A maximum is strictly above the ``sep`` rows over it and not below the
+    ``sep`` rows under it (a plateau counts once). With ``inside`` ((H,) bool) only maxima
+    on those rows are kept; the rows around them are still compared, so each kept maximum
+    is one the whole span would have found. ``values`` int16, int32, float32 or float64.
+
+    One compiled pass over the rows (:func:`atris_node.line_kernels.strong_maxima`)
+    compares each pixel with its tile's threshold: no (H, W) threshold image is made.
+    """
+    height, width = values.shape
+    out = np.full((per_column, width), -1, dtype=np.int64)
+    bounds = np.array(spans, dtype=np.int64).reshape(-1, 2)
+    rows = np.zeros(height, dtype=np.bool_) if inside is None else inside
+    kernels.strong_maxima(np.ascontiguousarray(_kernel_dtype(values)), bounds,
+                          noise.threshold_tiles(snr_min), noise.tile_row, NOISE_TILE_PX, sep,
+                          rows, inside is not None, out, np.zeros(width, dtype=np.int64))
     return out
 
 
-def _compact_rows(peaks: IntArray, bands: tuple[Band, ...]
-                  ) -> npt.NDArray[np.signedinteger[Any]]:
-    """``peaks`` as int16 when every row and band edge fits (the matchings then compare a
-    quarter of the bytes of int64: ~25 % faster), else unchanged."""
-    top = max([int(peaks.max(initial=0))] + [b.row_hi for b in bands])
-    return peaks.astype(np.int16) if top < np.iinfo(np.int16).max else peaks
+def _kernel_dtype(values: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """``values`` as one of the dtypes the compiled kernels take (int16, int32, float32,
+    float64): other integers widen to int32 or float64, other floats to float64."""
+    if values.dtype in (np.int16, np.int32, np.float32, np.float64):
+        return values
+    if np.issubdtype(values.dtype, np.integer) and np.can_cast(values.dtype, np.int32):
+        return values.astype(np.int32)
+    return values.astype(np.float64)
 
 
-def _assign_down(peaks: npt.NDArray[np.signedinteger[Any]], bands: tuple[Band, ...]) -> IntArray:
-    """(K, W): each line, top first, takes the first free peak below the previous line's
-    inside its band (the greedy order-preserving matching with the most pairs)."""
-    big = np.iinfo(peaks.dtype).max
-    last = np.full(peaks.shape[1], -1, dtype=peaks.dtype)
-    out = np.full((len(bands), peaks.shape[1]), -1, dtype=np.int64)
-    for band in bands:
-        ok = (peaks >= band.row_lo) & (peaks < band.row_hi) & (peaks > last)
-        first = np.where(ok, peaks, big).min(axis=0)
-        out[band.line] = np.where(first < big, first, -1)
-        last = np.where(first < big, first, last)
-    return out
+def _in_image_order(bands: tuple[Band, ...]) -> tuple[IntArray, IntArray, IntArray]:
+    """(K,) ``row_lo``, ``row_hi`` and line of the bands, top of the image first."""
+    ordered = sorted(bands, key=lambda b: b.row_lo + b.row_hi)
+    return (np.array([b.row_lo for b in ordered], dtype=np.int64),
+            np.array([b.row_hi for b in ordered], dtype=np.int64),
+            np.array([b.line for b in ordered], dtype=np.int64))
 
 
-def _assign_up(peaks: npt.NDArray[np.signedinteger[Any]], bands: tuple[Band, ...]) -> IntArray:
-    """(K, W): as :func:`_assign_down` but bottom line first, taking the lowest peak."""
-    below = np.full(peaks.shape[1], np.iinfo(peaks.dtype).max, dtype=peaks.dtype)
-    out = np.full((len(bands), peaks.shape[1]), -1, dtype=np.int64)
-    for band in reversed(bands):
-        ok = (peaks >= band.row_lo) & (peaks < band.row_hi) & (peaks < below)
-        lowest = np.where(ok, peaks, -1).max(axis=0)
-        out[band.line] = lowest
-        below = np.where(lowest >= 0, lowest, below)
-    return out
+def assign_down(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
+    """(K, W) by line: each line, top first, takes the first free peak below the previous
+    line's inside its band (the greedy order-preserving matching with the most pairs).
+    ``peaks`` (M, W) as :func:`strong_maxima` gives them (sorted down, -1 padded)."""
+    return np.asarray(kernels.assign_down(np.ascontiguousarray(peaks, dtype=np.int64),
+                                          *_in_image_order(bands)))
+
+
+def assign_up(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
+    """(K, W): as :func:`assign_down` but bottom line first, taking the lowest peak."""
+    return np.asarray(kernels.assign_up(np.ascontiguousarray(peaks, dtype=np.int64),
+                                        *_in_image_order(bands)))
 
 
 def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
@@ -531,45 +525,16 @@ class VisibilityPrior:
         ok = (rows >= 0) & (den > 0)
         return np.where(ok, f * self.baseline_m / np.where(ok, den, 1.0), np.inf)
 
-    def unexplained(self, rows: IntArray) -> IntArray:
-        """(W,) number of unassigned lines that should be visible at the range of their
-        nearest assigned neighbour (above ground, inside the image, within z_max)."""
-        z = self.range_of(rows)
-        near = _nearest_neighbour_range(z, np.argsort(self.cot_alpha))
-        f = self.focal_px
-        with np.errstate(divide="ignore"):
-            row = self.cy_px + f * self.cot_alpha[:, None] - f * self.baseline_m / near
-        expected = (rows < 0) & np.isfinite(near) & (near <= self.z_max_m)
-        expected &= (near < self.ground_range_m) & (row >= 0) & (row < self.height_px)
-        return np.asarray(expected.sum(axis=0), dtype=np.int64)
-
-
-def _nearest_neighbour_range(z: FloatArray, order: IntArray) -> FloatArray:
-    """(K, W): for each line, the finite range of the assigned line nearest to it in
-    image order (the nearer range on a tie), inf where a column has none. The nearest
-    assigned positions above and below come from a running max / min down the K rows
-    (a missing one lies 2K away, so it is never the nearer)."""
-    k_count, width = z.shape
-    ranges = np.vstack([z[order], np.full((1, width), np.inf)])  # image order, + a row of inf
-    position = np.arange(k_count)[:, None]
-    assigned = np.isfinite(ranges[:-1])
-    up = np.where(assigned, position, -2 * k_count)  # becomes: nearest assigned above
-    down = np.where(assigned, position, 3 * k_count)  # becomes: nearest assigned below
-    for k in range(1, k_count):  # K row operations beat ufunc.accumulate down axis 0
-        np.maximum(up[k - 1], up[k], out=up[k])
-        np.minimum(down[-k], down[-k - 1], out=down[-k - 1])
-    up = np.vstack([np.full((1, width), -2 * k_count), up[:-1]])
-    down = np.vstack([down[1:], np.full((1, width), 3 * k_count)])
-    column = np.arange(width)
-    flat = ranges.ravel()  # a missing neighbour reads the row of inf
-    z_up = flat[np.where(up >= 0, up, k_count) * width + column]
-    z_down = flat[np.minimum(down, k_count) * width + column]
-    gap_up, gap_down = position - up, down - position
-    nearest = np.where((gap_up < gap_down) | ((gap_up == gap_down) & (z_up <= z_down)),
-                       z_up, z_down)
-    out = np.empty_like(nearest)
-    out[order] = nearest
-    return out
+    def unexplained(self, rows: IntArray, columns: IntArray | None = None) -> IntArray:
+        """(n,) number of unassigned lines that should be visible at the range of their
+        nearest assigned neighbour (above ground, inside the image, within z_max).
+        ``rows`` (K, n) by line are those of the image ``columns`` (default: all W)."""
+        ground = self.ground_range_m if columns is None else self.ground_range_m[:, columns]
+        return np.asarray(kernels.unexplained(
+            np.ascontiguousarray(rows, dtype=np.int64), self.cot_alpha, float(self.focal_px),
+            float(self.cy_px), int(self.height_px), float(self.baseline_m),
+            float(self.z_max_m), np.ascontiguousarray(ground, dtype=np.float64),
+            np.argsort(self.cot_alpha)))
 
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
@@ -588,8 +553,7 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     middle of a column, which both greedy matchings answer with a shifted run of lines).
     """
     ordered = tuple(sorted(bands, key=lambda b: b.row_lo + b.row_hi))  # top of image first
-    compact = _compact_rows(peaks, bands)
-    down, up = _assign_down(compact, ordered), _assign_up(compact, ordered)
+    down, up = assign_down(peaks, bands), assign_up(peaks, bands)
     differ = down != up
     if not differ.any():
         return down, np.zeros(peaks.shape[1], dtype=np.int64)
@@ -702,12 +666,15 @@ def _search_rows(spans: list[tuple[int, int]], search: list[tuple[int, int]] | N
     return _Search(_runs(scan & read), inside, tuple(_runs(read & ~inside)))
 
 
-def _above_elsewhere(values: npt.NDArray[Any], threshold_dn: npt.NDArray[np.float32],
+def _above_elsewhere(values: npt.NDArray[Any], noise: NoiseMap, snr_min: float,
                      elsewhere: tuple[tuple[int, int], ...]) -> bool:
-    """True when a pixel of the ``elsewhere`` rows reaches ``threshold_dn``. Every maximum
-    :func:`strong_maxima` keeps reaches it, so False proves that searching the other rows
-    alone finds every maximum of the rows read."""
-    return any(bool((values[lo:hi] >= threshold_dn[lo:hi]).any()) for lo, hi in elsewhere)
+    """True when a pixel of the ``elsewhere`` rows reaches the local threshold. Every
+    maximum :func:`strong_maxima` keeps reaches it, so False proves that searching the
+    other rows alone finds every maximum of the rows read."""
+    if not elsewhere:
+        return False
+    threshold = noise.threshold(snr_min)
+    return any(bool((values[lo:hi] >= threshold[lo:hi]).any()) for lo, hi in elsewhere)
 
 
 def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
@@ -735,11 +702,10 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
     background, noise = noise_floor(values, spans)
     local = noise_map(values, spans)
-    threshold = local.threshold(settings.snr_min)
     where = _search_rows(spans, search, settings.min_separation_px, height)
-    if _above_elsewhere(values, threshold, where.elsewhere):
+    if _above_elsewhere(values, local, settings.snr_min, where.elsewhere):
         where = _Search(spans)  # something outside the recent rows: search them all
-    peaks = strong_maxima(values, where.scan, threshold, settings.min_separation_px,
+    peaks = strong_maxima(values, where.scan, local, settings.snr_min, settings.min_separation_px,
                           len(bands) + EXTRA_PEAKS, where.inside)
     rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
                                   aligned=settings.identity == "aligned")

@@ -15,38 +15,47 @@ from atris_node import line_identity as li
 BANDS = ((10, 60), (30, 80), (50, 100))
 
 
-def _brute_force(costs: np.ndarray, spare: np.ndarray) -> float:
+def _match_cost(row: int, k: int, ref: list[float], beyond: list[float]) -> float:
+    """The documented cost of line k taking a peak at ``row``: the distance to its known
+    reference, plus BEYOND_PX past its z_max row; inf outside its band."""
+    lo, hi = BANDS[k]
+    if not lo <= row < hi:
+        return np.inf
+    distance = abs(row - ref[k]) if np.isfinite(ref[k]) else 0.0
+    return distance + (li.BEYOND_PX if row >= beyond[k] else 0.0)
+
+
+def _brute_force(rows: list[int], ref: list[float], beyond: list[float]) -> float:
     """Least cost over every order-preserving partial assignment, by enumeration."""
-    k_count, m_count = costs.shape[:2]
+    rows = sorted(rows)
+    spare = [li.SPARE_PX if any(lo <= r < hi for lo, hi in BANDS) else 0.0 for r in rows]
     best = np.inf
-    for choice in itertools.product(range(-1, m_count), repeat=k_count):
+    for choice in itertools.product(range(-1, len(rows)), repeat=len(BANDS)):
         used = [c for c in choice if c >= 0]
         if used != sorted(set(used)):
             continue
-        total = sum(costs[k, c, 0] if c >= 0 else li.SKIP_PX for k, c in enumerate(choice))
-        total += sum(spare[m, 0] for m in range(m_count) if m not in used)
+        total = sum(_match_cost(rows[c], k, ref, beyond) if c >= 0 else li.SKIP_PX
+                    for k, c in enumerate(choice))
+        total += sum(spare[m] for m in range(len(rows)) if m not in used)
         best = min(best, total)
     return float(best)
 
 
 @settings(max_examples=150, deadline=None)
-@given(st.lists(st.integers(0, 110), min_size=0, max_size=5),
+@given(st.lists(st.integers(0, 110), min_size=0, max_size=5, unique=True),
        st.lists(st.one_of(st.none(), st.integers(0, 110)), min_size=3, max_size=3))
 def test_alignment_is_the_optimum_of_its_cost(peak_rows: list[int],
                                               refs: list[int | None]) -> None:
-    rows = np.array(sorted(peak_rows) + [10**9] * (5 - len(peak_rows)), dtype=np.int64)[:, None]
-    lo = np.array([b[0] for b in BANDS])
-    hi = np.array([b[1] for b in BANDS])
-    ref = np.array([[np.inf if r is None else float(r)] for r in refs])
-    beyond = np.array([55.0, 75.0, np.inf])
-    costs = li.match_costs(rows, lo, hi, ref, beyond)
-    spare = np.where((rows < 10**9) & (rows >= 10) & (rows < 100), li.SPARE_PX, 0.0)
-    index, total = li.cheapest_alignment(costs, spare)
-    assert np.isclose(total[0], _brute_force(costs, spare))
-    assigned = np.where(index >= 0, rows[np.maximum(index, 0), 0], -1)
-    assert np.isclose(li.rows_cost(assigned, rows, BANDS, ref, beyond)[0], total[0])
-    taken = index[:, 0][index[:, 0] >= 0]
-    assert list(taken) == sorted(set(taken))  # order kept, each peak once
+    peaks = np.array(peak_rows + [-1] * (5 - len(peak_rows)), dtype=np.int64)[:, None]
+    ref = [np.inf if r is None else float(r) for r in refs]
+    beyond = [55.0, 75.0, np.inf]
+    rows, total = li.align(peaks, BANDS, np.array(ref)[:, None], np.array(beyond))
+    assert np.isclose(total[0], _brute_force(peak_rows, ref, beyond))
+    assert np.isclose(li.rows_cost(rows, peaks, BANDS, np.array(ref)[:, None],
+                                   np.array(beyond))[0], total[0])
+    taken = [int(r) for r in rows[:, 0] if r >= 0]
+    assert taken == sorted(set(taken)) and set(taken) <= set(peak_rows)  # order kept
+    assert all(BANDS[k][0] <= r < BANDS[k][1] for k, r in enumerate(rows[:, 0]) if r >= 0)
 
 
 def test_a_line_missing_in_the_middle_keeps_the_others_on_their_rows() -> None:
@@ -77,12 +86,12 @@ def test_a_row_past_z_max_goes_to_the_next_line_when_it_is_as_close() -> None:
 
 
 def test_costs_are_finite_and_absent_peaks_cannot_be_taken() -> None:
-    rows = np.array([[15], [10**9]], dtype=np.int64)
-    costs = li.match_costs(rows, np.array([10]), np.array([20]), np.array([[np.inf]]),
+    rows, total = li.align(np.array([[-1], [15], [-1]]), ((10, 20),), np.array([[np.inf]]),
                            np.array([np.inf]))
-    assert costs[0, 0, 0] == 0.0 and np.isinf(costs[0, 1, 0])
-    index, total = li.cheapest_alignment(costs, np.zeros((2, 1)))
-    assert index[0, 0] == 0 and np.isfinite(total).all()
+    assert rows[0, 0] == 15 and total[0] == 0.0
+    rows, total = li.align(np.array([[-1], [-1]]), ((10, 20),), np.array([[12.0]]),
+                           np.array([np.inf]))
+    assert rows[0, 0] == -1 and total[0] == li.SKIP_PX
 
 
 def _range_errors(scene: str, identity: str) -> np.ndarray:

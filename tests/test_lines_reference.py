@@ -18,10 +18,10 @@ from atris_node.lines import (
     NOISE_TILE_PX,
     Band,
     LineSamples,
+    VisibilityPrior,
     _continuity_reference,
     _count_in_bands,
     _median_per_line,
-    _nearest_neighbour_range,
     _quartile_and_median,
     noise_floor,
     noise_map,
@@ -79,26 +79,43 @@ def test_noise_floor_is_the_percentile_of_the_subsample() -> None:
     assert sigma == pytest.approx((median - q25) / 0.6745, rel=1e-5)
 
 
-def _nearest_by_definition(z: np.ndarray, order: np.ndarray) -> np.ndarray:
-    """For each line and column: the range of the assigned line fewest places away in
-    image order, the nearer range on a tie; inf when no other line is assigned."""
-    position = np.argsort(order)
-    out = np.full(z.shape, np.inf)
-    for k in range(z.shape[0]):
-        for c in range(z.shape[1]):
-            found = [(abs(position[k] - position[j]), z[j, c]) for j in range(z.shape[0])
-                     if j != k and np.isfinite(z[j, c])]
-            if found:
-                out[k, c] = min(found)[1]
+def _unexplained_by_definition(prior: VisibilityPrior, rows: np.ndarray) -> np.ndarray:
+    """Per column: the unassigned lines that would be seen, inside the image and above the
+    ground, at the range of the assigned line fewest places away in image order (the
+    nearer range on a tie), if that range is at most z_max."""
+    f, cot = prior.focal_px, prior.cot_alpha
+    position = np.argsort(np.argsort(cot))  # place of each line in image order
+    out = np.zeros(rows.shape[1], dtype=np.int64)
+    for c in range(rows.shape[1]):
+        z = [f * prior.baseline_m / (f * cot[k] - (rows[k, c] - prior.cy_px))
+             if rows[k, c] >= 0 and f * cot[k] - (rows[k, c] - prior.cy_px) > 0 else np.inf
+             for k in range(rows.shape[0])]
+        for k in np.flatnonzero(rows[:, c] < 0):
+            found = [(abs(position[k] - position[j]), z[j]) for j in range(rows.shape[0])
+                     if j != k and np.isfinite(z[j])]
+            if not found:
+                continue
+            near = min(found)[1]
+            row = prior.cy_px + f * cot[k] - f * prior.baseline_m / near
+            out[c] += int(near <= prior.z_max_m and near < prior.ground_range_m[k, c]
+                          and 0 <= row < prior.height_px)
     return out
 
 
-def test_nearest_neighbour_range_is_its_definition() -> None:
+def test_unexplained_lines_are_their_definition() -> None:
     rng = np.random.default_rng(13)
-    z = rng.choice([1.0, 2.0, 2.5, 4.0, np.inf], (6, 400), p=[0.15, 0.15, 0.1, 0.15, 0.45])
-    order = np.array([3, 0, 5, 1, 4, 2])
-    np.testing.assert_array_equal(_nearest_neighbour_range(z, order),
-                                  _nearest_by_definition(z, order))
+    cot = np.array([0.25, -0.05, 0.45, 0.05, 0.15, 0.35])  # lines 38 px apart, unordered
+    ground = rng.choice([0.8, 2.0, 5.0, np.inf], (6, 300))
+    prior = VisibilityPrior(cot, 380.0, 200.0, 400, 0.075, 6.0, ground)
+    z = rng.choice([1.0, 2.0, 4.0, 8.0], (6, 300))  # each line's range, so ties matter
+    rows = np.round(200.0 + 380.0 * cot[:, None] - 380.0 * 0.075 / z).astype(np.int64)
+    rows[(rng.random(rows.shape) < 0.5) | (rows >= 400)] = -1
+    rows[:, :5] = -1  # columns without any line
+    expected = _unexplained_by_definition(prior, rows)
+    assert expected.any()
+    np.testing.assert_array_equal(prior.unexplained(rows), expected)
+    cols = np.arange(0, 300, 7)
+    np.testing.assert_array_equal(prior.unexplained(rows[:, cols], cols), expected[cols])
 
 
 def _reference_per_line(rows: np.ndarray, good: np.ndarray) -> np.ndarray:

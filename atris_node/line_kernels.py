@@ -1,0 +1,266 @@
+"""Compiled per-column loops of line identity (numba, ``nopython``).
+
+Line identity works column by column on a few lines (K ≤ 16) and a few peaks (M ≤ K + 4):
+as numpy vector steps it costs hundreds of small array operations per map, ~3 ms at
+640×400, which is most of the latency budget. These loops do the same arithmetic in one
+pass per column (~0.1 ms). Each function here is the kernel of one function in
+:mod:`atris_node.lines` or :mod:`atris_node.line_identity`, which check the arguments,
+document the method and are what the rest of the node calls.
+
+Types: rows and indices int64 (-1 = none), costs and ranges float64. Costs are sums of
+whole and half pixels, exact in float64, so the order of the sums does not change a
+comparison. Every function is compiled at import (explicit signatures) and cached next to
+this file, so no map waits for the compiler; with ``NUMBA_DISABLE_JIT=1`` they run as
+plain Python (slow, for debugging).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit, types
+
+IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
+
+_I1 = "int64[:]"
+_I2 = "int64[:, :]"
+_F1 = "float64[:]"
+_F2 = "float64[:, :]"
+
+
+@njit(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})", cache=True, nogil=True)
+def assign_down(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
+    """(K, W) by line: each line in image order takes the first peak below the previous
+    line's inside its band ``[lo, hi)``; ``peaks`` (M, W) sorted down, -1 at the end."""
+    k_count, (m_count, width) = lo.size, peaks.shape
+    out = np.full((k_count, width), -1, dtype=np.int64)
+    for c in range(width):
+        last = -1
+        for k in range(k_count):
+            for m in range(m_count):
+                p = peaks[m, c]
+                if p > last and lo[k] <= p < hi[k]:
+                    out[line[k], c] = p
+                    last = p
+                    break
+    return out
+
+
+@njit(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})", cache=True, nogil=True)
+def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
+    """(K, W) by line: as :func:`assign_down` from the bottom line up, each line taking
+    the lowest peak above the next line's."""
+    k_count, (m_count, width) = lo.size, peaks.shape
+    out = np.full((k_count, width), -1, dtype=np.int64)
+    for c in range(width):
+        below = np.iinfo(np.int64).max
+        for k in range(k_count - 1, -1, -1):
+            for m in range(m_count - 1, -1, -1):
+                p = peaks[m, c]
+                if 0 <= p < below and lo[k] <= p < hi[k]:
+                    out[line[k], c] = p
+                    below = p
+                    break
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _nearest(z: FloatArray, k: int) -> float:
+    """The finite range of ``z`` nearest to position k (the nearer range on a tie)."""
+    up = k - 1
+    while up >= 0 and not np.isfinite(z[up]):
+        up -= 1
+    down = k + 1
+    while down < z.size and not np.isfinite(z[down]):
+        down += 1
+    z_up = z[up] if up >= 0 else np.inf
+    z_down = z[down] if down < z.size else np.inf
+    gap_up = k - up if up >= 0 else 3 * z.size
+    gap_down = down - k if down < z.size else 3 * z.size
+    if gap_up < gap_down or (gap_up == gap_down and z_up <= z_down):
+        return z_up
+    return z_down
+
+
+@njit(f"int64[:]({_I2}, {_F1}, float64, float64, int64, float64, float64, {_F2}, {_I1})",
+      cache=True, nogil=True)
+def unexplained(rows: IntArray, cot_alpha: FloatArray, focal_px: float, cy_px: float,
+                height_px: int, baseline_m: float, z_max_m: float, ground_range_m: FloatArray,
+                order: IntArray) -> IntArray:
+    """(W,) unassigned lines per column that should be seen at the range of the nearest
+    assigned line in image order (``order``: lines top first; the nearer range on a tie):
+    above the ground range, inside the image and within z_max. ``rows`` (K, W) by line."""
+    k_count, width = rows.shape
+    out = np.zeros(width, dtype=np.int64)
+    z = np.empty(k_count)
+    for c in range(width):
+        for k in range(k_count):
+            line = order[k]
+            den = focal_px * cot_alpha[line] - (rows[line, c] - cy_px)
+            ok = rows[line, c] >= 0 and den > 0
+            z[k] = focal_px * baseline_m / den if ok else np.inf
+        for k in range(k_count):
+            line = order[k]
+            if rows[line, c] >= 0:
+                continue
+            near = _nearest(z, k)
+            if not (np.isfinite(near) and near <= z_max_m and near < ground_range_m[line, c]):
+                continue
+            row = cy_px + focal_px * cot_alpha[line] - focal_px * baseline_m / near
+            if 0 <= row < height_px:
+                out[c] += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
+    """The peaks >= 0 into ``out``, ascending (insertion sort; M is small); their count."""
+    m = 0
+    for p in peaks:
+        if p < 0:
+            continue
+        i = m
+        while i > 0 and out[i - 1] > p:
+            out[i] = out[i - 1]
+            i -= 1
+        out[i] = p
+        m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _in_any(p: int, lo: IntArray, hi: IntArray) -> bool:
+    """True when row ``p`` lies in one of the bands ``[lo, hi)``."""
+    for k in range(lo.size):  # noqa: SIM110 (a generator does not compile)
+        if lo[k] <= p < hi[k]:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, ref: float,
+                beyond: float, spare: FloatArray, skip_px: float, beyond_px: float,
+                d: FloatArray, choice: npt.NDArray[np.int8]) -> None:
+    """Row j of the recursion D[j+1, i] from D[j, i] (in ``d``, overwritten)."""
+    previous = d[0]  # D[j, i-1] before it is overwritten
+    d[0] = previous + skip_px
+    choice[j, 0] = 2
+    for i in range(1, m + 1):
+        p = column[i - 1]
+        match = np.inf
+        if lo[j] <= p < hi[j]:
+            match = previous + (abs(p - ref) if np.isfinite(ref) else 0.0)
+            match += beyond_px if p >= beyond else 0.0
+        previous = d[i]
+        skip = previous + skip_px
+        best = min(match, skip)
+        via_spare = d[i - 1] + spare[i - 1]
+        if best <= via_spare:
+            d[i] = best
+            choice[j, i] = 1 if match <= skip else 2
+        else:
+            d[i] = via_spare
+            choice[j, i] = 0
+
+
+@njit(cache=True, nogil=True)
+def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntArray) -> None:
+    """The rows each line took (``out``, -1 = none) from the choices of :func:`align`."""
+    j, i = choice.shape[0], m
+    while j > 0:
+        c = choice[j - 1, i] if i > 0 else 2
+        if c == 1:
+            out[j - 1] = column[i - 1]
+            j -= 1
+            i -= 1
+        elif c == 2:
+            j -= 1
+        else:
+            i -= 1
+
+
+@njit(f"Tuple((int64[:, :], float64[:]))({_I2}, {_I1}, {_I1}, {_F2}, {_F1}, float64, "
+      "float64, float64)", cache=True, nogil=True)
+def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: FloatArray,
+          skip_px: float, spare_px: float, beyond_px: float) -> tuple[IntArray, FloatArray]:
+    """Per column the cheapest order-preserving alignment of K lines (bands ``[lo, hi)`` in
+    image order) and the (M, n) ``peaks`` (-1 = none, any order): (K, n) rows (-1 = none)
+    and (n,) cost, px. The costs are those of :mod:`atris_node.line_identity`."""
+    k_count, (m_count, n) = lo.size, peaks.shape
+    rows = np.full((k_count, n), -1, dtype=np.int64)
+    total = np.zeros(n)
+    column = np.empty(m_count, dtype=np.int64)
+    spare = np.empty(m_count)
+    d = np.empty(m_count + 1)
+    # choice[j, i]: 1 line j took peak i-1, 2 line j skipped, 0 peak i-1 spare
+    choice = np.zeros((k_count, m_count + 1), dtype=np.int8)
+    for c in range(n):
+        m = _sorted_peaks(peaks[:, c], column)
+        for i in range(m):
+            spare[i] = spare_px if _in_any(column[i], lo, hi) else 0.0
+        d[0] = 0.0
+        for i in range(m):
+            d[i + 1] = d[i] + spare[i]
+        for j in range(k_count):
+            _align_line(j, column, m, lo, hi, ref[j, c], beyond[j], spare,
+                        skip_px, beyond_px, d, choice)
+        total[c] = d[m]
+        _backtrack(choice, column, m, rows[:, c])
+    return rows, total
+
+
+@njit(cache=True, nogil=True)
+def _is_maximum(values: npt.NDArray[np.generic], r: int, c: int, lo: int, hi: int,
+                sep: int) -> bool:
+    """True when values[r, c] is above the ``sep`` rows over it and not below the ``sep``
+    rows under it (rows of ``[lo, hi)`` only)."""
+    v = values[r, c]
+    for d in range(1, sep + 1):
+        if r - d >= lo and not v > values[r - d, c]:
+            return False
+        if r + d < hi and not v >= values[r + d, c]:
+            return False
+    return True
+
+
+def _maxima_signatures() -> list[Any]:
+    """One signature per map dtype, writable or read-only (demodulators hand out
+    read-only maps)."""
+    i64, f32 = types.int64, types.float32
+    rest = (types.Array(i64, 2, "A"), types.Array(f32, 2, "C"), types.Array(i64, 1, "A"),
+            i64, i64, types.Array(types.boolean, 1, "A"), types.boolean,
+            types.Array(i64, 2, "C"), types.Array(i64, 1, "C"))
+    return [types.void(types.Array(dtype, 2, "C", readonly=readonly), *rest)
+            for dtype in (types.int16, types.int32, f32, types.float64)
+            for readonly in (False, True)]
+
+
+@njit(_maxima_signatures(), cache=True, nogil=True)
+def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
+                  threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray, tile_px: int,
+                  sep: int, inside: npt.NDArray[np.bool_], use_inside: bool, out: IntArray,
+                  count: IntArray) -> None:
+    """Rows of the local maxima of ``values`` (H, W) in the row ``spans`` (S, 2) into
+    ``out`` (P, W) (-1 filled), top to bottom, the first P per column; ``count`` (W,)
+    zeros in, the maxima found per column out (may exceed P). A maximum reaches its
+    tile's threshold (``threshold_tiles[tile_row[r], c // tile_px]``, DN), is strictly
+    above the ``sep`` rows over it and not below the ``sep`` rows under it, within its
+    span; with ``use_inside`` only rows where ``inside`` (H,) is True count."""
+    per_column, width = out.shape
+    for s in range(spans.shape[0]):
+        lo, hi = spans[s, 0], spans[s, 1]
+        for r in range(lo, hi):
+            if use_inside and not inside[r]:
+                continue
+            tiles = threshold_tiles[tile_row[r]]
+            for tile in range(tiles.size):
+                threshold = np.float64(tiles[tile])
+                for c in range(tile * tile_px, min((tile + 1) * tile_px, width)):
+                    if np.float64(values[r, c]) >= threshold and _is_maximum(
+                            values, r, c, lo, hi, sep):
+                        if count[c] < per_column:
+                            out[count[c], c] = r
+                        count[c] += 1
