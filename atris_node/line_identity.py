@@ -47,6 +47,8 @@ BEYOND_PX = 10.0
 UNEXPLAINED_PX = 10.0
 #: least saving (px) for which the alignment replaces the greedy choice: one missing line
 SWITCH_PX = 10.0
+#: the costs as the kernels take them
+_COSTS = np.array([SKIP_PX, SPARE_PX, BEYOND_PX, UNEXPLAINED_PX])
 
 
 def align(peaks: IntArray, bands: tuple[tuple[int, int], ...], ref: FloatArray,
@@ -61,12 +63,10 @@ def align(peaks: IntArray, bands: tuple[tuple[int, int], ...], ref: FloatArray,
         ref: (K, n) continuity reference rows (inf: unknown).
         beyond: (K,) first row past each line's z_max range (inf: none).
     """
-    lo = np.array([b[0] for b in bands], dtype=np.int64)
-    hi = np.array([b[1] for b in bands], dtype=np.int64)
+    lo, hi = _edges(bands)
     rows, cost = kernels.align(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
                                np.ascontiguousarray(ref, dtype=np.float64),
-                               np.ascontiguousarray(beyond, dtype=np.float64),
-                               SKIP_PX, SPARE_PX, BEYOND_PX)
+                               np.ascontiguousarray(beyond, dtype=np.float64), _COSTS)
     return np.asarray(rows), np.asarray(cost)
 
 
@@ -75,7 +75,17 @@ def rows_cost(rows: IntArray, peaks: IntArray, bands: tuple[tuple[int, int], ...
     """(n,) cost in px of a given assignment ``rows`` (K, n, image order, -1 = none; each
     assigned row one of the (M, n) ``peaks`` inside its band), in the terms of
     :func:`align`: what the alignment minimises, so the two compare."""
-    return _excess(rows, ref, beyond) + _floor(rows, peaks, bands)
+    lo, hi = _edges(bands)
+    return np.asarray(kernels.rows_cost(
+        np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(peaks, dtype=np.int64),
+        lo, hi, np.ascontiguousarray(ref, dtype=np.float64),
+        np.ascontiguousarray(beyond, dtype=np.float64), _COSTS))
+
+
+def _edges(bands: tuple[tuple[int, int], ...]) -> tuple[IntArray, IntArray]:
+    """(K,) lower and (K,) upper band rows, int64."""
+    return (np.array([b[0] for b in bands], dtype=np.int64),
+            np.array([b[1] for b in bands], dtype=np.int64))
 
 
 class Prior(Protocol):
@@ -91,8 +101,12 @@ class Prior(Protocol):
     def baseline_m(self) -> float: ...
     @property
     def z_max_m(self) -> float: ...
-
-    def unexplained(self, rows: IntArray, columns: IntArray | None = None) -> IntArray: ...
+    @property
+    def ground_range_m(self) -> FloatArray: ...
+    @property
+    def geometry(self) -> FloatArray: ...
+    @property
+    def image_order(self) -> IntArray: ...
 
 
 def beyond_rows(prior: Prior | None, order: IntArray) -> FloatArray:
@@ -103,32 +117,6 @@ def beyond_rows(prior: Prior | None, order: IntArray) -> FloatArray:
     f = prior.focal_px
     row = prior.cy_px + f * prior.cot_alpha - f * prior.baseline_m / prior.z_max_m
     return np.asarray(np.floor(row[order]) + 1.0)
-
-
-def _by_line(rows: IntArray, order: IntArray) -> IntArray:
-    """(K, n) rows in image order -> the same rows indexed by line."""
-    out = np.empty_like(rows)
-    out[order] = rows
-    return out
-
-
-def _excess(rows: IntArray, ref: FloatArray, beyond: FloatArray) -> FloatArray:
-    """(n,) match cost of assigned ``rows`` (K, n) beyond what no alignment can avoid:
-    distances to known references plus BEYOND_PX past z_max (lines in image order)."""
-    taken = rows >= 0
-    known = taken & np.isfinite(ref)
-    distance = np.where(known, np.abs(rows - np.where(known, ref, 0.0)), 0.0)
-    past = taken & (rows >= beyond[:, None])
-    return np.asarray(distance.sum(axis=0) + BEYOND_PX * past.sum(axis=0))
-
-
-def _missing_cost(prior: Prior | None, rows: IntArray, order: IntArray,
-                  cols: IntArray) -> FloatArray:
-    """(n,) UNEXPLAINED_PX per line of ``rows`` (image order, columns ``cols``) missing
-    without a reason; zeros without a prior."""
-    if prior is None:
-        return np.zeros(cols.size)
-    return UNEXPLAINED_PX * prior.unexplained(_by_line(rows, order), cols).astype(np.float64)
 
 
 def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray,
@@ -156,43 +144,24 @@ def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray
         alignment leaves to no line counts as unsure, so the foreign-peak count (peaks in
         the bands minus assigned minus unsure) is that of the greedy matching.
     """
-    rows, unsure = greedy
+    rows, unsure = rows_and_unsure = (greedy[0].copy(), greedy[1].copy())
     cols = np.flatnonzero(unsettled & (unsure == 0))
-    beyond = beyond_rows(prior, order)
-    old, near = rows[order][:, cols], ref[order][:, cols]
-    old_missing = _missing_cost(prior, old, order, cols)
-    margin = max(SWITCH_PX, float(sep))
-    look = _excess(old, near, beyond) + old_missing >= margin
-    if not look.any():
-        return rows, unsure
-    cols, old, near = cols[look], old[:, look], near[:, look]
-    old_total = rows_cost(old, peaks[:, cols], bands, near, beyond) + old_missing[look]
-    new, new_total = align(peaks[:, cols], bands, near, beyond)
-    maybe = np.flatnonzero(new_total + margin <= old_total)
-    if maybe.size:  # the prior's cost can only raise the alignment's total
-        new_total[maybe] += _missing_cost(prior, new[:, maybe], order, cols[maybe])
-    better = new_total + margin <= old_total
-    if not better.any():
-        return rows, unsure
-    switched, new = cols[better], new[:, better]
-    out, count = rows.copy(), unsure.copy()
-    out[np.ix_(order, switched)] = new
-    count[switched] = np.maximum((old[:, better] >= 0).sum(axis=0) - (new >= 0).sum(axis=0), 0)
-    return out, count
+    lo, hi = _edges(bands)
+    kernels.improve(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
+                    order.astype(np.int64), rows, unsure, cols.astype(np.int64),
+                    np.ascontiguousarray(ref, dtype=np.float64), beyond_rows(prior, order),
+                    max(SWITCH_PX, float(sep)), _COSTS, *_prior_arrays(prior, rows.shape))
+    return rows_and_unsure
 
 
-def _floor(rows: IntArray, peaks: IntArray, bands: tuple[tuple[int, int], ...]) -> FloatArray:
-    """(n,) skip and spare cost of ``rows`` (K, n, image order; each assigned row one of
-    the (M, n) ``peaks``, -1 = none): SKIP_PX per missing line, SPARE_PX per peak inside a
-    band that no line takes."""
-    assigned = (rows >= 0).sum(axis=0)
-    return np.asarray(SKIP_PX * (rows.shape[0] - assigned)
-                      + SPARE_PX * (_in_bands(peaks, bands).sum(axis=0) - assigned))
+def _prior_arrays(prior: Prior | None, shape: tuple[int, ...]) -> tuple[
+        bool, FloatArray, FloatArray, FloatArray, IntArray]:
+    """The prior as :func:`atris_node.line_kernels.improve` takes it (placeholders and
+    False without one)."""
+    if prior is None:
+        k = shape[0]
+        return False, np.zeros(k), np.zeros(5), np.zeros(shape), np.arange(k, dtype=np.int64)
+    return (True, np.asarray(prior.cot_alpha, dtype=np.float64), prior.geometry,
+            np.ascontiguousarray(prior.ground_range_m, dtype=np.float64), prior.image_order)
 
 
-def _in_bands(peaks: IntArray, bands: tuple[tuple[int, int], ...]) -> BoolArray:
-    """(M, n) True for the peaks inside at least one band (-1 and sentinels are not)."""
-    inside = np.zeros(peaks.shape, dtype=np.bool_)
-    for lo, hi in bands:
-        inside |= (peaks >= lo) & (peaks < hi)
-    return inside

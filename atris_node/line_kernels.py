@@ -85,33 +85,42 @@ def _nearest(z: FloatArray, k: int) -> float:
     return z_down
 
 
-@njit(f"int64[:]({_I2}, {_F1}, float64, float64, int64, float64, float64, {_F2}, {_I1})",
-      cache=True, nogil=True)
-def unexplained(rows: IntArray, cot_alpha: FloatArray, focal_px: float, cy_px: float,
-                height_px: int, baseline_m: float, z_max_m: float, ground_range_m: FloatArray,
-                order: IntArray) -> IntArray:
-    """(W,) unassigned lines per column that should be seen at the range of the nearest
+@njit(cache=True, nogil=True)
+def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
+                        ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
+    """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
+    ``ground_range_m``; ``z`` (K,) scratch."""
+    focal_px, cy_px, height_px, baseline_m, z_max_m = geometry
+    for k in range(order.size):
+        line = order[k]
+        den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
+        z[k] = focal_px * baseline_m / den if rows[line] >= 0 and den > 0 else np.inf
+    count = 0
+    for k in range(order.size):
+        line = order[k]
+        if rows[line] >= 0:
+            continue
+        near = _nearest(z, k)
+        if not (np.isfinite(near) and near <= z_max_m and near < ground_range_m[line, c]):
+            continue
+        row = cy_px + focal_px * cot_alpha[line] - focal_px * baseline_m / near
+        count += 0 <= row < height_px
+    return count
+
+
+@njit(f"int64[:]({_I2}, {_F1}, {_F1}, {_F2}, {_I1})", cache=True, nogil=True)
+def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
+                ground_range_m: FloatArray, order: IntArray) -> IntArray:
+    """(n,) unassigned lines per column that should be seen at the range of the nearest
     assigned line in image order (``order``: lines top first; the nearer range on a tie):
-    above the ground range, inside the image and within z_max. ``rows`` (K, W) by line."""
-    k_count, width = rows.shape
-    out = np.zeros(width, dtype=np.int64)
-    z = np.empty(k_count)
-    for c in range(width):
-        for k in range(k_count):
-            line = order[k]
-            den = focal_px * cot_alpha[line] - (rows[line, c] - cy_px)
-            ok = rows[line, c] >= 0 and den > 0
-            z[k] = focal_px * baseline_m / den if ok else np.inf
-        for k in range(k_count):
-            line = order[k]
-            if rows[line, c] >= 0:
-                continue
-            near = _nearest(z, k)
-            if not (np.isfinite(near) and near <= z_max_m and near < ground_range_m[line, c]):
-                continue
-            row = cy_px + focal_px * cot_alpha[line] - focal_px * baseline_m / near
-            if 0 <= row < height_px:
-                out[c] += 1
+    above the ground range, inside the image and within z_max. ``rows`` (K, n) by line,
+    ``ground_range_m`` (K, n) m; ``geometry`` (focal px, cy px, height px, baseline m,
+    z_max m)."""
+    out = np.zeros(rows.shape[1], dtype=np.int64)
+    z = np.empty(order.size)
+    for c in range(rows.shape[1]):
+        out[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry, ground_range_m,
+                                     order, z)
     return out
 
 
@@ -182,33 +191,47 @@ def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntA
             i -= 1
 
 
-@njit(f"Tuple((int64[:, :], float64[:]))({_I2}, {_I1}, {_I1}, {_F2}, {_F1}, float64, "
-      "float64, float64)", cache=True, nogil=True)
+@njit(cache=True, nogil=True)
+def _align_column(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
+                  beyond: FloatArray, costs: FloatArray, scratch: FloatArray,
+                  column: IntArray, choice: npt.NDArray[np.int8], out: IntArray) -> float:
+    """The cheapest alignment of one column: rows into ``out`` (K,) (-1 = none), the cost
+    returned. ``costs`` (skip, spare, beyond) px; ``scratch`` (2, M + 1), ``column``
+    (M,) and ``choice`` (K, M + 1) work space."""
+    skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
+    m = _sorted_peaks(peaks, column)
+    spare, d = scratch[0], scratch[1]
+    d[0] = 0.0
+    for i in range(m):
+        spare[i] = spare_px if _in_any(column[i], lo, hi) else 0.0
+        d[i + 1] = d[i] + spare[i]
+    for j in range(lo.size):
+        _align_line(j, column, m, lo, hi, ref[j], beyond[j], spare, skip_px, beyond_px,
+                    d, choice)
+    out[:] = -1
+    _backtrack(choice, column, m, out)
+    return d[m]
+
+
+@njit(f"Tuple((int64[:, :], float64[:]))({_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})",
+      cache=True, nogil=True)
 def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: FloatArray,
-          skip_px: float, spare_px: float, beyond_px: float) -> tuple[IntArray, FloatArray]:
+          costs: FloatArray) -> tuple[IntArray, FloatArray]:
     """Per column the cheapest order-preserving alignment of K lines (bands ``[lo, hi)`` in
     image order) and the (M, n) ``peaks`` (-1 = none, any order): (K, n) rows (-1 = none)
-    and (n,) cost, px. The costs are those of :mod:`atris_node.line_identity`."""
+    and (n,) cost, px. ``costs`` (skip, spare, beyond) px, as in
+    :mod:`atris_node.line_identity`; ``ref`` (K, n) and ``beyond`` (K,) in image order."""
     k_count, (m_count, n) = lo.size, peaks.shape
     rows = np.full((k_count, n), -1, dtype=np.int64)
     total = np.zeros(n)
+    scratch = np.empty((2, m_count + 1))
     column = np.empty(m_count, dtype=np.int64)
-    spare = np.empty(m_count)
-    d = np.empty(m_count + 1)
-    # choice[j, i]: 1 line j took peak i-1, 2 line j skipped, 0 peak i-1 spare
     choice = np.zeros((k_count, m_count + 1), dtype=np.int8)
+    out = np.empty(k_count, dtype=np.int64)
     for c in range(n):
-        m = _sorted_peaks(peaks[:, c], column)
-        for i in range(m):
-            spare[i] = spare_px if _in_any(column[i], lo, hi) else 0.0
-        d[0] = 0.0
-        for i in range(m):
-            d[i + 1] = d[i] + spare[i]
-        for j in range(k_count):
-            _align_line(j, column, m, lo, hi, ref[j, c], beyond[j], spare,
-                        skip_px, beyond_px, d, choice)
-        total[c] = d[m]
-        _backtrack(choice, column, m, rows[:, c])
+        total[c] = _align_column(peaks[:, c], lo, hi, ref[:, c], beyond, costs, scratch,
+                                 column, choice, out)
+        rows[:, c] = out
     return rows, total
 
 
@@ -264,3 +287,128 @@ def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
                         if count[c] < per_column:
                             out[count[c], c] = r
                         count[c] += 1
+
+
+@njit(cache=True, nogil=True)
+def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntArray,
+                     hi: IntArray, ref: FloatArray, beyond: FloatArray,
+                     costs: FloatArray) -> tuple[float, float, int]:
+    """Of one column's assignment ``rows`` (K,) by line: (the match cost beyond what no
+    alignment avoids: distances to known references and BEYOND past z_max; the floor of
+    skips and spares; the lines assigned). ``ref`` (K,) by line; ``lo``, ``hi``,
+    ``beyond`` (K,) in image order, ``order`` the line of each."""
+    skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
+    excess, assigned = 0.0, 0
+    for k in range(order.size):
+        row = rows[order[k]]
+        if row < 0:
+            continue
+        assigned += 1
+        if np.isfinite(ref[order[k]]):
+            excess += abs(row - ref[order[k]])
+        if row >= beyond[k]:
+            excess += beyond_px
+    in_bands = 0
+    for p in peaks:
+        in_bands += p >= 0 and _in_any(p, lo, hi)
+    floor = skip_px * (order.size - assigned) + spare_px * (in_bands - assigned)
+    return excess, floor, assigned
+
+
+@njit(f"void({_I2}, {_I1}, {_I1}, {_I1}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, float64, {_F1}, "
+      f"boolean, {_F1}, {_F1}, {_F2}, {_I1})", cache=True, nogil=True)
+def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
+            unsure: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
+            margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
+            geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+    """:func:`atris_node.line_identity.improve` on the given ``columns``, in place on
+    ``rows`` (K, W) by line and ``unsure`` (W,). ``costs`` (skip, spare, beyond,
+    unexplained) px; the prior (``cot_alpha``, ``geometry``, ``ground_range_m``,
+    ``image_order``, as :func:`unexplained` takes them) counts only with ``has_prior``."""
+    k_count, m_count = order.size, peaks.shape[0]
+    unexplained_px = costs[3]
+    scratch = np.empty((2, m_count + 1))
+    column = np.empty(m_count, dtype=np.int64)
+    choice = np.zeros((k_count, m_count + 1), dtype=np.int8)
+    aligned = np.empty(k_count, dtype=np.int64)
+    new = np.empty(k_count, dtype=np.int64)
+    ref_image = np.empty(k_count)
+    z = np.empty(k_count)
+    for c in columns:
+        old = rows[:, c]
+        missing = 0.0
+        if has_prior:
+            missing = unexplained_px * _unexplained_column(old, c, cot_alpha, geometry,
+                                                           ground_range_m, image_order, z)
+        excess, floor, assigned = _assignment_cost(old, order, peaks[:, c], lo, hi, ref[:, c],
+                                                   beyond, costs)
+        if excess + missing < margin:
+            continue  # no alignment can save the margin here
+        old_total = excess + floor + missing
+        for k in range(k_count):
+            ref_image[k] = ref[order[k], c]
+        total = _align_column(peaks[:, c], lo, hi, ref_image, beyond, costs, scratch, column,
+                              choice, aligned)
+        if total + margin > old_total:
+            continue
+        for k in range(k_count):
+            new[order[k]] = aligned[k]
+        if has_prior:  # the prior's cost can only raise the alignment's total
+            total += unexplained_px * _unexplained_column(new, c, cot_alpha, geometry,
+                                                          ground_range_m, image_order, z)
+        if total + margin > old_total:
+            continue
+        kept = 0
+        for k in range(k_count):
+            kept += new[k] >= 0
+            rows[k, c] = new[k]
+        unsure[c] = max(assigned - kept, 0)
+
+
+@njit(f"float64[:]({_I2}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})", cache=True, nogil=True)
+def rows_cost(rows: IntArray, peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
+              beyond: FloatArray, costs: FloatArray) -> FloatArray:
+    """(n,) cost of the assignment ``rows`` (K, n, image order) of the (M, n) ``peaks``,
+    in the terms :func:`align` minimises (``ref`` (K, n), ``beyond`` (K,) image order)."""
+    order = np.arange(lo.size)
+    out = np.empty(rows.shape[1])
+    for c in range(rows.shape[1]):
+        excess, floor, _ = _assignment_cost(rows[:, c], order, peaks[:, c], lo, hi,
+                                            ref[:, c], beyond, costs)
+        out[c] = excess + floor
+    return out
+
+
+@njit(f"float64[:, :]({_I2}, boolean[:, :], int64, int64, int64)", cache=True, nogil=True)
+def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int,
+                         min_block: int, min_line: int) -> FloatArray:
+    """(K, W) per line: the upper median of the ``good`` rows in each block of ``block``
+    columns with at least ``min_block`` of them; elsewhere the median of all the line's
+    good rows when there are at least ``min_line``; inf where neither."""
+    k_count, width = rows.shape
+    out = np.empty((k_count, width))
+    values = np.empty(width)
+    kept = np.empty(block)
+    for k in range(k_count):
+        n = 0
+        for c in range(width):
+            if good[k, c]:
+                values[n] = rows[k, c]
+                n += 1
+        line = np.inf
+        if n >= min_line:
+            ordered = np.sort(values[:n])
+            line = (ordered[(n - 1) // 2] + ordered[n // 2]) / 2
+        for lo in range(0, width, block):
+            hi = min(lo + block, width)
+            m = 0
+            for c in range(lo, hi):
+                if good[k, c]:
+                    i = m
+                    while i > 0 and kept[i - 1] > rows[k, c]:
+                        kept[i] = kept[i - 1]
+                        i -= 1
+                    kept[i] = rows[k, c]
+                    m += 1
+            out[k, lo:hi] = kept[m // 2] if m >= min_block else line
+    return out

@@ -464,29 +464,13 @@ def assign_up(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
 
 def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
     """(K, W) per line: the median of the good rows in each block of CONTINUITY_BLOCK
-    columns (at least MIN_BLOCK_SAMPLES of them); elsewhere the median of all the line's
-    good rows when there are at least MIN_LINE_SAMPLES; inf where no reference can be
-    trusted. ``rows`` (K, W) int, ``good`` (K, W) bool; one sort for all lines."""
-    k, w = rows.shape
-    nb = -(-w // CONTINUITY_BLOCK)
-    padded = np.full((k, nb * CONTINUITY_BLOCK), np.inf)
-    padded[:, :w] = np.where(good, rows, np.inf)
-    blocks = np.sort(padded.reshape(k, nb, CONTINUITY_BLOCK), axis=2)
-    count = np.isfinite(blocks).sum(axis=2)
-    middle = np.take_along_axis(blocks, (count // 2)[..., None], axis=2)[..., 0]
-    median = np.where(count >= MIN_BLOCK_SAMPLES, middle, _line_medians(padded, good)[:, None])
-    return np.repeat(median, CONTINUITY_BLOCK, axis=1)[:, :w]
-
-
-def _line_medians(padded: FloatArray, good: BoolArray) -> FloatArray:
-    """(K,) ``np.median`` of the finite entries of each row of ``padded`` (K, n) (inf
-    elsewhere) when ``good`` (K, W) has at least MIN_LINE_SAMPLES in that row, else inf."""
-    count = good.sum(axis=1)
-    ordered = np.sort(padded, axis=1)
-    lines = np.arange(padded.shape[0])
-    upper = ordered[lines, count // 2]
-    lower = ordered[lines, np.maximum(count - 1, 0) // 2]
-    return np.where(count >= MIN_LINE_SAMPLES, (lower + upper) / 2, np.inf)
+    columns (at least MIN_BLOCK_SAMPLES of them; the upper median of an even count);
+    elsewhere the median of all the line's good rows when there are at least
+    MIN_LINE_SAMPLES; inf where no reference can be trusted. ``rows`` (K, W) int,
+    ``good`` (K, W) bool."""
+    return np.asarray(kernels.continuity_reference(
+        np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(good, dtype=np.bool_),
+        CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES))
 
 
 def _continuity_cost(rows: IntArray, differ: BoolArray, ref: FloatArray) -> FloatArray:
@@ -531,10 +515,19 @@ class VisibilityPrior:
         ``rows`` (K, n) by line are those of the image ``columns`` (default: all W)."""
         ground = self.ground_range_m if columns is None else self.ground_range_m[:, columns]
         return np.asarray(kernels.unexplained(
-            np.ascontiguousarray(rows, dtype=np.int64), self.cot_alpha, float(self.focal_px),
-            float(self.cy_px), int(self.height_px), float(self.baseline_m),
-            float(self.z_max_m), np.ascontiguousarray(ground, dtype=np.float64),
-            np.argsort(self.cot_alpha)))
+            np.ascontiguousarray(rows, dtype=np.int64), self.cot_alpha, self.geometry,
+            np.ascontiguousarray(ground, dtype=np.float64), self.image_order))
+
+    @property
+    def geometry(self) -> FloatArray:
+        """(5,) focal px, cy px, height px, baseline m, z_max m (as the kernels take them)."""
+        return np.array([self.focal_px, self.cy_px, self.height_px, self.baseline_m,
+                         self.z_max_m], dtype=np.float64)
+
+    @property
+    def image_order(self) -> IntArray:
+        """(K,) the lines from the top of the image down (ascending cot α)."""
+        return np.argsort(self.cot_alpha)
 
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,

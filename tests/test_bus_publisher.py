@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import threading
 import time
 import uuid
 from collections.abc import Iterator
@@ -201,3 +202,86 @@ def test_sector_count_above_16_is_rejected(channel: str) -> None:
         publisher = Publisher(bus, 0)
         with pytest.raises(ValueError, match=r"1\.\.16"):
             publisher.update(Measurement(0, sectors, 0.0, 0), RUNNING)
+
+
+class RecordingBus(VirtualBus):  # type: ignore[misc]
+    """A virtual bus that records the sending thread and timeout of every frame; with
+    ``full`` set it refuses non-blocking sends (a transmit queue that is full right now),
+    and with ``hold`` cleared a send from another thread than the test's waits for it."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.sends: list[tuple[int, float | None]] = []
+        self.full = False
+        self.hold = threading.Event()
+        self.hold.set()
+        self.waiting = threading.Event()
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.full and timeout == 0.0:
+            raise can.CanOperationError("transmit buffer full")
+        if threading.get_ident() != MAIN_THREAD and not self.hold.is_set():
+            self.waiting.set()
+            self.hold.wait()
+        self.sends.append((threading.get_ident(), timeout))
+        super().send(msg, timeout)
+
+
+MAIN_THREAD = threading.get_ident()
+
+
+def test_a_new_measurement_goes_out_from_the_callers_thread_without_blocking(
+        channel: str, listener: can.BusABC) -> None:
+    bus = RecordingBus(channel=channel)
+    try:
+        publisher = _run(bus, period_s=1.0)
+        _collect(listener, 0.1)  # the first cycle, from the scheduler thread
+        first = len(bus.sends)
+        publisher.update(_measurement(), RUNNING)
+        inline = bus.sends[first:]
+        publisher.stop()
+    finally:
+        bus.shutdown()
+    assert first >= 4 and all(ident != MAIN_THREAD for ident, _ in bus.sends[:first])
+    assert len(inline) == first  # the whole cycle, before update() returned
+    assert all(ident == MAIN_THREAD and timeout == 0.0 for ident, timeout in inline)
+    assert publisher.stats.send_errors == 0
+
+
+def test_a_full_transmit_queue_hands_the_cycle_to_the_scheduler_thread(
+        channel: str, listener: can.BusABC) -> None:
+    bus = RecordingBus(channel=channel)
+    try:
+        publisher = _run(bus, period_s=1.0)
+        _collect(listener, 0.1)
+        bus.full = True
+        before = len(bus.sends)
+        publisher.update(_measurement(), RUNNING)
+        frames = _collect(listener, 0.2)
+        publisher.stop()
+    finally:
+        bus.shutdown()
+    assert len(bus.sends) - before == len(frames) >= 4  # sent once, by the thread
+    assert all(ident != MAIN_THREAD and timeout == 1.0 for ident, timeout in bus.sends[before:])
+    assert publisher.stats.send_errors == 0 and not publisher.stats.deadline_misses
+    assert frames[-1][1].name.endswith("Sectors")
+    assert _of(frames, "Sectors")[0].signals["Distance0"] == 1.0
+
+
+def test_update_does_not_wait_while_the_scheduler_thread_is_sending(channel: str) -> None:
+    bus = RecordingBus(channel=channel)
+    bus.hold.clear()  # the scheduler thread's first send waits
+    try:
+        publisher = _run(bus, period_s=1.0)
+        assert bus.waiting.wait(1.0)
+        caller = threading.Thread(target=publisher.update, args=(_measurement(), RUNNING))
+        caller.start()
+        caller.join(timeout=1.0)
+        returned = not caller.is_alive()
+        bus.hold.set()
+        caller.join()
+        publisher.stop()
+    finally:
+        bus.shutdown()
+    assert returned
+    publisher.check()

@@ -1,12 +1,16 @@
 """The cycle publisher: status, quality, nearest-obstacle and sector frames of one unit.
 
 Its own scheduler thread (python-can's ``send_periodic`` dies on the first failed send)
-sends one cycle every ``period_s`` and one at once when :meth:`Publisher.update` brings a
-new measurement. Data older than ``max_age_s``, or from a unit that is not RUNNING or
-has a fault that spoils its distances, goes out as "invalid", never as a stale distance.
-A failed send starts a back-off (doubling from one period to ``backoff_cap_s``) during
-which cycles are skipped; the thread never dies silently: an unexpected error is logged
-and kept, and :meth:`Publisher.check` re-raises it in the owner's loop.
+sends one cycle every ``period_s``. A new measurement is sent at once from the thread that
+brings it (:meth:`Publisher.update`, the node's loop), without a thread switch and without
+ever blocking that thread: when the scheduler thread is sending, during a back-off, or when
+a frame cannot be queued at once, the scheduler thread sends the cycle instead.
+
+Data older than ``max_age_s``, or from a unit that is not RUNNING or has a fault that
+spoils its distances, goes out as "invalid", never as a stale distance. A failed send
+starts a back-off (doubling from one period to ``backoff_cap_s``) during which cycles are
+skipped; the thread never dies silently: an unexpected error is logged and kept, and
+:meth:`Publisher.check` re-raises it in the owner's loop.
 """
 
 from __future__ import annotations
@@ -79,7 +83,9 @@ class Publisher:
         self._counters = dict.fromkeys(self._names.values(), 0)
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the newest measurement and status
+        self._send_lock = threading.Lock()  # composing and sending one cycle
+        self._next_due_s = 0.0
         self._wake = threading.Event()
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
@@ -94,6 +100,7 @@ class Publisher:
         """Start the scheduler thread (once)."""
         if self._thread is not None:
             return
+        self._next_due_s = self.clock()
         self._thread = threading.Thread(target=self._run, name=f"atris-publisher-{self.unit_id}",
                                         daemon=True)
         self._thread.start()
@@ -114,8 +121,20 @@ class Publisher:
             fresh = measurement is not None and measurement is not self._measurement
             fresh |= status.state != self._status.state  # e.g. a camera fault: invalid at once
             self._measurement, self._status = measurement, status
-        if fresh:
+        if fresh and not self._send_inline():
             self._wake.set()
+
+    def _send_inline(self) -> bool:
+        """Send the cycle of a new measurement from the caller's thread; False, with
+        nothing counted, when the scheduler thread should send it (not started, busy
+        sending, in a back-off, or a frame that cannot be queued at once)."""
+        if self._thread is None or not self._send_lock.acquire(blocking=False):
+            return False
+        try:
+            now = self.clock()
+            return now >= self._retry_at_s and self._cycle(now, immediate=True, timeout_s=0.0)
+        finally:
+            self._send_lock.release()
 
     def check(self) -> None:
         """Re-raise, as NodeFaultError, an error that stopped the publisher thread."""
@@ -137,15 +156,15 @@ class Publisher:
             self._fatal = exc
 
     def _loop(self) -> None:
-        next_due = self.clock()
         while not self._stopping.is_set():
-            woken = self._wake.wait(timeout=max(0.0, next_due - self.clock()))
+            woken = self._wake.wait(timeout=max(0.0, self._next_due_s - self.clock()))
             if self._stopping.is_set():
                 return
             self._wake.clear()
-            now = self.clock()
-            self._cycle(now)
-            next_due = self._next_due(next_due, now, immediate=woken)
+            with self._send_lock:
+                now = self.clock()
+                if woken or now >= self._next_due_s:  # else an inline cycle moved the due
+                    self._cycle(now, immediate=woken, timeout_s=self.period_s)
 
     def _next_due(self, due: float, now: float, immediate: bool) -> float:
         """Fixed-rate schedule; an immediate send or a late cycle restarts it from now."""
@@ -153,19 +172,27 @@ class Publisher:
             return now + self.period_s
         return due + self.period_s
 
-    def _cycle(self, now: float) -> None:
+    def _cycle(self, now: float, *, immediate: bool, timeout_s: float) -> bool:
+        """One cycle at ``now`` (the send lock held); True when every frame was queued.
+        A non-blocking cycle (``timeout_s`` 0, inline) that cannot queue a frame counts
+        nothing: the scheduler thread then sends the whole cycle, with new counters."""
         late = self._last_cycle_s is not None and (
             now - self._last_cycle_s > self.period_s + self.tolerance_s)
+        sent = False
+        if now < self._retry_at_s:
+            self.stats.skipped_cycles += 1
+        else:
+            with self._lock:
+                measurement, status = self._measurement, self._status
+            sent = self._send_all(self.compose(measurement, status, now, late), timeout_s)
+            if not sent and timeout_s == 0.0:
+                return False
         self._last_cycle_s = now
         self.stats.cycles += 1
         self.stats.deadline_misses += int(late)
         self.stats.bus_off_count = self.health.bus_off_count
-        if now < self._retry_at_s:
-            self.stats.skipped_cycles += 1
-            return
-        with self._lock:
-            measurement, status = self._measurement, self._status
-        self._send_all(self.compose(measurement, status, now, late))
+        self._next_due_s = self._next_due(self._next_due_s, now, immediate)
+        return sent
 
     # -- composing frames ----------------------------------------------------------------
     def usable(self, measurement: Measurement | None, status: UnitStatus, now: float) -> bool:
@@ -208,20 +235,24 @@ class Publisher:
         return self._codec.encode(name, signals, counter, scaling=False, fd=self.fd)
 
     # -- sending -------------------------------------------------------------------------
-    def _send_all(self, frames: list[can.Message]) -> None:
+    def _send_all(self, frames: list[can.Message], timeout_s: float) -> bool:
+        """Send ``frames`` in order; False at the first that fails. A failure is a send
+        error (back-off) unless the send was non-blocking (``timeout_s`` 0)."""
         for msg in frames:
-            if not self._send(msg):
-                return
+            if not self._send(msg, timeout_s):
+                return False
         if self._backoff_s:
             logger.warning("CAN sending of unit %d resumed", self.unit_id)
         self._backoff_s = 0.0
         self._bus_error = False
+        return True
 
-    def _send(self, msg: can.Message) -> bool:
+    def _send(self, msg: can.Message, timeout_s: float) -> bool:
         try:
-            self.bus.send(msg, timeout=self.period_s)
+            self.bus.send(msg, timeout=timeout_s)
         except (can.CanError, OSError) as exc:
-            self._on_send_error(exc)
+            if timeout_s > 0.0:
+                self._on_send_error(exc)
             return False
         self.stats.frames_sent += 1
         return True
