@@ -249,6 +249,15 @@ def _is_maximum(values: npt.NDArray[np.generic], r: int, c: int, lo: int, hi: in
     return True
 
 
+def map_values(values: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """A map (H, W) as the kernels take it: C-contiguous int16, int32, float32 or float64;
+    other integers widen to int32 (or float64 when they do not fit), other floats to
+    float64."""
+    if values.dtype not in (np.int16, np.int32, np.float32, np.float64):
+        fits = np.issubdtype(values.dtype, np.integer) and np.can_cast(values.dtype, np.int32)
+        values = values.astype(np.int32 if fits else np.float64)
+    return np.ascontiguousarray(values)
+
 def _maxima_signatures() -> list[Any]:
     """One signature per map dtype, writable or read-only (demodulators hand out
     read-only maps)."""
@@ -412,3 +421,79 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
                     m += 1
             out[k, lo:hi] = kept[m // 2] if m >= min_block else line
     return out
+
+
+@njit(cache=True, nogil=True)
+def _line_grid(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
+               pad: int) -> FloatArray:
+    """(lines, width + 2·pad) rows of the samples at column + pad, inf elsewhere."""
+    grid = np.full((lines, width + 2 * pad), np.inf)
+    for i in range(line.size):
+        grid[line[i], col[i] + pad] = row[i]
+    return grid
+
+
+@njit(f"boolean[:]({_I1}, {_I1}, {_F1}, int64, int64, int64, float64)", cache=True,
+      nogil=True)
+def supported(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
+              reach: int, max_step_px: float) -> npt.NDArray[np.bool_]:
+    """(n,) True for samples with a sample of the same line within ``reach`` columns and
+    ``max_step_px`` rows. ``line``, ``col`` (n,) int64 (0 <= col < width), ``row`` px."""
+    grid = _line_grid(line, col, row, lines, width, reach)
+    out = np.zeros(line.size, dtype=np.bool_)
+    for i in range(line.size):
+        for d in range(-reach, reach + 1):
+            if d != 0 and abs(grid[line[i], col[i] + reach + d] - row[i]) <= max_step_px:
+                out[i] = True
+                break
+    return out
+
+
+@njit(f"float64[:]({_I1}, {_I1}, {_F1}, int64, int64, int64, float64)", cache=True,
+      nogil=True)
+def smooth(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
+           taps: int, max_step_px: float) -> FloatArray:
+    """(n,) the median of the ``taps`` columns around each sample on its line where all
+    exist and span at most ``max_step_px`` rows; elsewhere the sample's own row."""
+    half = taps // 2
+    grid = _line_grid(line, col, row, lines, width, half)
+    out = row.copy()
+    window = np.empty(taps)
+    for i in range(line.size):
+        for j in range(taps):  # insertion sort of the window
+            v = grid[line[i], col[i] + j]
+            k = j
+            while k > 0 and window[k - 1] > v:
+                window[k] = window[k - 1]
+                k -= 1
+            window[k] = v
+        if np.isfinite(window[-1]) and window[-1] - window[0] <= max_step_px:
+            out[i] = window[half]
+    return out
+
+
+
+def warm_up() -> None:
+    """Call every kernel once on a tiny input. The first call of a compiled function
+    types its arguments (and imports what that needs), ~15 ms in all: done here, at
+    configure time, the first map does not pay it. Cheap (~0.1 ms) after the first time."""
+    i64 = np.int64
+    peaks = np.array([[1], [-1]], dtype=i64)
+    lo, hi, line = np.array([0], dtype=i64), np.array([4], dtype=i64), np.array([0], dtype=i64)
+    rows, ref, beyond = np.array([[-1]], dtype=i64), np.zeros((1, 1)), np.array([np.inf])
+    costs = np.array([10.0, 40.0, 10.0, 10.0])
+    cot, geometry, ground = np.array([0.1]), np.array([100.0, 2.0, 4.0, 0.1, 5.0]), ref.copy()
+    assign_down(peaks, lo, hi, line)
+    assign_up(peaks, lo, hi, line)
+    unexplained(rows, cot, geometry, ground, line)
+    align(peaks, lo, hi, ref, beyond, costs)
+    rows_cost(rows, peaks, lo, hi, ref, beyond, costs)
+    improve(peaks, lo, hi, line, rows.copy(), np.zeros(1, dtype=i64), line, ref, beyond, 10.0,
+            costs, True, cot, geometry, ground, line)
+    continuity_reference(rows, np.ones((1, 1), dtype=np.bool_), 32, 4, 16)
+    strong_maxima(np.zeros((4, 1), dtype=np.int16), np.array([[0, 4]], dtype=i64),
+                  np.ones((1, 1), dtype=np.float32), np.zeros(4, dtype=i64), 32, 2,
+                  np.zeros(4, dtype=np.bool_), False, np.full((2, 1), -1, dtype=i64),
+                  np.zeros(1, dtype=i64))
+    supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
+    smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)

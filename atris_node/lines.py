@@ -424,20 +424,10 @@ def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]], noise:
     out = np.full((per_column, width), -1, dtype=np.int64)
     bounds = np.array(spans, dtype=np.int64).reshape(-1, 2)
     rows = np.zeros(height, dtype=np.bool_) if inside is None else inside
-    kernels.strong_maxima(np.ascontiguousarray(_kernel_dtype(values)), bounds,
+    kernels.strong_maxima(kernels.map_values(values), bounds,
                           noise.threshold_tiles(snr_min), noise.tile_row, NOISE_TILE_PX, sep,
                           rows, inside is not None, out, np.zeros(width, dtype=np.int64))
     return out
-
-
-def _kernel_dtype(values: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    """``values`` as one of the dtypes the compiled kernels take (int16, int32, float32,
-    float64): other integers widen to int32 or float64, other floats to float64."""
-    if values.dtype in (np.int16, np.int32, np.float32, np.float64):
-        return values
-    if np.issubdtype(values.dtype, np.integer) and np.can_cast(values.dtype, np.int32):
-        return values.astype(np.int32)
-    return values.astype(np.float64)
 
 
 def _in_image_order(bands: tuple[Band, ...]) -> tuple[IntArray, IntArray, IntArray]:
@@ -730,14 +720,7 @@ def smooth_along_lines(samples: LineSamples, lines: int, width: int,
     other samples (edges, gaps) keep their row. Returns new samples, σ_u unchanged."""
     if taps < 3 or len(samples) == 0:
         return samples
-    half = taps // 2
-    grid = np.full((lines, width + 2 * half), np.inf)
-    cols = samples.col_px.astype(np.int64)
-    grid[samples.line, cols + half] = samples.row_px
-    windows = np.lib.stride_tricks.sliding_window_view(grid, 2 * half + 1, axis=1)
-    ordered = np.sort(windows[samples.line, cols], axis=1)  # (n, 2·half + 1), inf last
-    ok = np.isfinite(ordered[:, -1]) & (ordered[:, -1] - ordered[:, 0] <= max_step_px)
-    row = np.where(ok, ordered[:, half], samples.row_px)
+    row = kernels.smooth(*_on_grid(samples), lines, width, taps | 1, max_step_px)
     return LineSamples(samples.line, row, samples.col_px, samples.snr, samples.sigma_u_px,
                        samples.saturated)
 
@@ -748,13 +731,15 @@ def supported_along_lines(samples: LineSamples, lines: int, width: int, reach: i
     ``max_step_px`` rows: a lone sample is more likely a wrong identity than a surface."""
     if len(samples) == 0:
         return np.zeros(0, dtype=np.bool_)
-    grid = np.full((lines, width + 2 * reach), np.inf)
-    cols = samples.col_px.astype(np.int64) + reach
-    grid[samples.line, cols] = samples.row_px
-    near = np.zeros(len(samples), dtype=np.bool_)
-    for d in (*range(-reach, 0), *range(1, reach + 1)):
-        near |= np.abs(grid[samples.line, cols + d] - samples.row_px) <= max_step_px
-    return near
+    return np.asarray(kernels.supported(*_on_grid(samples), lines, width, reach, max_step_px))
+
+
+def _on_grid(samples: LineSamples) -> tuple[IntArray, IntArray, FloatArray]:
+    """(line, column, row) of the samples as the kernels take them: int64, int64 (whole
+    columns), float64 px."""
+    return (np.ascontiguousarray(samples.line, dtype=np.int64),
+            np.ascontiguousarray(samples.col_px, dtype=np.int64),
+            np.ascontiguousarray(samples.row_px, dtype=np.float64))
 
 
 def select(samples: LineSamples, keep: BoolArray) -> LineSamples:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from atris_node import line_kernels
 from atris_node import objects as objects_mod
 from atris_node.calibration import Calibration
 from atris_node.errors import ConfigError, check_setting
@@ -258,6 +259,7 @@ class Pipeline:
         self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
+        line_kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
 
     def process(self, dmap: DistortionMap) -> PipelineResult:
