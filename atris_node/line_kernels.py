@@ -1,17 +1,20 @@
-"""Compiled per-column loops of line identity (numba, ``nopython``).
+"""Compiled per-pixel and per-column loops of the line search (numba, ``nopython``).
 
-Line identity works column by column on a few lines (K ≤ 16) and a few peaks (M ≤ K + 4):
-as numpy vector steps it costs hundreds of small array operations per map, ~3 ms at
-640×400, which is most of the latency budget. These loops do the same arithmetic in one
-pass per column (~0.1 ms). Each function here is the kernel of one function in
+Line identity works column by column on a few lines (K <= 16) and a few peaks (M <= K + 4);
+the maxima search and the cleaning along lines look at a few neighbours of each pixel or
+sample. As numpy vector steps these cost hundreds of small array operations per map (about
+4 ms at 640x400, most of the latency budget); these loops do the same arithmetic in one
+pass (about 1 ms in all). Each function here is the kernel of one function of
 :mod:`atris_node.lines` or :mod:`atris_node.line_identity`, which check the arguments,
 document the method and are what the rest of the node calls.
 
-Types: rows and indices int64 (-1 = none), costs and ranges float64. Costs are sums of
-whole and half pixels, exact in float64, so the order of the sums does not change a
-comparison. Every function is compiled at import (explicit signatures) and cached next to
-this file, so no map waits for the compiler; with ``NUMBA_DISABLE_JIT=1`` they run as
-plain Python (slow, for debugging).
+Types: rows, lines and indices int64 (-1 = none), costs and ranges float64, maps int16,
+int32, float32 or float64 (:func:`map_values`). Costs are sums of whole and half pixels,
+exact in float64, so the order of the sums does not change a comparison. Every kernel has
+explicit signatures: it is compiled at import, or loaded from numba's cache next to this
+file (``__pycache__``), so no map waits for the compiler; :func:`warm_up` also does the
+first-call argument typing. With ``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow,
+for debugging).
 """
 
 from __future__ import annotations
@@ -497,3 +500,29 @@ def warm_up() -> None:
                   np.zeros(1, dtype=i64))
     supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
     smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)
+    line_medians(line, np.zeros(1), 1)
+
+
+@njit(f"float64[:]({_I1}, {_F1}, int64)", cache=True, nogil=True)
+def line_medians(line: IntArray, values: FloatArray, count: int) -> FloatArray:
+    """(count,) the median (as ``np.median``) of the ``values`` of each line 0..count-1,
+    0.0 for a line without any; lines outside 0..count-1 are left out."""
+    size = np.zeros(count + 1, dtype=np.int64)
+    for k in line:
+        if 0 <= k < count:
+            size[k + 1] += 1
+    start = np.cumsum(size)
+    grouped = np.empty(start[-1])
+    fill = start[:-1].copy()
+    for i in range(line.size):
+        k = line[i]
+        if 0 <= k < count:
+            grouped[fill[k]] = values[i]
+            fill[k] += 1
+    out = np.zeros(count)
+    for k in range(count):
+        n = start[k + 1] - start[k]
+        if n:
+            ordered = np.sort(grouped[start[k]:start[k + 1]])
+            out[k] = (ordered[(n - 1) // 2] + ordered[n // 2]) / 2
+    return out

@@ -520,6 +520,19 @@ class VisibilityPrior:
         return np.argsort(self.cot_alpha)
 
 
+def _prior_picks(prior: VisibilityPrior | None, down: IntArray, up: IntArray,
+                 columns: IntArray) -> tuple[BoolArray, BoolArray]:
+    """(W,) columns where the prior prefers the bottom-up / the top-down matching (fewer
+    lines missing without a reason), looked at in ``columns`` (where the two differ)."""
+    pick_up = np.zeros(down.shape[1], dtype=np.bool_)
+    pick_down = pick_up.copy()
+    if prior is not None and columns.size:
+        miss_down = prior.unexplained(down[:, columns], columns)
+        miss_up = prior.unexplained(up[:, columns], columns)
+        pick_up[columns], pick_down[columns] = miss_up < miss_down, miss_down < miss_up
+    return pick_up, pick_down
+
+
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
                    prior: VisibilityPrior | None = None, *,
                    aligned: bool = False) -> tuple[IntArray, IntArray]:
@@ -540,11 +553,9 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     differ = down != up
     if not differ.any():
         return down, np.zeros(peaks.shape[1], dtype=np.int64)
-    pick_up = pick_down = np.zeros(peaks.shape[1], dtype=np.bool_)
-    if prior is not None:
-        miss_down, miss_up = prior.unexplained(down), prior.unexplained(up)
-        pick_up, pick_down = miss_up < miss_down, miss_down < miss_up
-    settled = ~differ.any(axis=0) | pick_up | pick_down
+    unsettled = differ.any(axis=0)
+    pick_up, pick_down = _prior_picks(prior, down, up, np.flatnonzero(unsettled))
+    settled = ~unsettled | pick_up | pick_down
     good = ~differ | settled[None, :]
     chosen = np.where(pick_up[None, :], up, down)
     ref = _continuity_reference(chosen, good & (chosen >= 0))
@@ -562,7 +573,7 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     certain = _continuity_reference(down, ~differ & (down >= 0))
     return line_identity.improve(peaks, tuple((b.row_lo, b.row_hi) for b in ordered),
                                  np.array([b.line for b in ordered]), greedy,
-                                 differ.any(axis=0), certain, prior, sep)
+                                 unsettled, certain, prior, sep)
 
 
 # --------------------------------------------------------------------------- extraction
@@ -600,19 +611,10 @@ def _count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
 
 def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float, ...]:
     """Median SNR (as ``np.median``) of the samples of each of ``count`` lines, 0.0 for a
-    line without any: one sort by SNR, then a stable sort by line, and the middle of
-    each line's slice."""
-    if line.size == 0:
-        return (0.0,) * count
-    by_snr = np.argsort(snr)
-    ordered = snr[by_snr[np.argsort(line[by_snr], kind="stable")]]
-    size = np.bincount(line, minlength=count)[:count]
-    start = np.cumsum(size) - size
-    last = ordered.size - 1
-    upper = ordered[np.minimum(start + size // 2, last)]
-    lower = ordered[np.minimum(start + (size - 1) // 2, last)]
-    return tuple(float((lo + hi) / 2) if n else 0.0
-                 for lo, hi, n in zip(lower, upper, size, strict=True))
+    line without any."""
+    medians = kernels.line_medians(np.ascontiguousarray(line, dtype=np.int64),
+                                   np.ascontiguousarray(snr, dtype=np.float64), count)
+    return tuple(float(m) for m in medians)
 
 
 def _runs(mask: BoolArray) -> list[tuple[int, int]]:

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from atris_node import sector_kernels
 from atris_node.errors import ConfigError
 from atris_node.sectors import SectorLayout
 from atris_node.types import SectorDistance, SectorState
@@ -114,98 +115,50 @@ class SectorInput:
         return self._placed[layout]
 
 
-def _confidence(count: int, snr: FloatArray, settings: SectorSettings) -> float:
+def _confidence(count: int, median_snr: float, settings: SectorSettings) -> float:
     """0..1: grows with the point count (full at 3·min_points) and the median SNR (full
-    at 2·snr_min); ``snr`` sorted ascending."""
-    if count == 0 or snr.size == 0:
+    at 2·snr_min)."""
+    if count == 0:
         return 0.0
     by_count = min(1.0, count / (3.0 * settings.min_points))
-    by_snr = min(1.0, _median_of_sorted(snr) / (2.0 * settings.snr_min))
+    by_snr = min(1.0, median_snr / (2.0 * settings.snr_min))
     return by_count * by_snr
 
 
-def _median_of_sorted(ordered: FloatArray) -> float:
-    """``np.median`` of a non-empty ascending array (the mean of the middle two if even)."""
-    half = ordered.size // 2
-    if ordered.size % 2:
-        return float(ordered[half])
-    return float((ordered[half - 1] + ordered[half]) / 2)
-
-
-def _quantile_of_sorted(ordered: FloatArray, q: float) -> float:
-    """``np.quantile(ordered, q)`` (linear method) of a non-empty ascending array, with
-    numpy's own interpolation arithmetic, so the result is the same to the last bit."""
-    n = ordered.size
-    position = (n - 1) * q
-    low = int(np.floor(position))
-    if position >= n - 1:
-        return float(ordered[-1])
-    a, b = float(ordered[low]), float(ordered[low + 1])
-    t = position - low
-    return b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t
-
-
-@dataclass(frozen=True)
-class _Groups:
-    """Values grouped by sector, ascending within each: sector s holds
-    ``values[start[s]:start[s + 1]]``."""
-
-    values: FloatArray
-    start: npt.NDArray[np.int64]
-
-    @classmethod
-    def of(cls, sector: npt.NDArray[np.int64], values: FloatArray, count: int) -> _Groups:
-        """(n,) ``values`` by (n,) ``sector`` index; indices outside 0..count-1 left out."""
-        keep = (sector >= 0) & (sector < count)
-        index, kept = sector[keep], values[keep]
-        by_value = np.argsort(kept)  # then stably by sector: a radix sort on int16
-        order = by_value[np.argsort(index[by_value].astype(np.int16), kind="stable")]
-        start = np.concatenate(([0], np.cumsum(np.bincount(index, minlength=count))))
-        return cls(kept[order], start)
-
-    def __getitem__(self, s: int) -> FloatArray:
-        return self.values[self.start[s]:self.start[s + 1]]
-
-    def size(self, s: int) -> int:
-        """Values in sector ``s``."""
-        return int(self.start[s + 1] - self.start[s])
-
-
-def _sector(index: int, layout: SectorLayout, ranges: FloatArray, snr: FloatArray, *,
-            samples: int, settings: SectorSettings) -> SectorDistance:
-    """One sector from the horizontal ranges (m) and SNR of its obstacle points, both
-    sorted ascending."""
+def _sector(index: int, layout: SectorLayout, settings: SectorSettings, *, samples: int,
+            hits: int, median_snr: float, distance_m: float) -> SectorDistance:
+    """One sector from the counts of its samples and obstacle points, the median SNR (of
+    the obstacle points, else of every sample) and its distance (see
+    :func:`atris_node.sector_kernels.sector_statistics`)."""
     bearing = layout.bearing_of(index)
     if samples < settings.min_points:
         return SectorDistance(index, bearing, SectorState.INVALID, point_count=samples)
-    if ranges.size == 0:
-        conf = _confidence(samples, snr, settings)
+    if hits == 0:
+        conf = _confidence(samples, median_snr, settings)
         state = SectorState.NO_RETURN if conf >= settings.min_confidence else (
             SectorState.INVALID)
         return SectorDistance(index, bearing, state, 0.0, conf, samples)
-    conf = _confidence(ranges.size, snr, settings)
-    if ranges.size < settings.min_points or conf < settings.min_confidence:
-        return SectorDistance(index, bearing, SectorState.INVALID, 0.0, conf, ranges.size)
-    supported = float(ranges[settings.min_points - 1])
-    distance = max(_quantile_of_sorted(ranges, settings.quantile), supported)
-    return SectorDistance(index, bearing, SectorState.VALID, distance, conf, ranges.size)
+    conf = _confidence(hits, median_snr, settings)
+    if hits < settings.min_points or conf < settings.min_confidence:
+        return SectorDistance(index, bearing, SectorState.INVALID, 0.0, conf, hits)
+    return SectorDistance(index, bearing, SectorState.VALID, distance_m, conf, hits)
 
 
 def sector_distances(data: SectorInput, layout: SectorLayout,
                      settings: SectorSettings) -> tuple[SectorDistance, ...]:
     """One :class:`SectorDistance` per sector of ``layout``, index 0 at the right edge.
-    The samples are grouped by sector and sorted once, so each sector's quantile and
-    medians are read off sorted slices."""
+    The samples are grouped by sector and sorted once per sector in one compiled pass
+    (:func:`atris_node.sector_kernels.sector_statistics`)."""
     idx, rng = data.placed(layout)
-    hit = np.where(data.obstacle, idx, -1)
-    ranges, hit_snr = _Groups.of(hit, rng, layout.count), _Groups.of(hit, data.snr, layout.count)
-    samples = np.bincount(idx[idx >= 0], minlength=layout.count)
-
-    def snr(s: int) -> FloatArray:  # of the hits, else (rarely needed) of every sample
-        return hit_snr[s] if ranges.size(s) else np.sort(data.snr[idx == s])
-
-    return tuple(_sector(s, layout, ranges[s], snr(s), samples=int(samples[s]),
-                         settings=settings) for s in range(layout.count))
+    samples, hits, median, distance = sector_kernels.sector_statistics(
+        np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(data.obstacle,
+                                                                        dtype=np.bool_),
+        np.ascontiguousarray(rng, dtype=np.float64),
+        np.ascontiguousarray(data.snr, dtype=np.float64), layout.count, settings.min_points,
+        float(settings.quantile))
+    return tuple(_sector(s, layout, settings, samples=int(samples[s]), hits=int(hits[s]),
+                         median_snr=float(median[s]), distance_m=float(distance[s]))
+                 for s in range(layout.count))
 
 
 def nearest_obstacle(sectors: tuple[SectorDistance, ...], data: SectorInput,

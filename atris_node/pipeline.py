@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from atris_node import line_kernels
+from atris_node import line_kernels, sector_kernels
 from atris_node import objects as objects_mod
 from atris_node.calibration import Calibration
 from atris_node.errors import ConfigError, check_setting
@@ -260,6 +260,7 @@ class Pipeline:
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
         line_kernels.warm_up()  # the first map does not wait for the compiled code
+        sector_kernels.warm_up()
         logger.debug("pipeline bands: %s", self.bands)
 
     def process(self, dmap: DistortionMap) -> PipelineResult:

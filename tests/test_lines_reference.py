@@ -26,6 +26,7 @@ from atris_node.lines import (
     noise_floor,
     noise_map,
     smooth_along_lines,
+    supported_along_lines,
 )
 
 
@@ -190,6 +191,21 @@ def test_smoothing_is_the_median_of_the_neighbouring_columns(taps: int) -> None:
     smoothed = smooth_along_lines(samples, 4, 640, taps)
     np.testing.assert_array_equal(smoothed.row_px,
                                   _smoothed_by_definition(samples, 4, 640, taps))
+
+
+@pytest.mark.parametrize("reach", [1, 2, 3])
+def test_support_is_a_near_sample_of_the_same_line(reach: int) -> None:
+    rng = np.random.default_rng(20 + reach)
+    line, col = np.nonzero(rng.random((4, 640)) < 0.3)  # many lone samples
+    row = 50.0 * line + rng.normal(0.0, 1.5, col.size)
+    samples = LineSamples(line, row, col.astype(np.float64), np.ones(col.size),
+                          np.ones(col.size), np.zeros(col.size, bool))
+    apart = np.abs(col[:, None] - col[None, :])  # every pair of samples
+    near = (line[:, None] == line[None, :]) & (apart > 0) & (apart <= reach)
+    expected = (near & (np.abs(row[:, None] - row[None, :]) <= 2.0)).any(axis=1)
+    got = supported_along_lines(samples, 4, 640, reach)
+    assert 0 < got.sum() < col.size
+    np.testing.assert_array_equal(got, expected)
 
 
 def test_peaks_in_bands_are_counted_per_column() -> None:
