@@ -93,6 +93,8 @@ def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry:
                         ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
     """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
     ``ground_range_m``; ``z`` (K,) scratch."""
+    if rows.min() >= 0:
+        return 0  # no line missing
     focal_px, cy_px, height_px, baseline_m, z_max_m = geometry
     for k in range(order.size):
         line = order[k]
