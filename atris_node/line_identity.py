@@ -150,14 +150,15 @@ def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray
     kernels.improve(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
                     order.astype(np.int64), rows, unsure, cols.astype(np.int64),
                     np.ascontiguousarray(ref, dtype=np.float64), beyond_rows(prior, order),
-                    max(SWITCH_PX, float(sep)), _COSTS, *_prior_arrays(prior, rows.shape))
+                    max(SWITCH_PX, float(sep)), _COSTS, *prior_arrays(prior, rows.shape))
     return rows_and_unsure
 
 
-def _prior_arrays(prior: Prior | None, shape: tuple[int, ...]) -> tuple[
+def prior_arrays(prior: Prior | None, shape: tuple[int, ...]) -> tuple[
         bool, FloatArray, FloatArray, FloatArray, IntArray]:
-    """The prior as :func:`atris_node.line_kernels.improve` takes it (placeholders and
-    False without one)."""
+    """The prior as the kernels of :mod:`atris_node.line_kernels` take it: (has_prior,
+    cot α (K,), geometry (5,), ground range (K, W) m, image order (K,)); placeholders and
+    False without one. ``shape`` is (K, W)."""
     if prior is None:
         k = shape[0]
         return False, np.zeros(k), np.zeros(5), np.zeros(shape), np.arange(k, dtype=np.int64)

@@ -488,8 +488,7 @@ def warm_up() -> None:
     rows, ref, beyond = np.array([[-1]], dtype=i64), np.zeros((1, 1)), np.array([np.inf])
     costs = np.array([10.0, 40.0, 10.0, 10.0])
     cot, geometry, ground = np.array([0.1]), np.array([100.0, 2.0, 4.0, 0.1, 5.0]), ref.copy()
-    assign_down(peaks, lo, hi, line)
-    assign_up(peaks, lo, hi, line)
+    greedy_identity(peaks, lo, hi, line, 2, True, True, cot, geometry, ground, line, 32, 4, 16)
     unexplained(rows, cot, geometry, ground, line)
     align(peaks, lo, hi, ref, beyond, costs)
     rows_cost(rows, peaks, lo, hi, ref, beyond, costs)
@@ -528,3 +527,79 @@ def line_medians(line: IntArray, values: FloatArray, count: int) -> FloatArray:
             ordered = np.sort(grouped[start[k]:start[k + 1]])
             out[k] = (ordered[(n - 1) // 2] + ordered[n // 2]) / 2
     return out
+
+
+@njit(cache=True, nogil=True)
+def _continuity_cost(rows: IntArray, differ: npt.NDArray[np.bool_], ref: FloatArray,
+                     c: int) -> float:
+    """Summed distance (px) of column c's differing assigned rows to their line's
+    reference; inf when one of them has no reference (continuity cannot judge)."""
+    total = 0.0
+    for k in range(rows.shape[0]):
+        if differ[k, c] and rows[k, c] >= 0:
+            if not np.isfinite(ref[k, c]):
+                return np.inf
+            total += abs(rows[k, c] - ref[k, c])
+    return total
+
+
+@njit(f"Tuple((int64[:, :], int64[:], boolean[:], float64[:, :]))({_I2}, {_I1}, {_I1}, "
+      f"{_I1}, int64, boolean, boolean, {_F1}, {_F1}, {_F2}, {_I1}, int64, int64, int64)",
+      cache=True, nogil=True)
+def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray, sep: int,
+                    aligned: bool, has_prior: bool, cot_alpha: FloatArray,
+                    geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
+                    block: int, min_block: int, min_line: int
+                    ) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_], FloatArray]:
+    """The greedy identity of :func:`atris_node.lines.identify_lines`: (K, W) rows by line
+    (-1 = none), (W,) ambiguous samples, (W,) columns where the two greedy matchings
+    differ and, with ``aligned``, the (K, W) continuity reference of the columns where
+    they agree ((0, 0) without). Bands ``[lo, hi)`` and their ``line`` in image order;
+    the prior as :func:`unexplained` takes it, used only with ``has_prior``."""
+    down = assign_down(peaks, lo, hi, line)
+    up = assign_up(peaks, lo, hi, line)
+    k_count, width = down.shape
+    differ = down != up
+    unsettled = np.zeros(width, dtype=np.bool_)
+    pick_up = np.zeros(width, dtype=np.bool_)
+    pick_down = np.zeros(width, dtype=np.bool_)
+    z = np.empty(k_count)
+    for c in range(width):
+        unsettled[c] = differ[:, c].any()
+        if unsettled[c] and has_prior:
+            miss_down = _unexplained_column(down[:, c], c, cot_alpha, geometry,
+                                            ground_range_m, image_order, z)
+            miss_up = _unexplained_column(up[:, c], c, cot_alpha, geometry, ground_range_m,
+                                          image_order, z)
+            pick_up[c], pick_down[c] = miss_up < miss_down, miss_down < miss_up
+    settled = ~unsettled | pick_up | pick_down
+    chosen = down.copy()
+    good = np.empty((k_count, width), dtype=np.bool_)
+    for c in range(width):
+        for k in range(k_count):
+            if pick_up[c]:
+                chosen[k, c] = up[k, c]
+            good[k, c] = (not differ[k, c] or settled[c]) and chosen[k, c] >= 0
+    ref = continuity_reference(chosen, good, block, min_block, min_line)
+    rows = down.copy()
+    unsure = np.zeros(width, dtype=np.int64)
+    for c in range(width):
+        if not unsettled[c]:
+            continue
+        use_up, use_down = pick_up[c], pick_down[c]
+        if not settled[c]:
+            cost_down = _continuity_cost(down, differ, ref, c)
+            cost_up = _continuity_cost(up, differ, ref, c)
+            use_up = np.isfinite(cost_up) and cost_up + sep <= cost_down
+            use_down = np.isfinite(cost_down) and cost_down + sep <= cost_up
+        for k in range(k_count):
+            if use_up:
+                rows[k, c] = up[k, c]
+            elif not use_down and differ[k, c]:
+                unsure[c] += down[k, c] >= 0
+                rows[k, c] = -1
+    certain = np.empty((0, 0))
+    if aligned:
+        certain = continuity_reference(down, ~differ & (down >= 0), block, min_block,
+                                       min_line)
+    return rows, unsure, unsettled, certain

@@ -438,22 +438,9 @@ def _in_image_order(bands: tuple[Band, ...]) -> tuple[IntArray, IntArray, IntArr
             np.array([b.line for b in ordered], dtype=np.int64))
 
 
-def assign_down(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
-    """(K, W) by line: each line, top first, takes the first free peak below the previous
-    line's inside its band (the greedy order-preserving matching with the most pairs).
-    ``peaks`` (M, W) as :func:`strong_maxima` gives them (sorted down, -1 padded)."""
-    return np.asarray(kernels.assign_down(np.ascontiguousarray(peaks, dtype=np.int64),
-                                          *_in_image_order(bands)))
-
-
-def assign_up(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
-    """(K, W): as :func:`assign_down` but bottom line first, taking the lowest peak."""
-    return np.asarray(kernels.assign_up(np.ascontiguousarray(peaks, dtype=np.int64),
-                                        *_in_image_order(bands)))
-
-
 def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
-    """(K, W) per line: the median of the good rows in each block of CONTINUITY_BLOCK
+    """(The kernel :func:`identify_lines` uses, with this module's constants.) (K, W) per
+    line: the median of the good rows in each block of CONTINUITY_BLOCK
     columns (at least MIN_BLOCK_SAMPLES of them; the upper median of an even count);
     elsewhere the median of all the line's good rows when there are at least
     MIN_LINE_SAMPLES; inf where no reference can be trusted. ``rows`` (K, W) int,
@@ -461,15 +448,6 @@ def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
     return np.asarray(kernels.continuity_reference(
         np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(good, dtype=np.bool_),
         CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES))
-
-
-def _continuity_cost(rows: IntArray, differ: BoolArray, ref: FloatArray) -> FloatArray:
-    """(W,) summed distance (px) of the differing assigned rows to their line's
-    reference; inf where one of them has no reference (continuity cannot judge)."""
-    used = differ & (rows >= 0)
-    dist = np.where(used, np.abs(rows - np.where(np.isfinite(ref), ref, 0.0)), 0.0)
-    unknown = (used & ~np.isfinite(ref)).any(axis=0)
-    return np.where(unknown, np.inf, dist.sum(axis=0))
 
 
 @dataclass(frozen=True)
@@ -520,19 +498,6 @@ class VisibilityPrior:
         return np.argsort(self.cot_alpha)
 
 
-def _prior_picks(prior: VisibilityPrior | None, down: IntArray, up: IntArray,
-                 columns: IntArray) -> tuple[BoolArray, BoolArray]:
-    """(W,) columns where the prior prefers the bottom-up / the top-down matching (fewer
-    lines missing without a reason), looked at in ``columns`` (where the two differ)."""
-    pick_up = np.zeros(down.shape[1], dtype=np.bool_)
-    pick_down = pick_up.copy()
-    if prior is not None and columns.size:
-        miss_down = prior.unexplained(down[:, columns], columns)
-        miss_up = prior.unexplained(up[:, columns], columns)
-        pick_up[columns], pick_down[columns] = miss_up < miss_down, miss_down < miss_up
-    return pick_up, pick_down
-
-
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
                    prior: VisibilityPrior | None = None, *,
                    aligned: bool = False) -> tuple[IntArray, IntArray]:
@@ -548,32 +513,15 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     alignment of :mod:`atris_node.line_identity` is clearly cheaper (a line missing in the
     middle of a column, which both greedy matchings answer with a shifted run of lines).
     """
-    ordered = tuple(sorted(bands, key=lambda b: b.row_lo + b.row_hi))  # top of image first
-    down, up = assign_down(peaks, bands), assign_up(peaks, bands)
-    differ = down != up
-    if not differ.any():
-        return down, np.zeros(peaks.shape[1], dtype=np.int64)
-    unsettled = differ.any(axis=0)
-    pick_up, pick_down = _prior_picks(prior, down, up, np.flatnonzero(unsettled))
-    settled = ~unsettled | pick_up | pick_down
-    good = ~differ | settled[None, :]
-    chosen = np.where(pick_up[None, :], up, down)
-    ref = _continuity_reference(chosen, good & (chosen >= 0))
-    cost_down = _continuity_cost(down, differ, ref)
-    cost_up = _continuity_cost(up, differ, ref)
-    use_up = pick_up | (~settled & np.isfinite(cost_up) & (cost_up + sep <= cost_down))
-    use_down = pick_down | (~settled & np.isfinite(cost_down) & (cost_down + sep <= cost_up))
-    undecided = ~use_up & ~use_down
-    rows = np.where(use_up[None, :], up, down)
-    unsure = differ & undecided[None, :] & (down >= 0)
-    rows[differ & undecided[None, :]] = -1
-    greedy = rows, unsure.sum(axis=0).astype(np.int64)
-    if not aligned:
-        return greedy
-    certain = _continuity_reference(down, ~differ & (down >= 0))
-    return line_identity.improve(peaks, tuple((b.row_lo, b.row_hi) for b in ordered),
-                                 np.array([b.line for b in ordered]), greedy,
-                                 unsettled, certain, prior, sep)
+    lo, hi, line = _in_image_order(bands)
+    rows, unsure, unsettled, certain = kernels.greedy_identity(
+        np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, line, int(sep), aligned,
+        *line_identity.prior_arrays(prior, (len(bands), peaks.shape[1])), CONTINUITY_BLOCK,
+        MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES)
+    if not aligned or not unsettled.any():
+        return rows, unsure
+    return line_identity.improve(peaks, tuple(zip(lo.tolist(), hi.tolist(), strict=True)),
+                                 line, (rows, unsure), unsettled, certain, prior, sep)
 
 
 # --------------------------------------------------------------------------- extraction
