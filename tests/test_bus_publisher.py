@@ -285,3 +285,32 @@ def test_update_does_not_wait_while_the_scheduler_thread_is_sending(channel: str
         bus.shutdown()
     assert returned
     publisher.check()
+
+
+def test_each_frame_is_sent_as_soon_as_it_is_encoded(channel: str) -> None:
+    """The status frame leaves before the sector frames are encoded (one cycle streams)."""
+    events: list[str] = []
+    bus = RecordingBus(channel=channel)
+    publisher = Publisher(bus, unit_id=2, period_s=1.0)
+    encode = publisher._codec.encode
+
+    def logged_encode(*args: Any, **kwargs: Any) -> can.Message:
+        events.append("encode")
+        return encode(*args, **kwargs)
+
+    publisher._codec.encode = logged_encode  # type: ignore[method-assign]
+    original_send = bus.send
+
+    def logged_send(msg: can.Message, timeout: float | None = None) -> None:
+        events.append("send")
+        original_send(msg, timeout)
+
+    bus.send = logged_send  # type: ignore[method-assign]
+    try:
+        publisher.start()
+        publisher.update(_measurement(), RUNNING)
+        publisher.stop()
+    finally:
+        bus.shutdown()
+    assert len(events) >= 14
+    assert events[:14] == ["encode", "send"] * 7

@@ -7,7 +7,9 @@ measurement used, in ms (``p50_ms``, ``p99_ms``, ``max_ms``). The send time is t
 python-can's virtual bus puts on the frame as it is sent (``time.time()``, brought onto
 ``time.monotonic()`` with an offset taken at the start). ``receive_p50_ms`` and
 ``receive_p99_ms`` are the same ages to the moment the receiving bus object's thread got
-the frame, which adds that thread's wake-up. ``pipeline_p50_ms`` is the median time of the
+the frame, which adds that thread's wake-up. ``last_frame_p50_ms`` and
+``last_frame_p99_ms`` are the ages at the send of the last frame of the same cycle (the
+last sector frame): the frames of a cycle are encoded and sent one after the other. ``pipeline_p50_ms`` is the median time of the
 line-to-sector pipeline alone, the largest share of the age.
 """
 
@@ -39,21 +41,34 @@ class _Arrivals(can.Listener):
         self.codec = FrameCodec()
         self.arrivals: dict[int, float] = {}
         self.sends: dict[int, float] = {}
+        self.last_sends: dict[int, float] = {}  # the last frame of the cycle
+        self._cycle: int | None = None  # counter of the cycle being received
         self._wall_to_monotonic = time.monotonic() - time.time()
         self._lock = threading.Lock()
 
     def on_message_received(self, msg: can.Message) -> None:
         owner = None if msg.is_extended_id else unit_of(msg.arbitration_id)
-        if owner is None or owner[1] is not FrameKind.QUALITY:
+        if owner is None:
             return
-        now = time.monotonic()
+        now, sent = time.monotonic(), msg.timestamp + self._wall_to_monotonic
+        if owner[1] is FrameKind.STATUS:  # a cycle starts; its quality frame comes next
+            self._cycle = None
+        elif owner[1] is FrameKind.QUALITY:
+            self._quality(msg, now, sent)
+        elif self._cycle is not None:
+            with self._lock:
+                self.last_sends[self._cycle] = sent
+
+    def _quality(self, msg: can.Message, now: float, sent: float) -> None:
         try:
             counter = int(self.codec.decode_message(msg).signals["MeasurementCounter"])
         except (FrameDecodeError, KeyError, ValueError):
             return
         with self._lock:
+            first = counter not in self.sends
             self.arrivals.setdefault(counter, now)
-            self.sends.setdefault(counter, msg.timestamp + self._wall_to_monotonic)
+            self.sends.setdefault(counter, sent)
+        self._cycle = counter if first else None  # later cycles repeat the measurement
 
     def on_error(self, exc: Exception) -> None:
         raise exc
@@ -89,6 +104,8 @@ def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
     row = _row(scene, unit, sent, arrivals.sends)
     received = _row(scene, unit, sent, arrivals.arrivals)
     row["receive_p50_ms"], row["receive_p99_ms"] = received["p50_ms"], received["p99_ms"]
+    last = _row(scene, unit, sent, arrivals.last_sends)
+    row["last_frame_p50_ms"], row["last_frame_p99_ms"] = last["p50_ms"], last["p99_ms"]
     row["pipeline_p50_ms"] = round(float(np.median(pipeline_ms)), 3) if pipeline_ms else None
     return row
 

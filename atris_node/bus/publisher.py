@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 
 import can
@@ -184,7 +184,7 @@ class Publisher:
         else:
             with self._lock:
                 measurement, status = self._measurement, self._status
-            sent = self._send_all(self.compose(measurement, status, now, late), timeout_s)
+            sent = self._send_all(self.frames(measurement, status, now, late), timeout_s)
             if not sent and timeout_s == 0.0:
                 return False
         self._last_cycle_s = now
@@ -211,6 +211,13 @@ class Publisher:
     def compose(self, measurement: Measurement | None, status: UnitStatus, now: float,
                 late: bool = False) -> list[can.Message]:
         """The frames of one cycle at ``now`` (each call advances the E2E counters)."""
+        return list(self.frames(measurement, status, now, late))
+
+    def frames(self, measurement: Measurement | None, status: UnitStatus, now: float,
+               late: bool = False) -> Iterator[can.Message]:
+        """The frames of one cycle at ``now``, each encoded when it is taken (so the first
+        can be sent while the others are encoded); a frame's E2E counter advances when it
+        is encoded."""
         usable = self.usable(measurement, status, now)
         age = None if measurement is None else now - measurement.newest_time_s
         count = len(measurement.sectors) if measurement and measurement.sectors else (
@@ -226,7 +233,8 @@ class Publisher:
         sectors = measurement.sectors if measurement is not None else ()
         frames += [(FrameKind.SECTORS, s)
                    for s in payloads.sectors_signals(sectors, count, usable)]
-        return [self._encode(kind, signals) for kind, signals in frames]
+        for kind, signals in frames:
+            yield self._encode(kind, signals)
 
     def _encode(self, kind: FrameKind, signals: payloads.RawSignals) -> can.Message:
         name = self._names[kind]
@@ -235,7 +243,7 @@ class Publisher:
         return self._codec.encode(name, signals, counter, scaling=False, fd=self.fd)
 
     # -- sending -------------------------------------------------------------------------
-    def _send_all(self, frames: list[can.Message], timeout_s: float) -> bool:
+    def _send_all(self, frames: Iterable[can.Message], timeout_s: float) -> bool:
         """Send ``frames`` in order; False at the first that fails. A failure is a send
         error (back-off) unless the send was non-blocking (``timeout_s`` 0)."""
         for msg in frames:
