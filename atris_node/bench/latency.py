@@ -1,4 +1,4 @@
-"""``atris bench latency``: data age from the newest sub-frame to its frame on the bus.
+"""``atris bench latency``: data age from the newest sub-frame to its frames on the bus.
 
 One simulated unit paced at its sub-frame rate publishes on an in-process virtual bus; a
 second bus object receives. For every measurement the age is the send time of the quality
@@ -8,9 +8,10 @@ python-can's virtual bus puts on the frame as it is sent (``time.time()``, broug
 ``time.monotonic()`` with an offset taken at the start). ``receive_p50_ms`` and
 ``receive_p99_ms`` are the same ages to the moment the receiving bus object's thread got
 the frame, which adds that thread's wake-up. ``last_frame_p50_ms`` and
-``last_frame_p99_ms`` are the ages at the send of the last frame of the same cycle (the
-last sector frame): the frames of a cycle are encoded and sent one after the other. ``pipeline_p50_ms`` is the median time of the
-line-to-sector pipeline alone, the largest share of the age.
+``last_frame_p99_ms`` are the ages at the send of the last frame of the same cycle (its
+last sector frame; the frames of a cycle are encoded and sent one after the other).
+``pipeline_p50_ms`` is the median time of the line-to-sector pipeline alone, the largest
+share of the age.
 """
 
 from __future__ import annotations
