@@ -25,6 +25,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit, types
 
+from atris_node.selection import median
+
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 
@@ -37,17 +39,20 @@ _F2 = "float64[:, :]"
 @njit(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})", cache=True, nogil=True)
 def assign_down(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
     """(K, W) by line: each line in image order takes the first peak below the previous
-    line's inside its band ``[lo, hi)``; ``peaks`` (M, W) sorted down, -1 at the end."""
+    line's inside its band ``[lo, hi)``; ``peaks`` (M, W) sorted down (distinct rows),
+    -1 at the end."""
     k_count, (m_count, width) = lo.size, peaks.shape
     out = np.full((k_count, width), -1, dtype=np.int64)
     for c in range(width):
-        last = -1
+        last, start = -1, 0
         for k in range(k_count):
-            for m in range(m_count):
+            for m in range(start, m_count):
                 p = peaks[m, c]
-                if p > last and lo[k] <= p < hi[k]:
+                if p < 0 or p >= hi[k]:
+                    break  # the padding, or past the band: no later peak fits
+                if p > last and p >= lo[k]:
                     out[line[k], c] = p
-                    last = p
+                    last, start = p, m + 1
                     break
     return out
 
@@ -59,13 +64,17 @@ def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> In
     k_count, (m_count, width) = lo.size, peaks.shape
     out = np.full((k_count, width), -1, dtype=np.int64)
     for c in range(width):
-        below = np.iinfo(np.int64).max
+        below, end = np.iinfo(np.int64).max, m_count - 1
         for k in range(k_count - 1, -1, -1):
-            for m in range(m_count - 1, -1, -1):
+            for m in range(end, -1, -1):
                 p = peaks[m, c]
-                if 0 <= p < below and lo[k] <= p < hi[k]:
+                if p < 0:
+                    continue  # the padding
+                if p < lo[k]:
+                    break  # above the band: no earlier peak fits
+                if p < below and p < hi[k]:
                     out[line[k], c] = p
-                    below = p
+                    below, end = p, m - 1
                     break
     return out
 
@@ -409,10 +418,7 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
             if good[k, c]:
                 values[n] = rows[k, c]
                 n += 1
-        line = np.inf
-        if n >= min_line:
-            ordered = np.sort(values[:n])
-            line = (ordered[(n - 1) // 2] + ordered[n // 2]) / 2
+        line = median(values[:n]) if n >= min_line else np.inf
         for lo in range(0, width, block):
             hi = min(lo + block, width)
             m = 0
@@ -522,10 +528,8 @@ def line_medians(line: IntArray, values: FloatArray, count: int) -> FloatArray:
             fill[k] += 1
     out = np.zeros(count)
     for k in range(count):
-        n = start[k + 1] - start[k]
-        if n:
-            ordered = np.sort(grouped[start[k]:start[k + 1]])
-            out[k] = (ordered[(n - 1) // 2] + ordered[n // 2]) / 2
+        if start[k + 1] > start[k]:
+            out[k] = median(grouped[start[k]:start[k + 1]])
     return out
 
 

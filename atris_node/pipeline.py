@@ -345,7 +345,8 @@ class Pipeline:
             clean = ~foreign[samples.col_px.astype(np.int64)]
             blanked = self._sectors_of_columns(foreign)
         obstacle = valid & (self._ground.height(vehicle) > self.config.ground_clearance_m)
-        data = SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean])
+        data = (SectorInput(vehicle, obstacle, samples.snr) if clean.all() else
+                SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean]))
         sectors = _blank(sector_distances(data, self.layout, self._sectors), blanked)
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(

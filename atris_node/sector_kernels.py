@@ -14,38 +14,11 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
+from atris_node.selection import kth, median, quantile
+
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
-
-
-@njit(cache=True, nogil=True)
-def _kth(values: FloatArray, k: int) -> float:
-    """The k-th smallest of ``values`` (0-based), by selection (no full sort)."""
-    return float(np.partition(values, k)[k])
-
-
-@njit(cache=True, nogil=True)
-def quantile(values: FloatArray, q: float) -> float:
-    """``np.quantile(values, q)`` (linear method) of a non-empty array, with numpy's
-    interpolation arithmetic (the same result to the last bit)."""
-    n = values.size
-    position = (n - 1) * q
-    low = int(np.floor(position))
-    if position >= n - 1:
-        return float(values.max())
-    a, b = _kth(values, low), _kth(values, low + 1)
-    t = position - low
-    return float(b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t)
-
-
-@njit(cache=True, nogil=True)
-def median(values: FloatArray) -> float:
-    """``np.median`` of a non-empty array (the mean of the middle two if even)."""
-    n = values.size
-    if n % 2:
-        return _kth(values, n // 2)
-    return float((_kth(values, n // 2 - 1) + _kth(values, n // 2)) / 2)
 
 
 @njit(cache=True, nogil=True)
@@ -95,7 +68,7 @@ def sector_statistics(sector: IntArray, obstacle: BoolArray, range_m: FloatArray
             snr_median[s] = median(all_snr[all_start[s]:all_start[s + 1]])
         if hits[s] >= min_points:
             mine = ranges[start[s]:start[s + 1]]
-            distance[s] = max(quantile(mine, q), _kth(mine, min_points - 1))
+            distance[s] = max(quantile(mine, q), kth(mine, min_points - 1))
     return samples, hits, snr_median, distance
 
 

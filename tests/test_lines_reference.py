@@ -216,3 +216,39 @@ def test_peaks_in_bands_are_counted_per_column() -> None:
     for b in bands:
         inside |= (peaks >= b.row_lo) & (peaks < b.row_hi)
     np.testing.assert_array_equal(_count_in_bands(peaks, bands), inside.sum(axis=0))
+
+
+def _greedy_by_definition(column: list[int], bands: list[tuple[int, int]],
+                          top_down: bool) -> list[int]:
+    """Each band in turn (top down, or bottom up) takes the nearest free peak past the
+    previous band's in its own range, or none."""
+    out, last = [-1] * len(bands), -1 if top_down else 10**9
+    for k in (range(len(bands)) if top_down else reversed(range(len(bands)))):
+        lo, hi = bands[k]
+        fits = [p for p in column if lo <= p < hi and (p > last if top_down else p < last)]
+        if fits:
+            out[k] = last = min(fits) if top_down else max(fits)
+    return out
+
+
+def test_greedy_matchings_are_their_definition() -> None:
+    from atris_node import line_kernels
+
+    rng = np.random.default_rng(17)
+    for _ in range(300):
+        k = int(rng.integers(1, 9))
+        edges = [(lo, lo + int(rng.integers(0, 120))) for lo in rng.integers(0, 300, k)]
+        edges.sort(key=lambda e: e[0] + e[1])  # image order
+        m, width = int(rng.integers(1, 14)), 20
+        peaks = np.full((m, width), -1, dtype=np.int64)
+        for c in range(width):
+            n = int(rng.integers(0, m + 1))
+            peaks[:n, c] = np.sort(rng.choice(420, n, replace=False))
+        lo, hi = (np.array([e[i] for e in edges], dtype=np.int64) for i in (0, 1))
+        line = np.arange(k, dtype=np.int64)
+        for kernel, top_down in ((line_kernels.assign_down, True),
+                                 (line_kernels.assign_up, False)):
+            got = kernel(peaks, lo, hi, line)
+            for c in range(width):
+                column = [int(p) for p in peaks[:, c] if p >= 0]
+                assert got[:, c].tolist() == _greedy_by_definition(column, edges, top_down)
