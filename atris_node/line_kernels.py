@@ -507,6 +507,9 @@ def warm_up() -> None:
                   np.zeros(1, dtype=i64))
     supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
     smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)
+    refine(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
+           np.array([2], dtype=i64), np.array([0], dtype=i64), np.ones(1), 2, 1, 0.0, 1.5,
+           1.0, 0.5, 8)
     line_medians(line, np.zeros(1), 1)
 
 
@@ -607,3 +610,133 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
         certain = continuity_reference(down, ~differ & (down >= 0), block, min_block,
                                        min_line)
     return rows, unsure, unsettled, certain
+
+
+#: peak methods as :func:`refine` takes them
+METHOD_CODES = {"cog": 0, "parabolic": 1, "gaussian": 2, "blais_rioux": 3, "steger": 4}
+
+
+@njit(cache=True, nogil=True)
+def _parabola(a: float, b: float, c: float) -> tuple[float, bool]:
+    """Vertex offset of the parabola through (-1, a), (0, b), (1, c); ok when it opens
+    downwards."""
+    den = a - 2.0 * b + c
+    return (0.5 * (a - c) / den, True) if den < 0 else (0.0, False)
+
+
+@njit(cache=True, nogil=True)
+def _offset(window: FloatArray, method: int, r: int, cog_threshold: float,
+            sigma: float) -> tuple[float, bool]:
+    """Sub-pixel offset of the peak at the centre of ``window`` (2r + 1,), and ok (the
+    methods are described in :mod:`atris_node.lines`): cog above ``cog_threshold`` DN,
+    parabolic, gaussian (a parabola through the logarithms), Blais-Rioux, Steger with
+    stripe σ ``sigma`` px."""
+    if method == 1:
+        return _parabola(window[r - 1], window[r], window[r + 1])
+    if method == 2:
+        if min(window[r - 1], window[r], window[r + 1]) <= 0:
+            return _parabola(np.log(max(window[r - 1], 1e-9)), np.log(max(window[r], 1e-9)),
+                             np.log(max(window[r + 1], 1e-9)))[0], False
+        return _parabola(np.log(window[r - 1]), np.log(window[r]), np.log(window[r + 1]))
+    if method == 0:
+        total = moment = 0.0
+        for j in range(2 * r + 1):
+            w = max(window[j] - cog_threshold, 0.0)
+            total += w
+            moment += w * (j - r)
+        return (moment / total, True) if total > 0 else (0.0, False)
+    if method == 3:
+        return _blais_rioux(window, r)
+    return _steger(window, r, sigma)
+
+
+@njit(cache=True, nogil=True)
+def _blais_rioux(window: FloatArray, r: int) -> tuple[float, bool]:
+    """Zero crossing of the 4-tap derivative g(j) = w[j-2] + w[j-1] - w[j+1] - w[j+2]."""
+    def g(j: int) -> float:
+        return window[j - 2] + window[j - 1] - window[j + 1] - window[j + 2]
+
+    gm, g0, g1 = g(r - 1), g(r), g(r + 1)
+    right = g0 < 0  # still rising at the maximum: the crossing is between r and r + 1
+    den = g0 - g1 if right else gm - g0
+    if den == 0:
+        return (0.0 if right else -1.0), False
+    t = (g0 if right else gm) / den
+    return (t if right else t - 1.0), 0.0 <= t <= 1.0
+
+
+@njit(cache=True, nogil=True)
+def _steger(window: FloatArray, r: int, sigma: float) -> tuple[float, bool]:
+    """Three Newton steps on the Gaussian-smoothed first derivative (Steger)."""
+    t, second = 0.0, -1.0
+    for _ in range(3):
+        first = second = 0.0
+        for j in range(2 * r + 1):
+            x = t - (j - r)
+            gauss = np.exp(-0.5 * (x / sigma) ** 2)
+            first += window[j] * (-x / sigma**2) * gauss
+            second += window[j] * ((x * x / sigma**2 - 1.0) / sigma**2) * gauss
+        step = first / second if second < 0 else 0.0
+        t = min(max(t - step, -1.0), 1.0)
+    return t, second < 0 and abs(t) < 1.0
+
+
+def _refine_signatures() -> list[Any]:
+    """Signatures of :func:`refine`, per map dtype, writable or read-only."""
+    i64, f64, b1 = types.int64, types.float64, types.boolean
+    out = types.Tuple((types.Array(f64, 1, "C"), types.Array(f64, 1, "C"),
+                       types.Array(b1, 1, "C"), types.Array(b1, 1, "C")))
+    return [out(types.Array(dtype, 2, "C", readonly=readonly), types.Array(b1, 2, "A"), b1,
+                types.Array(i64, 1, "A"), types.Array(i64, 1, "A"), types.Array(f64, 1, "A"),
+                i64, i64, f64, f64, f64, f64, i64)
+            for dtype in (types.int16, types.int32, types.float32, f64)
+            for readonly in (False, True)]
+
+
+@njit(cache=True, nogil=True)
+def _saturated_centre(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int) -> float:
+    """Centre row (px) of the saturated pixels within ±r rows of (row, c) (rows outside
+    the image read as the edge row)."""
+    height = saturated.shape[0]
+    count = moment = 0.0
+    for d in range(-r, r + 1):
+        if saturated[min(max(row + d, 0), height - 1), c]:
+            count += 1.0
+            moment += d
+    return row + moment / max(count, 1.0)
+
+
+@njit(_refine_signatures(), cache=True, nogil=True)
+def refine(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
+           any_saturated: bool, rows: IntArray, cols: IntArray, snr: FloatArray,
+           method: int, r: int, cog_threshold: float, sigma: float, crlb: float,
+           saturated_sigma: float, saturation_window: int
+           ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """Sub-pixel rows (px), σ_u (px), flat-top flags and ok of the integer peaks (rows,
+    cols) (n,) of ``values``, as :func:`atris_node.lines.extract_lines` documents them:
+    the ``method`` (:data:`METHOD_CODES`) on the column profile of half width ``r``; a
+    peak next to a saturated pixel (only looked for with ``any_saturated``) is flat-topped
+    and takes the centre of the saturated run within ``saturation_window`` rows."""
+    n, height = rows.size, values.shape[0]
+    row, sigma_u = np.empty(n), np.empty(n)
+    flat, ok = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+    window = np.empty(2 * r + 1)  # one column profile, float64
+    for i in range(n):
+        centre, c = rows[i], cols[i]
+        for j in range(2 * r + 1):
+            window[j] = values[min(max(centre - r + j, 0), height - 1), c]
+        inside = centre - r >= 0 and centre + r < height
+        local_max = window[r] >= window[r - 1] and window[r] >= window[r + 1]
+        offset, good = _offset(window, method, r, cog_threshold, sigma)
+        good = good and abs(offset) <= 1.0
+        if any_saturated:
+            for d in (-1, 0, 1):
+                flat[i] |= saturated[min(max(centre + d, 0), height - 1), c]
+        if flat[i]:
+            row[i] = _saturated_centre(saturated, centre, c, saturation_window)
+            sigma_u[i] = saturated_sigma
+        else:
+            row[i] = centre + offset
+            sigma_u[i] = crlb / max(snr[i], 1.0)
+        ok[i] = inside and (flat[i] or (good and local_max))
+    return row, sigma_u, flat, ok

@@ -2,9 +2,10 @@
 
 A projected line k can only be imaged between its rows at ``z_min`` and ``z_max``
 (``u = f·cot α_k - f·b/z``, see :mod:`atris_node.geometry`), widened by the lens distortion
-and a margin: its *band*. Each column of each band is searched for its strongest pixel
-(vectorised ``argmax``), which is refined to a sub-pixel row by one of five peak methods on
-a few neighbours taken with fancy indexing. Rows outside every band are never read.
+and a margin: its *band*. The local maxima of the bands' rows are found (compiled, per
+pixel), each line takes its peak in each column (line identity), and each peak is refined
+to a sub-pixel row by one of five peak methods on its column profile (compiled, per
+sample). Rows outside every band are never read.
 
 Peak methods (``PEAK_METHODS``), all on the column profile around the integer maximum:
 
@@ -22,7 +23,6 @@ Peak methods (``PEAK_METHODS``), all on the column profile around the integer ma
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -318,90 +318,8 @@ def noise_map(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -> 
 # --------------------------------------------------------------------------- sub-pixel
 
 
-def _parabolic(win: FloatArray, r: int) -> tuple[FloatArray, BoolArray]:
-    a, b, c = win[:, r - 1], win[:, r], win[:, r + 1]
-    den = a - 2.0 * b + c
-    ok = den < 0
-    return 0.5 * np.divide(a - c, den, out=np.zeros_like(a), where=ok), ok
-
-
-def _gaussian(win: FloatArray, r: int) -> tuple[FloatArray, BoolArray]:
-    three = win[:, r - 1:r + 2]
-    positive = (three > 0).all(axis=1)
-    lg = np.log(np.maximum(three, 1e-9))
-    offset, ok = _parabolic(lg, 1)
-    return offset, ok & positive
-
-
-def _cog(win: FloatArray, r: int, threshold: float) -> tuple[FloatArray, BoolArray]:
-    w = np.maximum(win - threshold, 0.0)
-    total = w.sum(axis=1)
-    ok = total > 0
-    idx = np.arange(-r, r + 1, dtype=np.float64)
-    return np.divide(w @ idx, total, out=np.zeros_like(total), where=ok), ok
-
-
-def _blais_rioux(win: FloatArray, r: int) -> tuple[FloatArray, BoolArray]:
-    def g(j: int) -> FloatArray:
-        return win[:, j - 2] + win[:, j - 1] - win[:, j + 1] - win[:, j + 2]
-
-    gm, g0, g1 = g(r - 1), g(r), g(r + 1)
-    right = g0 < 0  # still rising at the maximum: the crossing is between r and r + 1
-    den = np.where(right, g0 - g1, gm - g0)
-    ok = den != 0
-    t = np.divide(np.where(right, g0, gm), den, out=np.zeros_like(g0), where=ok)
-    return np.where(right, t, t - 1.0), ok & (t >= 0) & (t <= 1)
-
-
-def _steger(win: FloatArray, r: int, sigma: float) -> tuple[FloatArray, BoolArray]:
-    k = np.arange(-r, r + 1, dtype=np.float64)
-    t = np.zeros(win.shape[0])
-    second = np.full(win.shape[0], -1.0)
-    for _ in range(3):
-        x = t[:, None] - k[None, :]
-        gauss = np.exp(-0.5 * (x / sigma) ** 2)
-        first = (win * (-x / sigma**2) * gauss).sum(axis=1)
-        second = (win * ((x * x / sigma**2 - 1.0) / sigma**2) * gauss).sum(axis=1)
-        step = np.divide(first, second, out=np.zeros_like(t), where=second < 0)
-        t = np.clip(t - step, -1.0, 1.0)
-    return t, (second < 0) & (np.abs(t) < 1.0)
-
-
-def subpixel_offset(window: FloatArray, settings: ExtractorSettings,
-                    noise_dn: float = 0.0) -> tuple[FloatArray, BoolArray]:
-    """Sub-pixel offset (px, in [-1, 1]) of the peak in each row of ``window``.
-
-    ``window`` is (n, 2R+1) float64, the column profile centred on the integer maximum,
-    R = ``settings.radius``. Returns (offset (n,) float64, ok (n,) bool).
-    """
-    r = settings.radius
-    methods: dict[str, Callable[[], tuple[FloatArray, BoolArray]]] = {
-        "cog": lambda: _cog(window, r, 3.0 * noise_dn),
-        "parabolic": lambda: _parabolic(window, r),
-        "gaussian": lambda: _gaussian(window, r),
-        "blais_rioux": lambda: _blais_rioux(window, r),
-        "steger": lambda: _steger(window, r, settings.stripe_sigma_px),
-    }
-    offset, ok = methods[settings.peak_method]()
-    return offset, ok & (np.abs(offset) <= 1.0)
-
-
-def _windows(values: npt.NDArray[np.generic], rows: IntArray, cols: IntArray,
-             r: int) -> tuple[FloatArray, BoolArray]:
-    """(n, 2r+1) profiles of ``values`` around (rows, cols); ok False where clipped."""
-    idx = rows[:, None] + np.arange(-r, r + 1)[None, :]
-    inside = (idx[:, 0] >= 0) & (idx[:, -1] < values.shape[0])
-    idx = np.clip(idx, 0, values.shape[0] - 1)
-    return values[idx, cols[:, None]].astype(np.float64), inside
-
-
-def saturated_centre(saturated: BoolArray, rows: IntArray, cols: IntArray,
-                     r: int = SATURATION_WINDOW_PX) -> FloatArray:
-    """Centre row (px) of the saturated pixels within ±r rows of (rows, cols), float64."""
-    mask, _ = _windows(saturated, rows, cols, r)
-    offsets = np.arange(-r, r + 1, dtype=np.float64)
-    count = np.maximum(mask.sum(axis=1), 1.0)
-    return rows + (mask @ offsets) / count
+# The methods run in one compiled pass per map (atris_node.line_kernels.refine, called by
+# _refine below); the module docstring describes them.
 
 
 # --------------------------------------------------------------------------- search
@@ -530,20 +448,24 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
 def _refine(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArray,
             cols: IntArray, *, settings: ExtractorSettings, noise: float,
             snr: FloatArray) -> tuple[FloatArray, FloatArray, BoolArray, BoolArray]:
-    """Sub-pixel rows, σ_u (px), saturated flags and ok for integer peaks (n,)."""
-    r = settings.radius
-    window, inside = _windows(values, rows, cols, r)
-    local_max = (window[:, r] >= window[:, r - 1]) & (window[:, r] >= window[:, r + 1])
-    offset, ok = subpixel_offset(window, settings, noise)
-    flat = np.zeros(rows.size, dtype=np.bool_)
-    if saturated.any():  # a flat top needs a saturated pixel next to the peak
-        flat = np.asarray(_windows(saturated, rows, cols, 1)[0].any(axis=1), dtype=np.bool_)
-    row = rows + offset
-    if flat.any():  # only peaks next to saturated pixels: the mask is read there alone
-        row[flat] = saturated_centre(saturated, rows[flat], cols[flat])
-    crlb = np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi))
-    sigma = np.where(flat, SATURATED_SIGMA_PX, crlb / np.maximum(snr, 1.0))
-    return row, sigma, flat, inside & (flat | (ok & local_max))
+    """Sub-pixel rows, σ_u (px), saturated flags and ok for integer peaks (n,): one
+    compiled pass (:func:`atris_node.line_kernels.refine`; the methods are described at
+    the top of this module); an offset beyond ±1 px is not ok. A flat top (a saturated
+    pixel next to the peak) takes the centre of the saturated run and σ_u
+    SATURATED_SIGMA_PX."""
+    any_saturated = bool(saturated.any())
+    mask = np.require(saturated, np.bool_, ["W"]) if any_saturated else _NO_MASK
+    crlb = float(np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi)))
+    row, sigma, flat, ok = kernels.refine(
+        kernels.map_values(values), mask, any_saturated, np.asarray(rows, dtype=np.int64),
+        np.asarray(cols, dtype=np.int64), np.asarray(snr, dtype=np.float64),
+        kernels.METHOD_CODES[settings.peak_method], settings.radius, 3.0 * noise,
+        settings.stripe_sigma_px, crlb, SATURATED_SIGMA_PX, SATURATION_WINDOW_PX)
+    return np.asarray(row), np.asarray(sigma), np.asarray(flat), np.asarray(ok)
+
+
+#: the saturation mask passed to the kernel when nothing is saturated (never read)
+_NO_MASK = np.zeros((1, 1), dtype=np.bool_)
 
 
 def _count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
