@@ -20,7 +20,7 @@ neighbouring columns (continuity), plus BEYOND_PX when the row is past the line'
 row (the sample would be no return, while the same peak may be a near range of the next
 line); a missing line costs SKIP_PX; a spare peak inside a band costs SPARE_PX (it would
 count as foreign light). A column costs K·M steps of a compiled loop
-(:func:`atris_node.line_kernels.align`). All rows are int64 px; costs float64 px,
+(:func:`atris_node.identity_kernels.align`). All rows are int64 px; costs float64 px,
 finite.
 """
 
@@ -31,7 +31,7 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from atris_node import line_kernels as kernels
+from atris_node import identity_kernels as kernels
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -156,7 +156,7 @@ def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray
 
 def prior_arrays(prior: Prior | None, shape: tuple[int, ...]) -> tuple[
         bool, FloatArray, FloatArray, FloatArray, IntArray]:
-    """The prior as the kernels of :mod:`atris_node.line_kernels` take it: (has_prior,
+    """The prior as the kernels of :mod:`atris_node.identity_kernels` take it: (has_prior,
     cot α (K,), geometry (5,), ground range (K, W) m, image order (K,)); placeholders and
     False without one. ``shape`` is (K, W)."""
     if prior is None:

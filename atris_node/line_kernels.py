@@ -1,20 +1,18 @@
-"""Compiled per-pixel and per-column loops of the line search (numba, ``nopython``).
+"""Compiled per-pixel and per-sample loops of the line search (numba, ``nopython``).
 
-Line identity works column by column on a few lines (K <= 16) and a few peaks (M <= K + 4);
-the maxima search and the cleaning along lines look at a few neighbours of each pixel or
-sample. As numpy vector steps these cost hundreds of small array operations per map (about
-4 ms at 640x400, most of the latency budget); these loops do the same arithmetic in one
-pass (about 1 ms in all). Each function here is the kernel of one function of
-:mod:`atris_node.lines` or :mod:`atris_node.line_identity`, which check the arguments,
-document the method and are what the rest of the node calls.
+The maxima search compares each pixel of the rows read with its tile's threshold and its
+neighbours above and below; the peak methods read a few pixels around each peak; the
+support and median along lines and the per-line median SNR look at a few samples each. As
+numpy vector steps these were many passes and temporaries per map; here one pass each
+(about 0.45 ms in all at 640x400). Each function is the kernel of one of
+:mod:`atris_node.lines`, which checks the arguments, documents the methods and is what
+the rest of the node calls. Line identity's kernels are in :mod:`atris_node.identity_kernels`.
 
-Types: rows, lines and indices int64 (-1 = none), costs and ranges float64, maps int16,
-int32, float32 or float64 (:func:`map_values`). Costs are sums of whole and half pixels,
-exact in float64, so the order of the sums does not change a comparison. Every kernel has
-explicit signatures: it is compiled at import, or loaded from numba's cache next to this
-file (``__pycache__``), so no map waits for the compiler; :func:`warm_up` also does the
-first-call argument typing. With ``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow,
-for debugging).
+Types: rows and lines int64, rows and offsets in px float64, maps int16, int32, float32 or
+float64 (:func:`map_values`), writable or read-only. Every kernel has explicit signatures:
+it is compiled at import, or loaded from numba's cache next to this file
+(``__pycache__``, or ``NUMBA_CACHE_DIR``); :func:`warm_up` also does the first-call
+argument typing. With ``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow).
 """
 
 from __future__ import annotations
@@ -31,222 +29,7 @@ IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 
 _I1 = "int64[:]"
-_I2 = "int64[:, :]"
 _F1 = "float64[:]"
-_F2 = "float64[:, :]"
-
-
-@njit(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})", cache=True, nogil=True)
-def assign_down(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
-    """(K, W) by line: each line in image order takes the first peak below the previous
-    line's inside its band ``[lo, hi)``; ``peaks`` (M, W) sorted down (distinct rows),
-    -1 at the end."""
-    k_count, (m_count, width) = lo.size, peaks.shape
-    out = np.full((k_count, width), -1, dtype=np.int64)
-    for c in range(width):
-        last, start = -1, 0
-        for k in range(k_count):
-            for m in range(start, m_count):
-                p = peaks[m, c]
-                if p < 0 or p >= hi[k]:
-                    break  # the padding, or past the band: no later peak fits
-                if p > last and p >= lo[k]:
-                    out[line[k], c] = p
-                    last, start = p, m + 1
-                    break
-    return out
-
-
-@njit(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})", cache=True, nogil=True)
-def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
-    """(K, W) by line: as :func:`assign_down` from the bottom line up, each line taking
-    the lowest peak above the next line's."""
-    k_count, (m_count, width) = lo.size, peaks.shape
-    out = np.full((k_count, width), -1, dtype=np.int64)
-    for c in range(width):
-        below, end = np.iinfo(np.int64).max, m_count - 1
-        for k in range(k_count - 1, -1, -1):
-            for m in range(end, -1, -1):
-                p = peaks[m, c]
-                if p < 0:
-                    continue  # the padding
-                if p < lo[k]:
-                    break  # above the band: no earlier peak fits
-                if p < below and p < hi[k]:
-                    out[line[k], c] = p
-                    below, end = p, m - 1
-                    break
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _nearest(z: FloatArray, k: int) -> float:
-    """The finite range of ``z`` nearest to position k (the nearer range on a tie)."""
-    up = k - 1
-    while up >= 0 and not np.isfinite(z[up]):
-        up -= 1
-    down = k + 1
-    while down < z.size and not np.isfinite(z[down]):
-        down += 1
-    z_up = z[up] if up >= 0 else np.inf
-    z_down = z[down] if down < z.size else np.inf
-    gap_up = k - up if up >= 0 else 3 * z.size
-    gap_down = down - k if down < z.size else 3 * z.size
-    if gap_up < gap_down or (gap_up == gap_down and z_up <= z_down):
-        return z_up
-    return z_down
-
-
-@njit(cache=True, nogil=True)
-def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
-                        ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
-    """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
-    ``ground_range_m``; ``z`` (K,) scratch."""
-    if rows.min() >= 0:
-        return 0  # no line missing
-    focal_px, cy_px, height_px, baseline_m, z_max_m = geometry
-    for k in range(order.size):
-        line = order[k]
-        den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
-        z[k] = focal_px * baseline_m / den if rows[line] >= 0 and den > 0 else np.inf
-    count = 0
-    for k in range(order.size):
-        line = order[k]
-        if rows[line] >= 0:
-            continue
-        near = _nearest(z, k)
-        if not (np.isfinite(near) and near <= z_max_m and near < ground_range_m[line, c]):
-            continue
-        row = cy_px + focal_px * cot_alpha[line] - focal_px * baseline_m / near
-        count += 0 <= row < height_px
-    return count
-
-
-@njit(f"int64[:]({_I2}, {_F1}, {_F1}, {_F2}, {_I1})", cache=True, nogil=True)
-def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
-                ground_range_m: FloatArray, order: IntArray) -> IntArray:
-    """(n,) unassigned lines per column that should be seen at the range of the nearest
-    assigned line in image order (``order``: lines top first; the nearer range on a tie):
-    above the ground range, inside the image and within z_max. ``rows`` (K, n) by line,
-    ``ground_range_m`` (K, n) m; ``geometry`` (focal px, cy px, height px, baseline m,
-    z_max m)."""
-    out = np.zeros(rows.shape[1], dtype=np.int64)
-    z = np.empty(order.size)
-    for c in range(rows.shape[1]):
-        out[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry, ground_range_m,
-                                     order, z)
-    return out
-
-
-@njit(cache=True, nogil=True)
-def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
-    """The peaks >= 0 into ``out``, ascending (insertion sort; M is small); their count."""
-    m = 0
-    for p in peaks:
-        if p < 0:
-            continue
-        i = m
-        while i > 0 and out[i - 1] > p:
-            out[i] = out[i - 1]
-            i -= 1
-        out[i] = p
-        m += 1
-    return m
-
-
-@njit(cache=True, nogil=True)
-def _in_any(p: int, lo: IntArray, hi: IntArray) -> bool:
-    """True when row ``p`` lies in one of the bands ``[lo, hi)``."""
-    for k in range(lo.size):  # noqa: SIM110 (a generator does not compile)
-        if lo[k] <= p < hi[k]:
-            return True
-    return False
-
-
-@njit(cache=True, nogil=True)
-def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, ref: float,
-                beyond: float, spare: FloatArray, skip_px: float, beyond_px: float,
-                d: FloatArray, choice: npt.NDArray[np.int8]) -> None:
-    """Row j of the recursion D[j+1, i] from D[j, i] (in ``d``, overwritten)."""
-    previous = d[0]  # D[j, i-1] before it is overwritten
-    d[0] = previous + skip_px
-    choice[j, 0] = 2
-    for i in range(1, m + 1):
-        p = column[i - 1]
-        match = np.inf
-        if lo[j] <= p < hi[j]:
-            match = previous + (abs(p - ref) if np.isfinite(ref) else 0.0)
-            match += beyond_px if p >= beyond else 0.0
-        previous = d[i]
-        skip = previous + skip_px
-        best = min(match, skip)
-        via_spare = d[i - 1] + spare[i - 1]
-        if best <= via_spare:
-            d[i] = best
-            choice[j, i] = 1 if match <= skip else 2
-        else:
-            d[i] = via_spare
-            choice[j, i] = 0
-
-
-@njit(cache=True, nogil=True)
-def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntArray) -> None:
-    """The rows each line took (``out``, -1 = none) from the choices of :func:`align`."""
-    j, i = choice.shape[0], m
-    while j > 0:
-        c = choice[j - 1, i] if i > 0 else 2
-        if c == 1:
-            out[j - 1] = column[i - 1]
-            j -= 1
-            i -= 1
-        elif c == 2:
-            j -= 1
-        else:
-            i -= 1
-
-
-@njit(cache=True, nogil=True)
-def _align_column(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
-                  beyond: FloatArray, costs: FloatArray, scratch: FloatArray,
-                  column: IntArray, choice: npt.NDArray[np.int8], out: IntArray) -> float:
-    """The cheapest alignment of one column: rows into ``out`` (K,) (-1 = none), the cost
-    returned. ``costs`` (skip, spare, beyond) px; ``scratch`` (2, M + 1), ``column``
-    (M,) and ``choice`` (K, M + 1) work space."""
-    skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
-    m = _sorted_peaks(peaks, column)
-    spare, d = scratch[0], scratch[1]
-    d[0] = 0.0
-    for i in range(m):
-        spare[i] = spare_px if _in_any(column[i], lo, hi) else 0.0
-        d[i + 1] = d[i] + spare[i]
-    for j in range(lo.size):
-        _align_line(j, column, m, lo, hi, ref[j], beyond[j], spare, skip_px, beyond_px,
-                    d, choice)
-    out[:] = -1
-    _backtrack(choice, column, m, out)
-    return d[m]
-
-
-@njit(f"Tuple((int64[:, :], float64[:]))({_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})",
-      cache=True, nogil=True)
-def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: FloatArray,
-          costs: FloatArray) -> tuple[IntArray, FloatArray]:
-    """Per column the cheapest order-preserving alignment of K lines (bands ``[lo, hi)`` in
-    image order) and the (M, n) ``peaks`` (-1 = none, any order): (K, n) rows (-1 = none)
-    and (n,) cost, px. ``costs`` (skip, spare, beyond) px, as in
-    :mod:`atris_node.line_identity`; ``ref`` (K, n) and ``beyond`` (K,) in image order."""
-    k_count, (m_count, n) = lo.size, peaks.shape
-    rows = np.full((k_count, n), -1, dtype=np.int64)
-    total = np.zeros(n)
-    scratch = np.empty((2, m_count + 1))
-    column = np.empty(m_count, dtype=np.int64)
-    choice = np.zeros((k_count, m_count + 1), dtype=np.int8)
-    out = np.empty(k_count, dtype=np.int64)
-    for c in range(n):
-        total[c] = _align_column(peaks[:, c], lo, hi, ref[:, c], beyond, costs, scratch,
-                                 column, choice, out)
-        rows[:, c] = out
-    return rows, total
 
 
 @njit(cache=True, nogil=True)
@@ -271,6 +54,7 @@ def map_values(values: npt.NDArray[Any]) -> npt.NDArray[Any]:
         fits = np.issubdtype(values.dtype, np.integer) and np.can_cast(values.dtype, np.int32)
         values = values.astype(np.int32 if fits else np.float64)
     return np.ascontiguousarray(values)
+
 
 def _maxima_signatures() -> list[Any]:
     """One signature per map dtype, writable or read-only (demodulators hand out
@@ -310,128 +94,6 @@ def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
                         if count[c] < per_column:
                             out[count[c], c] = r
                         count[c] += 1
-
-
-@njit(cache=True, nogil=True)
-def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntArray,
-                     hi: IntArray, ref: FloatArray, beyond: FloatArray,
-                     costs: FloatArray) -> tuple[float, float, int]:
-    """Of one column's assignment ``rows`` (K,) by line: (the match cost beyond what no
-    alignment avoids: distances to known references and BEYOND past z_max; the floor of
-    skips and spares; the lines assigned). ``ref`` (K,) by line; ``lo``, ``hi``,
-    ``beyond`` (K,) in image order, ``order`` the line of each."""
-    skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
-    excess, assigned = 0.0, 0
-    for k in range(order.size):
-        row = rows[order[k]]
-        if row < 0:
-            continue
-        assigned += 1
-        if np.isfinite(ref[order[k]]):
-            excess += abs(row - ref[order[k]])
-        if row >= beyond[k]:
-            excess += beyond_px
-    in_bands = 0
-    for p in peaks:
-        in_bands += p >= 0 and _in_any(p, lo, hi)
-    floor = skip_px * (order.size - assigned) + spare_px * (in_bands - assigned)
-    return excess, floor, assigned
-
-
-@njit(f"void({_I2}, {_I1}, {_I1}, {_I1}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, float64, {_F1}, "
-      f"boolean, {_F1}, {_F1}, {_F2}, {_I1})", cache=True, nogil=True)
-def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
-            unsure: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
-            margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
-            geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
-    """:func:`atris_node.line_identity.improve` on the given ``columns``, in place on
-    ``rows`` (K, W) by line and ``unsure`` (W,). ``costs`` (skip, spare, beyond,
-    unexplained) px; the prior (``cot_alpha``, ``geometry``, ``ground_range_m``,
-    ``image_order``, as :func:`unexplained` takes them) counts only with ``has_prior``."""
-    k_count, m_count = order.size, peaks.shape[0]
-    unexplained_px = costs[3]
-    scratch = np.empty((2, m_count + 1))
-    column = np.empty(m_count, dtype=np.int64)
-    choice = np.zeros((k_count, m_count + 1), dtype=np.int8)
-    aligned = np.empty(k_count, dtype=np.int64)
-    new = np.empty(k_count, dtype=np.int64)
-    ref_image = np.empty(k_count)
-    z = np.empty(k_count)
-    for c in columns:
-        old = rows[:, c]
-        missing = 0.0
-        if has_prior:
-            missing = unexplained_px * _unexplained_column(old, c, cot_alpha, geometry,
-                                                           ground_range_m, image_order, z)
-        excess, floor, assigned = _assignment_cost(old, order, peaks[:, c], lo, hi, ref[:, c],
-                                                   beyond, costs)
-        if excess + missing < margin:
-            continue  # no alignment can save the margin here
-        old_total = excess + floor + missing
-        for k in range(k_count):
-            ref_image[k] = ref[order[k], c]
-        total = _align_column(peaks[:, c], lo, hi, ref_image, beyond, costs, scratch, column,
-                              choice, aligned)
-        if total + margin > old_total:
-            continue
-        for k in range(k_count):
-            new[order[k]] = aligned[k]
-        if has_prior:  # the prior's cost can only raise the alignment's total
-            total += unexplained_px * _unexplained_column(new, c, cot_alpha, geometry,
-                                                          ground_range_m, image_order, z)
-        if total + margin > old_total:
-            continue
-        kept = 0
-        for k in range(k_count):
-            kept += new[k] >= 0
-            rows[k, c] = new[k]
-        unsure[c] = max(assigned - kept, 0)
-
-
-@njit(f"float64[:]({_I2}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})", cache=True, nogil=True)
-def rows_cost(rows: IntArray, peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
-              beyond: FloatArray, costs: FloatArray) -> FloatArray:
-    """(n,) cost of the assignment ``rows`` (K, n, image order) of the (M, n) ``peaks``,
-    in the terms :func:`align` minimises (``ref`` (K, n), ``beyond`` (K,) image order)."""
-    order = np.arange(lo.size)
-    out = np.empty(rows.shape[1])
-    for c in range(rows.shape[1]):
-        excess, floor, _ = _assignment_cost(rows[:, c], order, peaks[:, c], lo, hi,
-                                            ref[:, c], beyond, costs)
-        out[c] = excess + floor
-    return out
-
-
-@njit(f"float64[:, :]({_I2}, boolean[:, :], int64, int64, int64)", cache=True, nogil=True)
-def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int,
-                         min_block: int, min_line: int) -> FloatArray:
-    """(K, W) per line: the upper median of the ``good`` rows in each block of ``block``
-    columns with at least ``min_block`` of them; elsewhere the median of all the line's
-    good rows when there are at least ``min_line``; inf where neither."""
-    k_count, width = rows.shape
-    out = np.empty((k_count, width))
-    values = np.empty(width)
-    kept = np.empty(block)
-    for k in range(k_count):
-        n = 0
-        for c in range(width):
-            if good[k, c]:
-                values[n] = rows[k, c]
-                n += 1
-        line = median(values[:n]) if n >= min_line else np.inf
-        for lo in range(0, width, block):
-            hi = min(lo + block, width)
-            m = 0
-            for c in range(lo, hi):
-                if good[k, c]:
-                    i = m
-                    while i > 0 and kept[i - 1] > rows[k, c]:
-                        kept[i] = kept[i - 1]
-                        i -= 1
-                    kept[i] = rows[k, c]
-                    m += 1
-            out[k, lo:hi] = kept[m // 2] if m >= min_block else line
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -483,36 +145,6 @@ def smooth(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: in
     return out
 
 
-
-def warm_up() -> None:
-    """Call every kernel once on a tiny input. The first call of a compiled function
-    types its arguments (and imports what that needs), ~15 ms in all: done here, at
-    configure time, the first map does not pay it. Cheap (~0.1 ms) after the first time."""
-    i64 = np.int64
-    peaks = np.array([[1], [-1]], dtype=i64)
-    lo, hi, line = np.array([0], dtype=i64), np.array([4], dtype=i64), np.array([0], dtype=i64)
-    rows, ref, beyond = np.array([[-1]], dtype=i64), np.zeros((1, 1)), np.array([np.inf])
-    costs = np.array([10.0, 40.0, 10.0, 10.0])
-    cot, geometry, ground = np.array([0.1]), np.array([100.0, 2.0, 4.0, 0.1, 5.0]), ref.copy()
-    greedy_identity(peaks, lo, hi, line, 2, True, True, cot, geometry, ground, line, 32, 4, 16)
-    unexplained(rows, cot, geometry, ground, line)
-    align(peaks, lo, hi, ref, beyond, costs)
-    rows_cost(rows, peaks, lo, hi, ref, beyond, costs)
-    improve(peaks, lo, hi, line, rows.copy(), np.zeros(1, dtype=i64), line, ref, beyond, 10.0,
-            costs, True, cot, geometry, ground, line)
-    continuity_reference(rows, np.ones((1, 1), dtype=np.bool_), 32, 4, 16)
-    strong_maxima(np.zeros((4, 1), dtype=np.int16), np.array([[0, 4]], dtype=i64),
-                  np.ones((1, 1), dtype=np.float32), np.zeros(4, dtype=i64), 32, 2,
-                  np.zeros(4, dtype=np.bool_), False, np.full((2, 1), -1, dtype=i64),
-                  np.zeros(1, dtype=i64))
-    supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
-    smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)
-    refine(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
-           np.array([2], dtype=i64), np.array([0], dtype=i64), np.ones(1), 2, 1, 0.0, 1.5,
-           1.0, 0.5, 8)
-    line_medians(line, np.zeros(1), 1)
-
-
 @njit(f"float64[:]({_I1}, {_F1}, int64)", cache=True, nogil=True)
 def line_medians(line: IntArray, values: FloatArray, count: int) -> FloatArray:
     """(count,) the median (as ``np.median``) of the ``values`` of each line 0..count-1,
@@ -534,82 +166,6 @@ def line_medians(line: IntArray, values: FloatArray, count: int) -> FloatArray:
         if start[k + 1] > start[k]:
             out[k] = median(grouped[start[k]:start[k + 1]])
     return out
-
-
-@njit(cache=True, nogil=True)
-def _continuity_cost(rows: IntArray, differ: npt.NDArray[np.bool_], ref: FloatArray,
-                     c: int) -> float:
-    """Summed distance (px) of column c's differing assigned rows to their line's
-    reference; inf when one of them has no reference (continuity cannot judge)."""
-    total = 0.0
-    for k in range(rows.shape[0]):
-        if differ[k, c] and rows[k, c] >= 0:
-            if not np.isfinite(ref[k, c]):
-                return np.inf
-            total += abs(rows[k, c] - ref[k, c])
-    return total
-
-
-@njit(f"Tuple((int64[:, :], int64[:], boolean[:], float64[:, :]))({_I2}, {_I1}, {_I1}, "
-      f"{_I1}, int64, boolean, boolean, {_F1}, {_F1}, {_F2}, {_I1}, int64, int64, int64)",
-      cache=True, nogil=True)
-def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray, sep: int,
-                    aligned: bool, has_prior: bool, cot_alpha: FloatArray,
-                    geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
-                    block: int, min_block: int, min_line: int
-                    ) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_], FloatArray]:
-    """The greedy identity of :func:`atris_node.lines.identify_lines`: (K, W) rows by line
-    (-1 = none), (W,) ambiguous samples, (W,) columns where the two greedy matchings
-    differ and, with ``aligned``, the (K, W) continuity reference of the columns where
-    they agree ((0, 0) without). Bands ``[lo, hi)`` and their ``line`` in image order;
-    the prior as :func:`unexplained` takes it, used only with ``has_prior``."""
-    down = assign_down(peaks, lo, hi, line)
-    up = assign_up(peaks, lo, hi, line)
-    k_count, width = down.shape
-    differ = down != up
-    unsettled = np.zeros(width, dtype=np.bool_)
-    pick_up = np.zeros(width, dtype=np.bool_)
-    pick_down = np.zeros(width, dtype=np.bool_)
-    z = np.empty(k_count)
-    for c in range(width):
-        unsettled[c] = differ[:, c].any()
-        if unsettled[c] and has_prior:
-            miss_down = _unexplained_column(down[:, c], c, cot_alpha, geometry,
-                                            ground_range_m, image_order, z)
-            miss_up = _unexplained_column(up[:, c], c, cot_alpha, geometry, ground_range_m,
-                                          image_order, z)
-            pick_up[c], pick_down[c] = miss_up < miss_down, miss_down < miss_up
-    settled = ~unsettled | pick_up | pick_down
-    chosen = down.copy()
-    good = np.empty((k_count, width), dtype=np.bool_)
-    for c in range(width):
-        for k in range(k_count):
-            if pick_up[c]:
-                chosen[k, c] = up[k, c]
-            good[k, c] = (not differ[k, c] or settled[c]) and chosen[k, c] >= 0
-    ref = continuity_reference(chosen, good, block, min_block, min_line)
-    rows = down.copy()
-    unsure = np.zeros(width, dtype=np.int64)
-    for c in range(width):
-        if not unsettled[c]:
-            continue
-        use_up, use_down = pick_up[c], pick_down[c]
-        if not settled[c]:
-            cost_down = _continuity_cost(down, differ, ref, c)
-            cost_up = _continuity_cost(up, differ, ref, c)
-            use_up = np.isfinite(cost_up) and cost_up + sep <= cost_down
-            use_down = np.isfinite(cost_down) and cost_down + sep <= cost_up
-        for k in range(k_count):
-            if use_up:
-                rows[k, c] = up[k, c]
-            elif not use_down and differ[k, c]:
-                unsure[c] += down[k, c] >= 0
-                rows[k, c] = -1
-    certain = np.empty((0, 0))
-    if aligned:
-        certain = continuity_reference(down, ~differ & (down >= 0), block, min_block,
-                                       min_line)
-    return rows, unsure, unsettled, certain
 
 
 #: peak methods as :func:`refine` takes them
@@ -740,3 +296,20 @@ def refine(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
             sigma_u[i] = crlb / max(snr[i], 1.0)
         ok[i] = inside and (flat[i] or (good and local_max))
     return row, sigma_u, flat, ok
+
+
+def warm_up() -> None:
+    """Call every kernel once on a tiny input (see
+    :func:`atris_node.identity_kernels.warm_up`)."""
+    i64 = np.int64
+    line = np.array([0], dtype=i64)
+    strong_maxima(np.zeros((4, 1), dtype=np.int16), np.array([[0, 4]], dtype=i64),
+                  np.ones((1, 1), dtype=np.float32), np.zeros(4, dtype=i64), 32, 2,
+                  np.zeros(4, dtype=np.bool_), False, np.full((2, 1), -1, dtype=i64),
+                  np.zeros(1, dtype=i64))
+    supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
+    smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)
+    refine(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
+           np.array([2], dtype=i64), np.array([0], dtype=i64), np.ones(1), 2, 1, 0.0, 1.5,
+           1.0, 0.5, 8)
+    line_medians(line, np.zeros(1), 1)

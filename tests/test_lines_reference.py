@@ -232,7 +232,7 @@ def _greedy_by_definition(column: list[int], bands: list[tuple[int, int]],
 
 
 def test_greedy_matchings_are_their_definition() -> None:
-    from atris_node import line_kernels
+    from atris_node import identity_kernels
 
     rng = np.random.default_rng(17)
     for _ in range(300):
@@ -246,8 +246,8 @@ def test_greedy_matchings_are_their_definition() -> None:
             peaks[:n, c] = np.sort(rng.choice(420, n, replace=False))
         lo, hi = (np.array([e[i] for e in edges], dtype=np.int64) for i in (0, 1))
         line = np.arange(k, dtype=np.int64)
-        for kernel, top_down in ((line_kernels.assign_down, True),
-                                 (line_kernels.assign_up, False)):
+        for kernel, top_down in ((identity_kernels.assign_down, True),
+                                 (identity_kernels.assign_up, False)):
             got = kernel(peaks, lo, hi, line)
             for c in range(width):
                 column = [int(p) for p in peaks[:, c] if p >= 0]
