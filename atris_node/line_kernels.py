@@ -237,15 +237,16 @@ def _steger(window: FloatArray, r: int, sigma: float) -> tuple[float, bool]:
     return t, second < 0 and abs(t) < 1.0
 
 
-def _refine_signatures() -> list[Any]:
-    """Signatures of :func:`refine`, per map dtype, writable or read-only."""
-    i64, f64, b1 = types.int64, types.float64, types.boolean
-    out = types.Tuple((types.Array(f64, 1, "C"), types.Array(f64, 1, "C"),
-                       types.Array(b1, 1, "C"), types.Array(b1, 1, "C")))
+def _sample_signatures() -> list[Any]:
+    """Signatures of :func:`line_samples`, per map dtype, writable or read-only."""
+    i64, f64, f32, b1 = types.int64, types.float64, types.float32, types.boolean
+    f1, i1 = types.Array(f64, 1, "C"), types.Array(i64, 1, "C")
+    out = types.Tuple((i1, f1, f1, f1, f1, types.Array(b1, 1, "C"), i64, i64))
     return [out(types.Array(dtype, 2, "C", readonly=readonly), types.Array(b1, 2, "A"), b1,
-                types.Array(i64, 1, "A"), types.Array(i64, 1, "A"), types.Array(f64, 1, "A"),
+                types.Array(i64, 2, "A"), types.Array(i64, 1, "A"),
+                types.Array(f32, 2, "A"), types.Array(f32, 2, "A"), i64, f64,
                 i64, i64, f64, f64, f64, f64, i64)
-            for dtype in (types.int16, types.int32, types.float32, f64)
+            for dtype in (types.int16, types.int32, f32, f64)
             for readonly in (False, True)]
 
 
@@ -262,40 +263,73 @@ def _saturated_centre(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int
     return row + moment / max(count, 1.0)
 
 
-@njit(_refine_signatures(), cache=True, nogil=True)
-def refine(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
-           any_saturated: bool, rows: IntArray, cols: IntArray, snr: FloatArray,
-           method: int, r: int, cog_threshold: float, sigma: float, crlb: float,
-           saturated_sigma: float, saturation_window: int
-           ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
-    """Sub-pixel rows (px), σ_u (px), flat-top flags and ok of the integer peaks (rows,
-    cols) (n,) of ``values``, as :func:`atris_node.lines.extract_lines` documents them:
-    the ``method`` (:data:`METHOD_CODES`) on the column profile of half width ``r``; a
-    peak next to a saturated pixel (only looked for with ``any_saturated``) is flat-topped
-    and takes the centre of the saturated run within ``saturation_window`` rows."""
-    n, height = rows.size, values.shape[0]
-    row, sigma_u = np.empty(n), np.empty(n)
-    flat, ok = np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.bool_)
+@njit(cache=True, nogil=True)
+def _flat_top(saturated: npt.NDArray[np.bool_], row: int, c: int) -> bool:
+    """True when (row, c) or a pixel above or below it is saturated."""
+    height = saturated.shape[0]
+    for d in (-1, 0, 1):  # noqa: SIM110 (a generator does not compile)
+        if saturated[min(max(row + d, 0), height - 1), c]:
+            return True
+    return False
+
+
+@njit(_sample_signatures(), cache=True, nogil=True)
+def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
+                 any_saturated: bool, rows: IntArray, tile_row: IntArray,
+                 background_tiles: npt.NDArray[np.float32],
+                 sigma_tiles: npt.NDArray[np.float32], tile_px: int, snr_min: float,
+                 method: int, r: int, cog_threshold: float, sigma: float, crlb: float,
+                 saturated_sigma: float, saturation_window: int
+                 ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                            npt.NDArray[np.bool_], int, int]:
+    """The line samples of the identified peaks ``rows`` (K, W) (-1 = none), line by
+    line, column by column: (line, sub-pixel row px, column, SNR, σ_u px, flat top) of
+    those kept, the number of peaks with SNR >= ``snr_min`` and the number of those
+    dropped. SNR is against the peak's noise tile; the ``method``
+    (:data:`METHOD_CODES`) reads the column profile of half width ``r``; a peak next to a
+    saturated pixel (looked for only with ``any_saturated``) is flat-topped and takes the
+    centre of the saturated run within ``saturation_window`` rows and σ_u
+    ``saturated_sigma``; other peaks σ_u ``crlb / max(SNR, 1)``. A sample is kept when
+    its profile lies inside the image and it is flat-topped or a local maximum with an
+    offset within ±1 px."""
+    k_count, width = rows.shape
+    height = values.shape[0]
+    size = k_count * width
+    out_line, out_col = np.empty(size, dtype=np.int64), np.empty(size)
+    out_row, out_snr, out_sigma = np.empty(size), np.empty(size), np.empty(size)
+    out_flat = np.empty(size, dtype=np.bool_)
     window = np.empty(2 * r + 1)  # one column profile, float64
-    for i in range(n):
-        centre, c = rows[i], cols[i]
-        for j in range(2 * r + 1):
-            window[j] = values[min(max(centre - r + j, 0), height - 1), c]
-        inside = centre - r >= 0 and centre + r < height
-        local_max = window[r] >= window[r - 1] and window[r] >= window[r + 1]
-        offset, good = _offset(window, method, r, cog_threshold, sigma)
-        good = good and abs(offset) <= 1.0
-        if any_saturated:
-            for d in (-1, 0, 1):
-                flat[i] |= saturated[min(max(centre + d, 0), height - 1), c]
-        if flat[i]:
-            row[i] = _saturated_centre(saturated, centre, c, saturation_window)
-            sigma_u[i] = saturated_sigma
-        else:
-            row[i] = centre + offset
-            sigma_u[i] = crlb / max(snr[i], 1.0)
-        ok[i] = inside and (flat[i] or (good and local_max))
-    return row, sigma_u, flat, ok
+    n = strong = 0
+    for k in range(k_count):
+        for c in range(width):
+            centre = rows[k, c]
+            if centre < 0:
+                continue
+            tile = (tile_row[centre], c // tile_px)
+            snr = (np.float64(values[centre, c]) - np.float64(background_tiles[tile])) / (
+                np.float64(sigma_tiles[tile]))
+            if not snr >= snr_min:
+                continue
+            strong += 1
+            for j in range(2 * r + 1):
+                window[j] = values[min(max(centre - r + j, 0), height - 1), c]
+            flat = any_saturated and _flat_top(saturated, centre, c)
+            if not (centre - r >= 0 and centre + r < height):
+                continue
+            if flat:
+                row, sigma_u = _saturated_centre(saturated, centre, c, saturation_window), (
+                    saturated_sigma)
+            else:
+                offset, good = _offset(window, method, r, cog_threshold, sigma)
+                if not (good and abs(offset) <= 1.0 and window[r] >= window[r - 1]
+                        and window[r] >= window[r + 1]):
+                    continue
+                row, sigma_u = centre + offset, crlb / max(snr, 1.0)
+            out_line[n], out_row[n], out_col[n] = k, row, c
+            out_snr[n], out_sigma[n], out_flat[n] = snr, sigma_u, flat
+            n += 1
+    return (out_line[:n].copy(), out_row[:n].copy(), out_col[:n].copy(), out_snr[:n].copy(),
+            out_sigma[:n].copy(), out_flat[:n].copy(), strong, strong - n)
 
 
 def warm_up() -> None:
@@ -309,7 +343,8 @@ def warm_up() -> None:
                   np.zeros(1, dtype=i64))
     supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
     smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)
-    refine(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
-           np.array([2], dtype=i64), np.array([0], dtype=i64), np.ones(1), 2, 1, 0.0, 1.5,
-           1.0, 0.5, 8)
+    line_samples(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
+                 np.array([[2]], dtype=i64), np.zeros(4, dtype=i64),
+                 np.zeros((1, 1), dtype=np.float32), np.ones((1, 1), dtype=np.float32), 32,
+                 6.0, 2, 1, 0.0, 1.5, 1.0, 0.5, 8)
     line_medians(line, np.zeros(1), 1)

@@ -445,23 +445,24 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
 # --------------------------------------------------------------------------- extraction
 
 
-def _refine(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArray,
-            cols: IntArray, *, settings: ExtractorSettings, noise: float,
-            snr: FloatArray) -> tuple[FloatArray, FloatArray, BoolArray, BoolArray]:
-    """Sub-pixel rows, σ_u (px), saturated flags and ok for integer peaks (n,): one
-    compiled pass (:func:`atris_node.line_kernels.refine`; the methods are described at
-    the top of this module); an offset beyond ±1 px is not ok. A flat top (a saturated
-    pixel next to the peak) takes the centre of the saturated run and σ_u
-    SATURATED_SIGMA_PX."""
+def _samples(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArray,
+             local: NoiseMap, settings: ExtractorSettings, noise: float
+             ) -> tuple[LineSamples, int, int]:
+    """The samples of the identified peaks ``rows`` (K, W) with SNR >= snr_min that the
+    peak method accepts, the number of peaks that strong and how many of them were
+    dropped: one compiled pass (:func:`atris_node.line_kernels.line_samples`; the methods
+    are described at the top of this module). An offset beyond ±1 px is dropped. A flat
+    top (a saturated pixel next to the peak) takes the centre of the saturated run and
+    σ_u SATURATED_SIGMA_PX; other samples σ_u = CRLB / SNR."""
     any_saturated = bool(saturated.any())
     mask = np.require(saturated, np.bool_, ["W"]) if any_saturated else _NO_MASK
     crlb = float(np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi)))
-    row, sigma, flat, ok = kernels.refine(
+    line, row, col, snr, sigma, flat, strong, dropped = kernels.line_samples(
         kernels.map_values(values), mask, any_saturated, np.asarray(rows, dtype=np.int64),
-        np.asarray(cols, dtype=np.int64), np.asarray(snr, dtype=np.float64),
-        kernels.METHOD_CODES[settings.peak_method], settings.radius, 3.0 * noise,
-        settings.stripe_sigma_px, crlb, SATURATED_SIGMA_PX, SATURATION_WINDOW_PX)
-    return np.asarray(row), np.asarray(sigma), np.asarray(flat), np.asarray(ok)
+        local.tile_row, local.background_tiles, local.sigma_tiles, NOISE_TILE_PX,
+        float(settings.snr_min), kernels.METHOD_CODES[settings.peak_method], settings.radius,
+        3.0 * noise, settings.stripe_sigma_px, crlb, SATURATED_SIGMA_PX, SATURATION_WINDOW_PX)
+    return LineSamples(line, row, col, snr, sigma, flat), int(strong), int(dropped)
 
 
 #: the saturation mask passed to the kernel when nothing is saturated (never read)
@@ -566,19 +567,11 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                                   aligned=settings.identity == "aligned")
     ambiguous = int(unsure.sum())
     unassigned = np.maximum(_count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
-    line, cols = np.nonzero(rows >= 0)
-    peak_rows = rows[line, cols]
-    snr = local.snr(values, peak_rows, cols)
-    strong = snr >= settings.snr_min
-    line, cols, peak_rows, snr = line[strong], cols[strong], peak_rows[strong], snr[strong]
-    row, sigma, flat, ok = _refine(values, saturated, peak_rows, cols,
-                                   settings=settings, noise=noise, snr=snr)
-    samples = LineSamples(line[ok].astype(np.int64), row[ok], cols[ok].astype(np.float64),
-                          snr[ok], sigma[ok], flat[ok])
+    samples, strong, dropped = _samples(values, saturated, rows, local, settings, noise)
     searched = sum(values.shape[1] for b in bands if not b.empty)
     return Extraction(samples, noise, background, tuple(spans),
-                      weak=max(searched - int(strong.sum()) - ambiguous, 0),
-                      dropped=int((~ok).sum()), ambiguous=ambiguous,
+                      weak=max(searched - strong - ambiguous, 0),
+                      dropped=dropped, ambiguous=ambiguous,
                       rows_read=sum(hi - lo for lo, hi in spans),
                       unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
