@@ -215,9 +215,9 @@ class Publisher:
 
     def frames(self, measurement: Measurement | None, status: UnitStatus, now: float,
                late: bool = False) -> Iterator[can.Message]:
-        """The frames of one cycle at ``now``, each encoded when it is taken (so the first
-        can be sent while the others are encoded); a frame's E2E counter advances when it
-        is encoded."""
+        """The frames of one cycle at ``now``, each composed and encoded when it is taken
+        (so the first is sent before the others are composed); a frame's E2E counter
+        advances when it is encoded."""
         usable = self.usable(measurement, status, now)
         age = None if measurement is None else now - measurement.newest_time_s
         count = len(measurement.sectors) if measurement and measurement.sectors else (
@@ -225,16 +225,13 @@ class Publisher:
         self._sector_count = count
         if measurement is not None:
             status = replace(status, measurement_counter=measurement.counter)
-        frames = [
-            (FrameKind.STATUS, payloads.status_signals(status, self._faults(status, late), age)),
-            (FrameKind.QUALITY, payloads.quality_signals(status, count)),
-            (FrameKind.NEAREST, payloads.nearest_signals(measurement, usable)),
-        ]
+        faults = self._faults(status, late)
+        yield self._encode(FrameKind.STATUS, payloads.status_signals(status, faults, age))
+        yield self._encode(FrameKind.QUALITY, payloads.quality_signals(status, count))
+        yield self._encode(FrameKind.NEAREST, payloads.nearest_signals(measurement, usable))
         sectors = measurement.sectors if measurement is not None else ()
-        frames += [(FrameKind.SECTORS, s)
-                   for s in payloads.sectors_signals(sectors, count, usable)]
-        for kind, signals in frames:
-            yield self._encode(kind, signals)
+        for signals in payloads.sectors_signals(sectors, count, usable):
+            yield self._encode(FrameKind.SECTORS, signals)
 
     def _encode(self, kind: FrameKind, signals: payloads.RawSignals) -> can.Message:
         name = self._names[kind]
