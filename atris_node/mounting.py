@@ -13,6 +13,7 @@ the reference point. Bearing is ``atan2(y, x)``: 0 straight ahead, positive to t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -56,16 +57,21 @@ class Mounting:
         if abs(self.pitch_rad) >= np.pi / 2:
             raise ConfigError(f"mounting pitch_rad must be within ±pi/2, got {self.pitch_rad}")
 
-    @property
+    @cached_property
     def rotation(self) -> npt.NDArray[np.float64]:
-        """3×3 matrix taking camera-frame vectors to vehicle-frame vectors."""
-        return _rotation_rpy(self.roll_rad, self.pitch_rad, self.yaw_rad) @ (
+        """3×3 matrix taking camera-frame vectors to vehicle-frame vectors (read-only,
+        computed once: every map's points go through it)."""
+        rotation = _rotation_rpy(self.roll_rad, self.pitch_rad, self.yaw_rad) @ (
             _CAMERA_TO_VEHICLE_LEVEL)
+        rotation.flags.writeable = False
+        return rotation
 
-    @property
+    @cached_property
     def translation(self) -> npt.NDArray[np.float64]:
-        """Camera centre in the vehicle frame, metres, shape (3,)."""
-        return np.array([self.x_m, self.y_m, self.z_m])
+        """Camera centre in the vehicle frame, metres, shape (3,) (read-only)."""
+        translation = np.array([self.x_m, self.y_m, self.z_m])
+        translation.flags.writeable = False
+        return translation
 
     def camera_to_vehicle(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """Map (..., 3) camera-frame points (m) to the vehicle frame (m).
