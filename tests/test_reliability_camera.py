@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from typing import Any
 
 import can
@@ -31,30 +32,50 @@ BASE = [f"code.length={CODE_LENGTH}", "negotiation.window_s=0.1",
         "negotiation.reannounce_s=0.5", "negotiation.silence_timeout_s=1.5"]
 
 
-class SectorFrames(can.Listener):
-    """(arrival time, Distance0 signal) of every sectors frame of unit 0."""
+@dataclass
+class Cycle:
+    """One publish cycle of unit 0 as a controller sees it: the arrival time and state of
+    its status frame, and the distances of its sector frames (floats, or the strings of
+    the invalid and no-return codes)."""
+
+    time_s: float
+    state: str
+    distances: list[Any] = field(default_factory=list)
+
+    @property
+    def valid(self) -> bool:
+        """True when any sector carries a distance."""
+        return any(isinstance(d, float) for d in self.distances)
+
+
+class CycleFrames(can.Listener):
+    """The cycles of unit 0, in arrival order (a status frame opens a cycle)."""
 
     def __init__(self) -> None:
         self.codec = FrameCodec()
-        self.frames: list[tuple[float, Any]] = []
+        self.cycles: list[Cycle] = []
 
     def on_message_received(self, msg: can.Message) -> None:
         found = None if msg.is_extended_id else unit_of(msg.arbitration_id)
-        if found is None or found[1] is not FrameKind.SECTORS:
+        if found is None or found[0] != 0:
             return
         try:
             signals = self.codec.decode_message(msg).signals
         except FrameDecodeError:
             return
-        self.frames.append((time.monotonic(), signals["Distance0"]))
+        if found[1] is FrameKind.STATUS:
+            self.cycles.append(Cycle(time.monotonic(), str(signals["State"])))
+        elif found[1] is FrameKind.SECTORS and self.cycles:
+            self.cycles[-1].distances += [v for k, v in signals.items()
+                                          if k.startswith("Distance")]
 
     def on_error(self, exc: Exception) -> None:
         raise exc
 
 
 @pytest.fixture
-def bus_pair(request: pytest.FixtureRequest) -> Iterator[tuple[can.BusABC, SectorFrames]]:
-    frames = SectorFrames()
+def bus_pair(request: pytest.FixtureRequest) -> Iterator[tuple[can.BusABC, CycleFrames]]:
+    frames = CycleFrames()
     with listened_bus(f"reliability-camera-{request.node.name}", frames, 0.01) as tx:
         yield tx, frames
 
@@ -101,7 +122,7 @@ def spans(dmap: DistortionMap, fault: InjectedFault) -> bool:
 
 
 def test_dropped_repeated_and_exposure_changed_sub_frames_never_reach_a_distance(
-        bus_pair: tuple[can.BusABC, SectorFrames]) -> None:
+        bus_pair: tuple[can.BusABC, CycleFrames]) -> None:
     bus, _ = bus_pair
     faults = CameraFaults(drop_at={300, 301, 377}, repeat_at={420, 433},
                           exposure_change_at=550, exposure_factor=0.5)
@@ -124,7 +145,7 @@ def test_dropped_repeated_and_exposure_changed_sub_frames_never_reach_a_distance
 
 
 def test_disconnect_is_invalid_within_one_period_laser_off_and_recovers(
-        bus_pair: tuple[can.BusABC, SectorFrames]) -> None:
+        bus_pair: tuple[can.BusABC, CycleFrames]) -> None:
     bus, frames = bus_pair
     faults = CameraFaults(disconnect_at=400, disconnect_reads=10**6)
     unit, cameras = faulty_unit(bus, faults)
@@ -139,19 +160,21 @@ def test_disconnect_is_invalid_within_one_period_laser_off_and_recovers(
     step_until(unit, lambda: len(measurements) > count + 3)
     unit.shutdown()
     period_s = float(unit.config["publish.period_s"])
-    valid_before = [t for t, d in frames.frames if t < lost_at and isinstance(d, float)]
-    assert valid_before, "no valid distance before the disconnect: the test proves nothing"
-    first_invalid = next(t for t, d in frames.frames if t >= lost_at and not isinstance(d, float))
-    latency_s = first_invalid - lost_at
-    print(f"\ndisconnect -> first invalid sectors frame: {latency_s * 1e3:.1f} ms "
+    cycles = frames.cycles
+    assert any(c.valid for c in cycles if c.time_s < lost_at), (
+        "no valid distance before the disconnect: the test proves nothing")
+    first_fault = next(c for c in cycles if c.time_s >= lost_at and c.state != "RUNNING")
+    latency_s = first_fault.time_s - lost_at
+    print(f"\ndisconnect -> first FAULT cycle: {latency_s * 1e3:.1f} ms "
           f"(publish period {period_s * 1e3:.0f} ms)")
     assert latency_s <= period_s, f"invalid only {latency_s * 1e3:.1f} ms after the loss"
-    back_at = next(t for t, d in frames.frames if t > first_invalid and isinstance(d, float))
-    stale = [t for t, d in frames.frames
-             if first_invalid < t < back_at and isinstance(d, float)]
-    assert stale == [] and back_at - lost_at >= RECONNECT_MIN_S
+    after = cycles[cycles.index(first_fault):]
+    back = next(c for c in after if c.valid)
+    assert all(not c.valid for c in after[:after.index(back)])
+    assert all(d == "invalid" for c in after[:after.index(back)] for d in c.distances)
+    assert back.state == "RUNNING" and back.time_s - lost_at >= RECONNECT_MIN_S
     assert unit.stats.reconnects == 1 and len(measurements) > count
-    print(f"disconnect -> valid distances again: {(back_at - lost_at) * 1e3:.0f} ms")
+    print(f"disconnect -> valid distances again: {(back.time_s - lost_at) * 1e3:.0f} ms")
 
 
 #: the first reconnection attempt waits this long, so valid data cannot return sooner
