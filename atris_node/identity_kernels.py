@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
 
+from atris_node.jit import kernel
 from atris_node.selection import median
 
 IntArray = npt.NDArray[np.int64]
@@ -33,7 +33,7 @@ _F1 = "float64[:]"
 _F2 = "float64[:, :]"
 
 
-@njit(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})", cache=True, nogil=True)
+@kernel(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})")
 def assign_down(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
     """(K, W) by line: each line in image order takes the first peak below the previous
     line's inside its band ``[lo, hi)``; ``peaks`` (M, W) sorted down (distinct rows),
@@ -54,7 +54,7 @@ def assign_down(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> 
     return out
 
 
-@njit(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})", cache=True, nogil=True)
+@kernel(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})")
 def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
     """(K, W) by line: as :func:`assign_down` from the bottom line up, each line taking
     the lowest peak above the next line's."""
@@ -76,7 +76,7 @@ def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> In
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _nearest(z: FloatArray, k: int) -> float:
     """The finite range of ``z`` nearest to position k (the nearer range on a tie)."""
     up = k - 1
@@ -94,7 +94,7 @@ def _nearest(z: FloatArray, k: int) -> float:
     return z_down
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
                         ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
     """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
@@ -119,7 +119,7 @@ def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry:
     return count
 
 
-@njit(f"int64[:]({_I2}, {_F1}, {_F1}, {_F2}, {_I1})", cache=True, nogil=True)
+@kernel(f"int64[:]({_I2}, {_F1}, {_F1}, {_F2}, {_I1})")
 def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
                 ground_range_m: FloatArray, order: IntArray) -> IntArray:
     """(n,) unassigned lines per column that should be seen at the range of the nearest
@@ -135,7 +135,7 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
     """The peaks >= 0 into ``out``, ascending (insertion sort; M is small); their count."""
     m = 0
@@ -151,7 +151,7 @@ def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
     return m
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _in_any(p: int, lo: IntArray, hi: IntArray) -> bool:
     """True when row ``p`` lies in one of the bands ``[lo, hi)``."""
     for k in range(lo.size):  # noqa: SIM110 (a generator does not compile)
@@ -160,7 +160,7 @@ def _in_any(p: int, lo: IntArray, hi: IntArray) -> bool:
     return False
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, ref: float,
                 beyond: float, spare: FloatArray, skip_px: float, beyond_px: float,
                 d: FloatArray, choice: npt.NDArray[np.int8]) -> None:
@@ -186,7 +186,7 @@ def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, re
             choice[j, i] = 0
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntArray) -> None:
     """The rows each line took (``out``, -1 = none) from the choices of :func:`align`."""
     j, i = choice.shape[0], m
@@ -202,7 +202,7 @@ def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntA
             i -= 1
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _align_column(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
                   beyond: FloatArray, costs: FloatArray, scratch: FloatArray,
                   column: IntArray, choice: npt.NDArray[np.int8], out: IntArray) -> float:
@@ -224,8 +224,7 @@ def _align_column(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
     return d[m]
 
 
-@njit(f"Tuple((int64[:, :], float64[:]))({_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})",
-      cache=True, nogil=True)
+@kernel(f"Tuple((int64[:, :], float64[:]))({_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})")
 def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: FloatArray,
           costs: FloatArray) -> tuple[IntArray, FloatArray]:
     """Per column the cheapest order-preserving alignment of K lines (bands ``[lo, hi)`` in
@@ -246,7 +245,7 @@ def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
     return rows, total
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntArray,
                      hi: IntArray, ref: FloatArray, beyond: FloatArray,
                      costs: FloatArray) -> tuple[float, float, int]:
@@ -272,8 +271,8 @@ def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntAr
     return excess, floor, assigned
 
 
-@njit(f"void({_I2}, {_I1}, {_I1}, {_I1}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, float64, {_F1}, "
-      f"boolean, {_F1}, {_F1}, {_F2}, {_I1})", cache=True, nogil=True)
+@kernel(f"void({_I2}, {_I1}, {_I1}, {_I1}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, float64, {_F1}, "
+      f"boolean, {_F1}, {_F1}, {_F2}, {_I1})")
 def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
             unsure: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
             margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
@@ -322,7 +321,7 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
         unsure[c] = max(assigned - kept, 0)
 
 
-@njit(f"float64[:]({_I2}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})", cache=True, nogil=True)
+@kernel(f"float64[:]({_I2}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, {_F1})")
 def rows_cost(rows: IntArray, peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
               beyond: FloatArray, costs: FloatArray) -> FloatArray:
     """(n,) cost of the assignment ``rows`` (K, n, image order) of the (M, n) ``peaks``,
@@ -336,7 +335,7 @@ def rows_cost(rows: IntArray, peaks: IntArray, lo: IntArray, hi: IntArray, ref: 
     return out
 
 
-@njit(f"float64[:, :]({_I2}, boolean[:, :], int64, int64, int64)", cache=True, nogil=True)
+@kernel(f"float64[:, :]({_I2}, boolean[:, :], int64, int64, int64)")
 def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int,
                          min_block: int, min_line: int) -> FloatArray:
     """(K, W) per line: the upper median of the ``good`` rows in each block of ``block``
@@ -368,7 +367,7 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _continuity_cost(rows: IntArray, differ: npt.NDArray[np.bool_], ref: FloatArray,
                      c: int) -> float:
     """Summed distance (px) of column c's differing assigned rows to their line's
@@ -382,9 +381,8 @@ def _continuity_cost(rows: IntArray, differ: npt.NDArray[np.bool_], ref: FloatAr
     return total
 
 
-@njit(f"Tuple((int64[:, :], int64[:], boolean[:], float64[:, :]))({_I2}, {_I1}, {_I1}, "
-      f"{_I1}, int64, boolean, boolean, {_F1}, {_F1}, {_F2}, {_I1}, int64, int64, int64)",
-      cache=True, nogil=True)
+@kernel(f"Tuple((int64[:, :], int64[:], boolean[:], float64[:, :]))({_I2}, {_I1}, {_I1}, "
+      f"{_I1}, int64, boolean, boolean, {_F1}, {_F1}, {_F2}, {_I1}, int64, int64, int64)")
 def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray, sep: int,
                     aligned: bool, has_prior: bool, cot_alpha: FloatArray,
                     geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,

@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit, types
+from numba import types
 
+from atris_node.jit import kernel
 from atris_node.selection import median
 
 IntArray = npt.NDArray[np.int64]
@@ -32,7 +33,7 @@ _I1 = "int64[:]"
 _F1 = "float64[:]"
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _is_maximum(values: npt.NDArray[np.generic], r: int, c: int, lo: int, hi: int,
                 sep: int) -> bool:
     """True when values[r, c] is above the ``sep`` rows over it and not below the ``sep``
@@ -68,7 +69,7 @@ def _maxima_signatures() -> list[Any]:
             for readonly in (False, True)]
 
 
-@njit(_maxima_signatures(), cache=True, nogil=True)
+@kernel(_maxima_signatures())
 def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
                   threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray, tile_px: int,
                   sep: int, inside: npt.NDArray[np.bool_], use_inside: bool, out: IntArray,
@@ -96,7 +97,7 @@ def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
                         count[c] += 1
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _line_grid(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
                pad: int) -> FloatArray:
     """(lines, width + 2·pad) rows of the samples at column + pad, inf elsewhere."""
@@ -106,8 +107,7 @@ def _line_grid(line: IntArray, col: IntArray, row: FloatArray, lines: int, width
     return grid
 
 
-@njit(f"boolean[:]({_I1}, {_I1}, {_F1}, int64, int64, int64, float64)", cache=True,
-      nogil=True)
+@kernel(f"boolean[:]({_I1}, {_I1}, {_F1}, int64, int64, int64, float64)")
 def supported(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
               reach: int, max_step_px: float) -> npt.NDArray[np.bool_]:
     """(n,) True for samples with a sample of the same line within ``reach`` columns and
@@ -122,8 +122,7 @@ def supported(line: IntArray, col: IntArray, row: FloatArray, lines: int, width:
     return out
 
 
-@njit(f"float64[:]({_I1}, {_I1}, {_F1}, int64, int64, int64, float64)", cache=True,
-      nogil=True)
+@kernel(f"float64[:]({_I1}, {_I1}, {_F1}, int64, int64, int64, float64)")
 def smooth(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
            taps: int, max_step_px: float) -> FloatArray:
     """(n,) the median of the ``taps`` columns around each sample on its line where all
@@ -145,7 +144,7 @@ def smooth(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: in
     return out
 
 
-@njit(f"float64[:]({_I1}, {_F1}, int64)", cache=True, nogil=True)
+@kernel(f"float64[:]({_I1}, {_F1}, int64)")
 def line_medians(line: IntArray, values: FloatArray, count: int) -> FloatArray:
     """(count,) the median (as ``np.median``) of the ``values`` of each line 0..count-1,
     0.0 for a line without any; lines outside 0..count-1 are left out."""
@@ -172,7 +171,7 @@ def line_medians(line: IntArray, values: FloatArray, count: int) -> FloatArray:
 METHOD_CODES = {"cog": 0, "parabolic": 1, "gaussian": 2, "blais_rioux": 3, "steger": 4}
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _parabola(a: float, b: float, c: float) -> tuple[float, bool]:
     """Vertex offset of the parabola through (-1, a), (0, b), (1, c); ok when it opens
     downwards."""
@@ -180,7 +179,7 @@ def _parabola(a: float, b: float, c: float) -> tuple[float, bool]:
     return (0.5 * (a - c) / den, True) if den < 0 else (0.0, False)
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _offset(window: FloatArray, method: int, r: int, cog_threshold: float,
             sigma: float) -> tuple[float, bool]:
     """Sub-pixel offset of the peak at the centre of ``window`` (2r + 1,), and ok (the
@@ -206,7 +205,7 @@ def _offset(window: FloatArray, method: int, r: int, cog_threshold: float,
     return _steger(window, r, sigma)
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _blais_rioux(window: FloatArray, r: int) -> tuple[float, bool]:
     """Zero crossing of the 4-tap derivative g(j) = w[j-2] + w[j-1] - w[j+1] - w[j+2]."""
     def g(j: int) -> float:
@@ -221,7 +220,7 @@ def _blais_rioux(window: FloatArray, r: int) -> tuple[float, bool]:
     return (t if right else t - 1.0), 0.0 <= t <= 1.0
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _steger(window: FloatArray, r: int, sigma: float) -> tuple[float, bool]:
     """Three Newton steps on the Gaussian-smoothed first derivative (Steger)."""
     t, second = 0.0, -1.0
@@ -250,7 +249,7 @@ def _sample_signatures() -> list[Any]:
             for readonly in (False, True)]
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _saturated_centre(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int) -> float:
     """Centre row (px) of the saturated pixels within ±r rows of (row, c) (rows outside
     the image read as the edge row)."""
@@ -263,7 +262,7 @@ def _saturated_centre(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int
     return row + moment / max(count, 1.0)
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _flat_top(saturated: npt.NDArray[np.bool_], row: int, c: int) -> bool:
     """True when (row, c) or a pixel above or below it is saturated."""
     height = saturated.shape[0]
@@ -273,7 +272,7 @@ def _flat_top(saturated: npt.NDArray[np.bool_], row: int, c: int) -> bool:
     return False
 
 
-@njit(_sample_signatures(), cache=True, nogil=True)
+@kernel(_sample_signatures())
 def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
                  any_saturated: bool, rows: IntArray, tile_row: IntArray,
                  background_tiles: npt.NDArray[np.float32],

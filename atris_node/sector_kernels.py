@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
 
+from atris_node.jit import kernel
 from atris_node.selection import kth, median, quantile
 
 IntArray = npt.NDArray[np.int64]
@@ -21,7 +21,7 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def _grouped(sector: IntArray, keep: BoolArray, values: FloatArray, count: int
              ) -> tuple[FloatArray, IntArray]:
     """``values[keep]`` grouped by ``sector`` (0..count-1, others left out); group s is
@@ -41,8 +41,8 @@ def _grouped(sector: IntArray, keep: BoolArray, values: FloatArray, count: int
     return out, start
 
 
-@njit("Tuple((int64[:], int64[:], float64[:], float64[:]))(int64[:], boolean[:], "
-      "float64[:], float64[:], int64, int64, float64)", cache=True, nogil=True)
+@kernel("Tuple((int64[:], int64[:], float64[:], float64[:]))(int64[:], boolean[:], "
+      "float64[:], float64[:], int64, int64, float64)")
 def sector_statistics(sector: IntArray, obstacle: BoolArray, range_m: FloatArray,
                       snr: FloatArray, count: int, min_points: int, q: float
                       ) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:

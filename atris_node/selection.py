@@ -10,18 +10,19 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
+
+from atris_node.jit import kernel
 
 FloatArray = npt.NDArray[np.float64]
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def kth(values: FloatArray, k: int) -> float:
     """The k-th smallest of ``values`` (0-based)."""
     return float(np.partition(values, k)[k])
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def median(values: FloatArray) -> float:
     """``np.median`` of a non-empty array (the mean of the middle two if even)."""
     n = values.size
@@ -30,7 +31,7 @@ def median(values: FloatArray) -> float:
     return float((kth(values, n // 2 - 1) + kth(values, n // 2)) / 2)
 
 
-@njit(cache=True, nogil=True)
+@kernel()
 def quantile(values: FloatArray, q: float) -> float:
     """``np.quantile(values, q)`` (linear method) of a non-empty array."""
     n = values.size

@@ -3,6 +3,7 @@ dtype, read-only maps included."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import ModuleType
 
 import numpy as np
@@ -72,3 +73,19 @@ def test_map_values_widens_what_the_kernels_do_not_take() -> None:
     assert line_kernels.map_values(np.zeros((2, 2), np.float16)).dtype == np.float64
     strided = np.zeros((4, 4), np.int16)[:, ::2]
     assert line_kernels.map_values(strided).flags.c_contiguous
+
+
+def test_kernels_are_cached_only_where_a_cache_can_be_written(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from atris_node import jit
+
+    blocked = tmp_path / "a_file"
+    blocked.write_text("not a directory")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(blocked / "cache"))
+    monkeypatch.setattr(jit.numba.config, "CACHE_DIR", "", raising=False)
+    assert not jit.can_cache(str(blocked / "module.py"))  # no directory can be made
+    monkeypatch.setattr(jit.numba.config, "CACHE_DIR", str(tmp_path / "numba"), raising=False)
+    assert jit.can_cache(str(blocked / "module.py"))  # NUMBA_CACHE_DIR
+    monkeypatch.setattr(jit.numba.config, "CACHE_DIR", "", raising=False)
+    (tmp_path / "pkg").mkdir()
+    assert jit.can_cache(str(tmp_path / "pkg" / "module.py"))  # its __pycache__

@@ -1,0 +1,51 @@
+"""numba's ``njit`` as the node's kernels use it: nopython, the GIL released, and cached on
+disk where numba can write a cache.
+
+numba looks for a writable cache directory in ``NUMBA_CACHE_DIR``, the module's
+``__pycache__`` and the user's cache directory, and refuses to decorate a cached function
+when it finds none (a read-only install run by a user without a home directory). Here the
+same directories are tried first: without one, the kernels are compiled at every start
+instead (about 20 s) rather than failing. The systemd unit in ``launch/`` gives the node a
+cache directory.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from typing import Any
+
+import numba
+from numba.misc.appdirs import AppDirs
+
+
+def _writable(path: str) -> bool:
+    try:
+        os.makedirs(path, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+    except OSError:
+        return False
+    return True
+
+
+def can_cache(source_file: str) -> bool:
+    """True when numba will find a writable cache directory for ``source_file``."""
+    candidates = [os.path.join(os.path.dirname(source_file), "__pycache__"),
+                  AppDirs(appname="numba", appauthor=False).user_cache_dir]
+    configured = getattr(numba.config, "CACHE_DIR", "")  # NUMBA_CACHE_DIR
+    if configured:
+        candidates.insert(0, configured)
+    return any(_writable(path) for path in candidates)
+
+
+#: whether the kernels (all in this package's directory) are cached on disk
+CACHE = can_cache(__file__)
+
+
+def kernel(signatures: Any = None) -> Callable[[Any], Any]:
+    """``numba.njit`` with the node's options; ``signatures`` (a signature string, a numba
+    type or a list of them) compiles at import instead of at the first call."""
+    if signatures is None:
+        return numba.njit(cache=CACHE, nogil=True)
+    return numba.njit(signatures, cache=CACHE, nogil=True)
