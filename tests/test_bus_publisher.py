@@ -314,3 +314,12 @@ def test_each_frame_is_sent_as_soon_as_it_is_encoded(channel: str) -> None:
         bus.shutdown()
     assert len(events) >= 14
     assert events[:14] == ["encode", "send"] * 7
+
+
+def test_nothing_is_sent_after_stop(channel: str, listener: can.BusABC) -> None:
+    with can.Bus(interface="virtual", channel=channel) as bus:
+        publisher = _run(bus, period_s=1.0)
+        _collect(listener, 0.1)
+        publisher.stop()
+        publisher.update(_measurement(), RUNNING)
+        assert listener.recv(timeout=0.1) is None

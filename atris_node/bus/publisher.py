@@ -126,9 +126,12 @@ class Publisher:
 
     def _send_inline(self) -> bool:
         """Send the cycle of a new measurement from the caller's thread; False, with
-        nothing counted, when the scheduler thread should send it (not started, busy
-        sending, in a back-off, or a frame that cannot be queued at once)."""
-        if self._thread is None or not self._send_lock.acquire(blocking=False):
+        nothing counted, when the scheduler thread should send it (busy sending, in a
+        back-off, or a frame that cannot be queued at once). Nothing is sent inline before
+        start() or after stop()."""
+        if self._thread is None or self._stopping.is_set():
+            return False
+        if not self._send_lock.acquire(blocking=False):
             return False
         try:
             now = self.clock()
