@@ -276,11 +276,6 @@ class NoiseMap:
         full = np.broadcast_to(rows[:, :, None], (*rows.shape, t)).reshape(rows.shape[0], -1)
         return np.ascontiguousarray(full[:, :self.width])
 
-    def snr(self, values: npt.NDArray[np.generic], rows: IntArray, cols: IntArray) -> FloatArray:
-        """(n,) SNR of the map values at (rows, cols)."""
-        peak = values[rows, cols].astype(np.float64)
-        at = (self.tile_row[rows], cols // NOISE_TILE_PX)
-        return (peak - self.background_tiles[at]) / self.sigma_tiles[at]
 
 
 def _tile_statistics(block: npt.NDArray[Any]) -> tuple[npt.NDArray[np.float32],
@@ -318,8 +313,8 @@ def noise_map(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -> 
 # --------------------------------------------------------------------------- sub-pixel
 
 
-# The methods run in one compiled pass per map (atris_node.line_kernels.refine, called by
-# _refine below); the module docstring describes them.
+# The methods run in one compiled pass per map (atris_node.line_kernels.line_samples,
+# called by _samples below); the module docstring describes them.
 
 
 # --------------------------------------------------------------------------- search
@@ -386,14 +381,6 @@ class VisibilityPrior:
     baseline_m: float
     z_max_m: float
     ground_range_m: FloatArray
-
-    def range_of(self, rows: IntArray) -> FloatArray:
-        """(K, W) Eq. 1 range (m) of assigned rows (observed, no lens correction: this is
-        a plausibility check); inf where unassigned or at/below the singular row."""
-        f = self.focal_px
-        den = f * self.cot_alpha[:, None] - (rows - self.cy_px)
-        ok = (rows >= 0) & (den > 0)
-        return np.where(ok, f * self.baseline_m / np.where(ok, den, 1.0), np.inf)
 
     def unexplained(self, rows: IntArray, columns: IntArray | None = None) -> IntArray:
         """(n,) number of unassigned lines that should be visible at the range of their

@@ -17,12 +17,14 @@ from atris_node.lines import (
     MIN_LINE_SAMPLES,
     NOISE_TILE_PX,
     Band,
+    ExtractorSettings,
     LineSamples,
     VisibilityPrior,
     _continuity_reference,
     _count_in_bands,
     _median_per_line,
     _quartile_and_median,
+    _samples,
     noise_floor,
     noise_map,
     smooth_along_lines,
@@ -147,11 +149,27 @@ def test_threshold_and_snr_are_those_of_the_per_pixel_images() -> None:
     background, sigma = local.background, local.sigma
     assert background.shape == sigma.shape == values.shape
     np.testing.assert_array_equal(local.threshold(6.0), background + 6.0 * sigma)
-    rows, cols = rng.integers(0, 400, 500), rng.integers(0, 640, 500)
-    expected = (values[rows, cols] - background[rows, cols].astype(np.float64)) / sigma[
-        rows, cols]
-    np.testing.assert_array_equal(local.snr(values, rows, cols), expected)
     assert (background[130:150] == 0).all() and (sigma[310:] == 0.5).all()
+
+
+def test_sample_snr_is_that_of_the_per_pixel_images() -> None:
+    """The SNR the samples carry (computed per peak in the compiled pass) is the peak
+    value against the local background and σ images, rows read or not."""
+    rng = np.random.default_rng(15)
+    values = _ambient_map(rng)
+    peak_rows = np.array([60, 140, 200, 330])  # the second and last outside the rows read
+    for r in peak_rows:
+        values[r - 1:r + 2] += np.array([300, 600, 300], dtype=np.int16)[:, None]
+    local = noise_map(values, [(30, 130), (150, 310)])
+    rows = np.repeat(peak_rows[:, None], values.shape[1], axis=1)
+    samples, strong, _ = _samples(values, np.zeros(values.shape, bool), rows, local,
+                                  ExtractorSettings(snr_min=1.0), noise=8.0)
+    assert strong == len(samples) == rows.size  # every peak kept: the SNR of each is read
+    cols = samples.col_px.astype(np.int64)
+    at = peak_rows[samples.line]
+    expected = (values[at, cols] - local.background[at, cols].astype(np.float64)) / (
+        local.sigma[at, cols])
+    np.testing.assert_array_equal(samples.snr, expected)
 
 
 @pytest.mark.parametrize("count", [1, 3, 8])
