@@ -119,7 +119,7 @@ def beyond_rows(prior: Prior | None, order: IntArray) -> FloatArray:
     return np.asarray(np.floor(row[order]) + 1.0)
 
 
-def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray,
+def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
             greedy: tuple[IntArray, IntArray], unsettled: BoolArray, ref: FloatArray,
             prior: Prior | None, sep: int) -> tuple[IntArray, IntArray]:
     """The greedy identity ``greedy = (rows, unsure)`` ((K, W) by line, (W,)), replaced in
@@ -132,7 +132,8 @@ def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray
 
     Args:
         peaks: (M, W) peak rows, -1 = none.
-        bands: (lo, hi) per line in image order; ``order`` (K,) the line of each.
+        edges: (K,) int64 lower and (K,) upper band rows in image order; ``order`` (K,)
+            the line of each.
         unsettled: (W,) columns where the two greedy matchings disagree.
         ref: (K, W) continuity reference by line, from the columns where both greedy
             matchings agree (inf: unknown).
@@ -146,7 +147,7 @@ def improve(peaks: IntArray, bands: tuple[tuple[int, int], ...], order: IntArray
     """
     rows, unsure = rows_and_unsure = (greedy[0].copy(), greedy[1].copy())
     cols = np.flatnonzero(unsettled & (unsure == 0))
-    lo, hi = _edges(bands)
+    lo, hi = edges
     kernels.improve(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
                     order.astype(np.int64), rows, unsure, cols.astype(np.int64),
                     np.ascontiguousarray(ref, dtype=np.float64), beyond_rows(prior, order),

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -391,13 +392,13 @@ class VisibilityPrior:
             np.ascontiguousarray(rows, dtype=np.int64), self.cot_alpha, self.geometry,
             np.ascontiguousarray(ground, dtype=np.float64), self.image_order))
 
-    @property
+    @cached_property
     def geometry(self) -> FloatArray:
         """(5,) focal px, cy px, height px, baseline m, z_max m (as the kernels take them)."""
         return np.array([self.focal_px, self.cy_px, self.height_px, self.baseline_m,
                          self.z_max_m], dtype=np.float64)
 
-    @property
+    @cached_property
     def image_order(self) -> IntArray:
         """(K,) the lines from the top of the image down (ascending cot α)."""
         return np.argsort(self.cot_alpha)
@@ -425,8 +426,8 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
         MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES)
     if not aligned or not unsettled.any():
         return rows, unsure
-    return line_identity.improve(peaks, tuple(zip(lo.tolist(), hi.tolist(), strict=True)),
-                                 line, (rows, unsure), unsettled, certain, prior, sep)
+    return line_identity.improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain,
+                                 prior, sep)
 
 
 # --------------------------------------------------------------------------- extraction
