@@ -22,23 +22,29 @@ BoolArray = npt.NDArray[np.bool_]
 
 
 @kernel()
-def _grouped(sector: IntArray, keep: BoolArray, values: FloatArray, count: int
-             ) -> tuple[FloatArray, IntArray]:
-    """``values[keep]`` grouped by ``sector`` (0..count-1, others left out); group s is
-    ``out[start[s]:start[s + 1]]``, in the input order."""
+def _group_order(sector: IntArray, keep: BoolArray, count: int
+                 ) -> tuple[IntArray, IntArray]:
+    """Indices of the ``keep`` samples grouped by ``sector`` (0..count-1, others left
+    out), in the input order within a group: group s is ``order[start[s]:start[s + 1]]``."""
     start = np.zeros(count + 1, dtype=np.int64)
     for i in range(sector.size):
         if keep[i] and 0 <= sector[i] < count:
             start[sector[i] + 1] += 1
     start = np.cumsum(start)
-    out = np.empty(start[-1])
+    order = np.empty(start[-1], dtype=np.int64)
     fill = start[:-1].copy()
     for i in range(sector.size):
         s = sector[i]
         if keep[i] and 0 <= s < count:
-            out[fill[s]] = values[i]
+            order[fill[s]] = i
             fill[s] += 1
-    return out, start
+    return order, start
+
+
+@kernel()
+def _snr_median_of_sector(sector: IntArray, snr: FloatArray, s: int) -> float:
+    """Median SNR of every sample in sector ``s`` (it has at least one)."""
+    return median(snr[sector == s])
 
 
 @kernel("Tuple((int64[:], int64[:], float64[:], float64[:]))(int64[:], boolean[:], "
@@ -54,18 +60,20 @@ def sector_statistics(sector: IntArray, obstacle: BoolArray, range_m: FloatArray
     - distance, m: ``max(q-quantile of the hits' ranges, the min_points-th nearest)``
       when it has at least ``min_points`` hits, else 0.0.
     """
-    ranges, start = _grouped(sector, obstacle, range_m, count)
-    hit_snr, _ = _grouped(sector, obstacle, snr, count)
-    all_snr, all_start = _grouped(sector, np.ones(sector.size, dtype=np.bool_), snr, count)
-    samples = all_start[1:] - all_start[:-1]
+    order, start = _group_order(sector, obstacle, count)
+    ranges, hit_snr = range_m[order], snr[order]
+    samples = np.zeros(count, dtype=np.int64)
+    for s in sector:
+        if 0 <= s < count:
+            samples[s] += 1
     hits = start[1:] - start[:-1]
     snr_median = np.zeros(count)
     distance = np.zeros(count)
     for s in range(count):
         if hits[s]:
             snr_median[s] = median(hit_snr[start[s]:start[s + 1]])
-        elif samples[s]:
-            snr_median[s] = median(all_snr[all_start[s]:all_start[s + 1]])
+        elif samples[s]:  # rare: the sector's samples hit the ground or nothing
+            snr_median[s] = _snr_median_of_sector(sector, snr, s)
         if hits[s] >= min_points:
             mine = ranges[start[s]:start[s + 1]]
             distance[s] = max(quantile(mine, q), kth(mine, min_points - 1))
