@@ -147,8 +147,8 @@ def _sector(index: int, layout: SectorLayout, settings: SectorSettings, *, sampl
 def sector_distances(data: SectorInput, layout: SectorLayout,
                      settings: SectorSettings) -> tuple[SectorDistance, ...]:
     """One :class:`SectorDistance` per sector of ``layout``, index 0 at the right edge.
-    The samples are grouped by sector and sorted once per sector in one compiled pass
-    (:func:`atris_node.sector_kernels.sector_statistics`)."""
+    The samples are grouped by sector in one compiled pass and each order statistic is
+    read by selection (:func:`atris_node.sector_kernels.sector_statistics`)."""
     idx, rng = data.placed(layout)
     samples, hits, median, distance = sector_kernels.sector_statistics(
         np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(data.obstacle,
