@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.calibration import CameraModel, LaserCalibration
-from atris_node.geometry import distort_pixels, undistort_pixels
+from atris_node.pipeline.geometry import distort_pixels, undistort_pixels
 from calib.board import BoardSpec, texture
 
 PX_PER_SQUARE = 120

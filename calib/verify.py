@@ -1,6 +1,6 @@
 """Check a calibration on a flat target at a known distance.
 
-The target's line samples are triangulated with paper Eq. 1 (:func:`atris_node.geometry.
+The target's line samples are triangulated with paper Eq. 1 (:func:`atris_node.pipeline.geometry.
 triangulate`) and their ranges compared with the known one. The expected spread of one
 sample is ``σ_z ≈ z²·σ_u / (f·b)``; the check passes when the bias and the RMS error are
 both within ``factor·σ_z`` (default 3). σ_u is given (default 0.1 px, the sub-pixel line
@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from atris_node.calibration import Calibration
 from atris_node.errors import CalibrationError
-from atris_node.geometry import range_sigma, triangulate, undistort_pixels
+from atris_node.pipeline.geometry import range_sigma, triangulate, undistort_pixels
 from calib.peaks import LineRows
 
 logger = logging.getLogger(__name__)

@@ -100,7 +100,7 @@ ensure_vm_tools() {
 # would otherwise compile them again, minutes each without KVM.
 compile_for_vm() {
   local results=$1 start=$SECONDS
-  NUMBA_CACHE_DIR="$results/numba" NUMBA_CPU_NAME=generic "$PY" -c "import atris_node.pipeline" \
+  NUMBA_CACHE_DIR="$results/numba" NUMBA_CPU_NAME=generic "$PY" -c "import atris_node.pipeline.chain" \
     || die "the pipeline's kernels do not compile"
   log "kernels compiled for the VM in $((SECONDS - start)) s"
 }

@@ -13,9 +13,9 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.calibration import Calibration, CameraModel, LaserCalibration
-from atris_node.geometry import distort_pixels
 from atris_node.mounting import Mounting
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.geometry import distort_pixels
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import DistortionMap
 
 FloatArray = npt.NDArray[np.float64]

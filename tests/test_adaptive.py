@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from atris_node import config as cfg
-from atris_node.adaptive import (
+from atris_node.adaptive.assessment import (
+    SceneAssessment,
+    laser_level_dn,
+    motion_energy,
+    peak_level,
+)
+from atris_node.adaptive.controller import (
     AdaptiveController,
     CodeLengthController,
     CodeLengthSettings,
@@ -18,7 +24,6 @@ from atris_node.adaptive import (
     controller_from_config,
     withheld,
 )
-from atris_node.assessment import SceneAssessment, laser_level_dn, motion_energy, peak_level
 from atris_node.errors import ConfigError
 from atris_node.types import DistortionMap, Measurement, SectorDistance, SectorState, SubFrame
 

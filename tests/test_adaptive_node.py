@@ -13,7 +13,7 @@ import can
 import pytest
 
 from atris_node import config as cfg
-from atris_node.node import Unit
+from atris_node.node.unit import Unit
 from atris_node.types import DistortionMap, FaultBits, SectorState, SubFrame
 
 BASE = ["negotiation.window_s=0.05", "negotiation.reannounce_s=0.5", "adaptive.enabled=true",

@@ -10,7 +10,7 @@ import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from atris_node.bus.canopen_device import CanopenDevice, eds_path, eds_text
+from atris_node.bus.canopen.device import CanopenDevice, eds_path, eds_text
 from atris_node.errors import ConfigError
 from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 

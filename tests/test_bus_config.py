@@ -8,7 +8,7 @@ import uuid
 import can
 import pytest
 
-from atris_node.bus.busconfig import (
+from atris_node.bus.can.config import (
     CAN_ERR_BUSOFF,
     CAN_ERR_CRTL,
     BusConfig,
@@ -16,8 +16,8 @@ from atris_node.bus.busconfig import (
     open_bus,
     resolve,
 )
-from atris_node.bus.frames import FrameCodec
-from atris_node.bus.publisher import Publisher
+from atris_node.bus.can.frames import FrameCodec
+from atris_node.bus.can.publisher import Publisher
 from atris_node.errors import BusError
 
 

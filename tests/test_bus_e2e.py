@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from atris_node.bus import e2e
-from atris_node.bus.e2e import E2EChecker, E2EState
+from atris_node.bus.can import e2e
+from atris_node.bus.can.e2e import E2EChecker, E2EState
 from atris_node.errors import FrameDecodeError
 
 # AUTOSAR SWS CRC Library, CRC8 SAE J1850 check values

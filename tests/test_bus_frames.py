@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from atris_node.bus import e2e, payloads
-from atris_node.bus.frames import FrameCodec, dbc_text, e2e_data_id, load_database
-from atris_node.bus.ids import FrameKind, frame_id, message_name, unit_of
+from atris_node.bus.can import e2e, payloads
+from atris_node.bus.can.frames import FrameCodec, dbc_text, e2e_data_id, load_database
+from atris_node.bus.can.ids import FrameKind, frame_id, message_name, unit_of
 from atris_node.errors import ConfigError, FrameDecodeError
 from atris_node.types import (
     FaultBits,
@@ -196,7 +196,7 @@ def test_fuzz_any_measurement_encodes_strictly(measurement: Measurement, status:
     """Whatever the pipeline hands over, the cycle encodes (strict) and decodes cleanly."""
     import can
 
-    from atris_node.bus.publisher import Publisher
+    from atris_node.bus.can.publisher import Publisher
 
     with can.Bus(interface="virtual", channel="fuzz") as bus:
         frames = Publisher(bus, 1).compose(measurement, status, now)
@@ -214,7 +214,7 @@ def test_fuzz_any_measurement_encodes_strictly(measurement: Measurement, status:
 def test_fuzz_monitor_never_crashes(frames: list[tuple[int, bytes, bool]]) -> None:
     import can
 
-    from atris_node.bus.monitor import BusMonitor, render_table
+    from atris_node.bus.can.monitor import BusMonitor, render_table
 
     monitor = BusMonitor()
     for i, (arbitration_id, payload, error) in enumerate(frames):

@@ -13,10 +13,10 @@ import can
 import cantools
 import pytest
 
-from atris_node.bus.frames import FrameCodec, dbc_text
-from atris_node.bus.ids import unit_of
-from atris_node.bus.monitor import BusMonitor, render_table
-from atris_node.bus.publisher import Publisher
+from atris_node.bus.can.frames import FrameCodec, dbc_text
+from atris_node.bus.can.ids import unit_of
+from atris_node.bus.can.monitor import BusMonitor, render_table
+from atris_node.bus.can.publisher import Publisher
 from atris_node.cli import main
 from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 

@@ -13,10 +13,10 @@ import can
 import pytest
 from can.interfaces.virtual import VirtualBus
 
-from atris_node.bus.e2e import E2EChecker
-from atris_node.bus.frames import DecodedFrame, FrameCodec
-from atris_node.bus.ids import FrameKind, frame_id
-from atris_node.bus.publisher import Publisher
+from atris_node.bus.can.e2e import E2EChecker
+from atris_node.bus.can.frames import DecodedFrame, FrameCodec
+from atris_node.bus.can.ids import FrameKind, frame_id
+from atris_node.bus.can.publisher import Publisher
 from atris_node.errors import NodeFaultError
 from atris_node.types import (
     FaultBits,

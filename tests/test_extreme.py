@@ -18,7 +18,7 @@ from atris_node.calibration import Calibration
 from atris_node.codes import walsh_chips
 from atris_node.demod import BlockDemodulator
 from atris_node.mounting import Mounting
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.types import DistortionMap, FaultBits, SectorState, SubFrame
 
 MOUNT = Mounting(z_m=0.5)

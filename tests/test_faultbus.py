@@ -8,7 +8,7 @@ from collections.abc import Iterator
 import can
 import pytest
 
-from atris_node.bus.e2e import COUNTER_MODULO, E2EChecker, E2EState, protect
+from atris_node.bus.can.e2e import COUNTER_MODULO, E2EChecker, E2EState, protect
 from atris_node.testing.faultbus import Babbler, Faults, FaultyBus
 
 DATA_ID = 0x0123

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from atris_node.fleetview import _unit_rows
+from atris_node.node.fleetview import _unit_rows
 
 
 def _unit() -> SimpleNamespace:

@@ -18,10 +18,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from atris_node.bus import negotiation_frames as nf
-from atris_node.bus.e2e import E2EChecker, E2EState
-from atris_node.bus.frames import FrameCodec
-from atris_node.bus.ids import FrameKind, frame_id
+from atris_node.bus.can.e2e import E2EChecker, E2EState
+from atris_node.bus.can.frames import FrameCodec
+from atris_node.bus.can.ids import FrameKind, frame_id
+from atris_node.bus.negotiation import frames as nf
 from atris_node.testing.fuzz import FuzzTally
 
 TALLY = FuzzTally()

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 
 from atris_node import config as cfg
 from atris_node.calibration import Calibration, CameraModel, LaserCalibration
-from atris_node.launch import load_launch
+from atris_node.node.launch import load_launch
 from atris_node.sim.scene import load_scene, parse_scene
 from atris_node.testing.fuzz import FuzzTally
 from atris_node.testing.tomldoc import dumps

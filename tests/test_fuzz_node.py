@@ -16,9 +16,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from atris_node import config as cfg
-from atris_node.bus import negotiation_frames as nf
-from atris_node.bus.ids import FrameKind, frame_id, unit_of
-from atris_node.node import Unit
+from atris_node.bus.can.ids import FrameKind, frame_id, unit_of
+from atris_node.bus.negotiation import frames as nf
+from atris_node.node.unit import Unit
 
 EXAMPLES = 300
 COUNTS: collections.Counter[str] = collections.Counter()

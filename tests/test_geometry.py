@@ -8,15 +8,16 @@ import pytest
 from pipeline_scenes import Box, Scene, oak_calibration, render
 
 from atris_node.calibration import CameraModel, LaserCalibration
-from atris_node.geometry import (
+from atris_node.mounting import Mounting
+from atris_node.pipeline.bands import line_bands
+from atris_node.pipeline.geometry import (
     distort_pixels,
     range_sigma,
     singular_rows,
     triangulate,
     undistort_pixels,
 )
-from atris_node.lines import ExtractorSettings, extract_lines, line_bands
-from atris_node.mounting import Mounting
+from atris_node.pipeline.peaks import ExtractorSettings, extract_lines
 
 CAMERA = CameraModel(1280, 800, 763.0, 639.5, 399.5, (-0.12, 0.05, 0.001, -0.0005, 0.0))
 LASER = LaserCalibration(0.075, tuple(np.deg2rad([70.0, 80.0, 90.0, 100.0])))

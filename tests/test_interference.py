@@ -10,7 +10,7 @@ import pytest
 from atris_node import codes
 from atris_node.demod import STRIP_POSITIONS, STRIP_WIDTH
 from atris_node.errors import CodeError
-from atris_node.interference import InterferenceMeter, InterferenceReport
+from atris_node.pipeline.interference import InterferenceMeter, InterferenceReport
 from atris_node.types import SubFrame
 
 N = 8

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from numba.core.registry import CPUDispatcher
 
-from atris_node import identity_kernels, line_kernels, sector_kernels
-from atris_node.lines import Band, ExtractorSettings, extract_lines
+from atris_node.pipeline import identity_kernels, obstacles_kernels, peaks_kernels
+from atris_node.pipeline.bands import Band
+from atris_node.pipeline.peaks import ExtractorSettings, extract_lines
 
-MODULES = (line_kernels, identity_kernels, sector_kernels)
+MODULES = (peaks_kernels, identity_kernels, obstacles_kernels)
 
 
 def _public_kernels(module: ModuleType) -> list[str]:
@@ -68,11 +69,11 @@ def test_any_map_dtype_and_read_only_maps_give_the_same_samples(dtype: type) -> 
 
 
 def test_map_values_widens_what_the_kernels_do_not_take() -> None:
-    assert line_kernels.map_values(np.zeros((2, 2), np.uint8)).dtype == np.int32
-    assert line_kernels.map_values(np.zeros((2, 2), np.uint32)).dtype == np.float64
-    assert line_kernels.map_values(np.zeros((2, 2), np.float16)).dtype == np.float64
+    assert peaks_kernels.map_values(np.zeros((2, 2), np.uint8)).dtype == np.int32
+    assert peaks_kernels.map_values(np.zeros((2, 2), np.uint32)).dtype == np.float64
+    assert peaks_kernels.map_values(np.zeros((2, 2), np.float16)).dtype == np.float64
     strided = np.zeros((4, 4), np.int16)[:, ::2]
-    assert line_kernels.map_values(strided).flags.c_contiguous
+    assert peaks_kernels.map_values(strided).flags.c_contiguous
 
 
 def test_kernels_are_cached_only_where_a_cache_can_be_written(

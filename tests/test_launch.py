@@ -15,8 +15,8 @@ import pytest
 from atris_node.cli import main
 from atris_node.codes import code_set
 from atris_node.errors import ConfigError
-from atris_node.launch import describe, load_launch
-from atris_node.runner import ProcessRun, escalate, unit_command
+from atris_node.node.launch import describe, load_launch
+from atris_node.node.runner import ProcessRun, escalate, unit_command
 
 TWO_UNITS = """
 [launch]

@@ -1,4 +1,4 @@
-"""The cheapest line-to-peak alignment (atris_node.line_identity): it is the optimum of its
+"""The cheapest line-to-peak alignment (atris_node.pipeline.identity): it is the optimum of its
 cost by exhaustive search, and it restores the identity where a line is missing in the
 middle of a column, where both greedy matchings shift a run of lines."""
 
@@ -10,7 +10,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from atris_node import line_identity as li
+from atris_node.pipeline import identity as li
 
 BANDS = ((10, 60), (30, 80), (50, 100))
 
@@ -98,7 +98,7 @@ def _range_errors(scene: str, identity: str) -> np.ndarray:
     """Camera-range errors (m) of every valid sample over three block maps of a scene."""
     from atris_node.bench.accuracy import range_errors
     from atris_node.demod import BlockDemodulator
-    from atris_node.pipeline import Pipeline, PipelineConfig
+    from atris_node.pipeline.chain import Pipeline, PipelineConfig
     from atris_node.sim import Simulator, load_scene
 
     sim = Simulator(load_scene(scene), seed=1)

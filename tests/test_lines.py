@@ -7,14 +7,13 @@ import pytest
 from pipeline_scenes import oak_calibration, stripe_map
 
 from atris_node.errors import ConfigError
-from atris_node.geometry import distort_pixels, line_row_at_range
-from atris_node.lines import (
+from atris_node.pipeline.bands import Band, line_bands
+from atris_node.pipeline.geometry import distort_pixels, line_row_at_range
+from atris_node.pipeline.noise import noise_floor
+from atris_node.pipeline.peaks import (
     PEAK_METHODS,
-    Band,
     ExtractorSettings,
     extract_lines,
-    line_bands,
-    noise_floor,
     read_padding,
 )
 

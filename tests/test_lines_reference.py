@@ -11,22 +11,20 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from atris_node.lines import (
+from atris_node.pipeline.bands import Band, count_in_bands
+from atris_node.pipeline.identity import (
     CONTINUITY_BLOCK,
     MIN_BLOCK_SAMPLES,
     MIN_LINE_SAMPLES,
-    NOISE_TILE_PX,
-    Band,
-    ExtractorSettings,
-    LineSamples,
     VisibilityPrior,
     _continuity_reference,
-    _count_in_bands,
+)
+from atris_node.pipeline.noise import NOISE_TILE_PX, _quartile_and_median, noise_floor, noise_map
+from atris_node.pipeline.peaks import (
+    ExtractorSettings,
+    LineSamples,
     _median_per_line,
-    _quartile_and_median,
     _samples,
-    noise_floor,
-    noise_map,
     smooth_along_lines,
     supported_along_lines,
 )
@@ -233,7 +231,7 @@ def test_peaks_in_bands_are_counted_per_column() -> None:
     inside = np.zeros(peaks.shape, dtype=bool)
     for b in bands:
         inside |= (peaks >= b.row_lo) & (peaks < b.row_hi)
-    np.testing.assert_array_equal(_count_in_bands(peaks, bands), inside.sum(axis=0))
+    np.testing.assert_array_equal(count_in_bands(peaks, bands), inside.sum(axis=0))
 
 
 def _greedy_by_definition(column: list[int], bands: list[tuple[int, int]],
@@ -250,7 +248,7 @@ def _greedy_by_definition(column: list[int], bands: list[tuple[int, int]],
 
 
 def test_greedy_matchings_are_their_definition() -> None:
-    from atris_node import identity_kernels
+    from atris_node.pipeline import identity_kernels
 
     rng = np.random.default_rng(17)
     for _ in range(300):

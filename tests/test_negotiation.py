@@ -14,17 +14,7 @@ import time
 import can
 import pytest
 
-from atris_node.bus.negotiation import NegotiationState, Negotiator
-from atris_node.bus.negotiation_frames import (
-    FrameKind,
-    Identity,
-    decode_name,
-    identity_of,
-    make_id,
-    parse_id,
-)
-from atris_node.bus.negotiation_plan import Plan, plan_code_rows
-from atris_node.bus.negotiation_sim import (
+from atris_node.bus.negotiation.fleet import (
     Fleet,
     ShimBus,
     overlaps,
@@ -32,6 +22,16 @@ from atris_node.bus.negotiation_sim import (
     strobe_intervals,
     window_violations,
 )
+from atris_node.bus.negotiation.frames import (
+    FrameKind,
+    Identity,
+    decode_name,
+    identity_of,
+    make_id,
+    parse_id,
+)
+from atris_node.bus.negotiation.machine import NegotiationState, Negotiator
+from atris_node.bus.negotiation.plan import Plan, plan_code_rows
 from atris_node.errors import BusError
 from atris_node.types import FaultBits
 
@@ -136,7 +136,7 @@ def test_eight_async_units_fill_the_seven_codes_of_n128_and_the_highest_name_wai
 def test_more_units_than_codes_grows_n_and_reports_the_output_rate_cost(make_fleet, caplog):
     fleet = make_fleet(NAMES[:6])
     fleet.start_all(spread_s=0.01)
-    with caplog.at_level(logging.WARNING, logger="atris_node.bus.negotiation"):
+    with caplog.at_level(logging.WARNING, logger="atris_node.bus.negotiation.machine"):
         fleet.run_until(1.0)
     leader = min(fleet.units, key=lambda u: u.name)
     assert leader.plan_growths == [(PLAN, Plan(64, 480.0))]

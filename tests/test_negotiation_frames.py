@@ -7,9 +7,9 @@ import importlib.resources
 import cantools
 import pytest
 
-from atris_node.bus import negotiation_frames as nf
-from atris_node.bus.frames import FrameCodec
-from atris_node.bus.negotiation_plan import Plan
+from atris_node.bus.can.frames import FrameCodec
+from atris_node.bus.negotiation import frames as nf
+from atris_node.bus.negotiation.plan import Plan
 from atris_node.errors import CodeError, ConfigError, FrameDecodeError
 
 NAME = 0x155  # fits the 10 fold bits, so the fold is the NAME itself
@@ -73,7 +73,7 @@ def test_bad_values_are_refused_with_what_is_accepted():
 
 
 def _database() -> cantools.database.can.Database:
-    path = importlib.resources.files("atris_node.bus").joinpath("atris.dbc")
+    path = importlib.resources.files("atris_node.bus.can").joinpath("atris.dbc")
     with importlib.resources.as_file(path) as dbc:
         db = cantools.database.load_file(str(dbc))
     assert isinstance(db, cantools.database.can.Database)

@@ -18,10 +18,10 @@ import can
 import pytest
 from can.interfaces.virtual import VirtualBus
 
-from atris_node.bus import negotiation_frames as nf
-from atris_node.bus.negotiation import NegotiationState, Negotiator
-from atris_node.bus.negotiation_plan import Plan
-from atris_node.bus.negotiation_rx import ReceiveBarrier, bus_descriptor
+from atris_node.bus.negotiation import frames as nf
+from atris_node.bus.negotiation.machine import NegotiationState, Negotiator
+from atris_node.bus.negotiation.plan import Plan
+from atris_node.bus.negotiation.rx import ReceiveBarrier, bus_descriptor
 
 PLAN = Plan(code_length=16, chip_rate_hz=480.0)
 _channels = itertools.count()

@@ -9,17 +9,17 @@ import random
 import numpy as np
 import pytest
 
-from atris_node.bus.negotiation import NegotiationState
-from atris_node.bus.negotiation_hop import InterferenceMonitor
-from atris_node.bus.negotiation_name import name_from_serial, persisted_name, unit_name
-from atris_node.bus.negotiation_plan import (
+from atris_node.bus.negotiation.fleet import Fleet, overlaps, strobe_intervals, window_violations
+from atris_node.bus.negotiation.hop import InterferenceMonitor
+from atris_node.bus.negotiation.machine import NegotiationState
+from atris_node.bus.negotiation.name import name_from_serial, persisted_name, unit_name
+from atris_node.bus.negotiation.plan import (
     Plan,
     capacity,
     code_rows,
     grow_to_fit,
 )
-from atris_node.bus.negotiation_sim import Fleet, overlaps, strobe_intervals, window_violations
-from atris_node.bus.negotiation_sync import (
+from atris_node.bus.negotiation.sync import (
     fold_offset_chips,
     misalignment_leak,
     walsh_bipolar,

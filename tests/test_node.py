@@ -12,10 +12,10 @@ import pytest
 from listened_bus import listened_bus
 
 from atris_node import config as cfg
-from atris_node.bus.frames import FrameCodec
-from atris_node.bus.ids import FrameKind, unit_of
+from atris_node.bus.can.frames import FrameCodec
+from atris_node.bus.can.ids import FrameKind, unit_of
 from atris_node.errors import FrameDecodeError
-from atris_node.node import Lifecycle, Unit
+from atris_node.node.unit import Lifecycle, Unit
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
 from atris_node.types import FaultBits, Measurement, SectorState, UnitState
 from drivers import Camera, Projector

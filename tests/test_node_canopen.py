@@ -11,8 +11,8 @@ import can
 import canopen
 
 from atris_node import config as cfg
-from atris_node.bus.canopen_device import eds_path
-from atris_node.node import Unit
+from atris_node.bus.canopen.device import eds_path
+from atris_node.node.unit import Unit
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
 from atris_node.types import UnitState
 from drivers import Camera, Projector

@@ -9,8 +9,8 @@ from pathlib import Path
 import can
 
 from atris_node import config as cfg
-from atris_node.launch import launch_dir
-from atris_node.node import Unit
+from atris_node.node.launch import launch_dir
+from atris_node.node.unit import Unit
 from atris_node.types import FaultBits
 
 JAMMER = """

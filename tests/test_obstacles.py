@@ -9,8 +9,8 @@ import open3d as o3d
 import pytest
 
 from atris_node.errors import ConfigError
-from atris_node.objects import cluster_objects, export_cloud
-from atris_node.obstacles import (
+from atris_node.pipeline.objects import cluster_objects, export_cloud
+from atris_node.pipeline.obstacles import (
     ClosingTracker,
     GroundPlane,
     SectorInput,
@@ -19,7 +19,7 @@ from atris_node.obstacles import (
     nearest_obstacle,
     sector_distances,
 )
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import SectorState
 
 LAYOUT = SectorLayout(4, np.deg2rad(80.0))  # sectors 20° wide, index 0 at the right

@@ -10,8 +10,8 @@ import numpy as np
 
 from atris_node.codes import walsh_chips
 from atris_node.demod import BlockDemodulator
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult, foreign_energy
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult, foreign_energy
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator, load_scene
 from atris_node.types import DistortionMap, SectorState
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from atris_node.demod import BlockDemodulator
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.sim import Simulator, Truth, load_scene, shipped_scenes
 from atris_node.sim.raycast import Cylinder, Sphere
 from atris_node.types import SectorState

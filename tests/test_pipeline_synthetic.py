@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from pipeline_scenes import Box, Scene, as_map, oak_calibration, render
 
-from atris_node import objects as objects_mod
 from atris_node.errors import ConfigError
-from atris_node.geometry import range_sigma
 from atris_node.mounting import Mounting
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline import objects as objects_mod
+from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.geometry import range_sigma
 from atris_node.types import SectorState
 
 LEVEL = Mounting(z_m=0.5)

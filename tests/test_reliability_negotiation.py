@@ -25,9 +25,7 @@ from typing import Any
 import can
 import pytest
 
-from atris_node.bus.negotiation_frames import FrameKind, decode_name, make_id, parse_id
-from atris_node.bus.negotiation_plan import Plan
-from atris_node.bus.negotiation_sim import (
+from atris_node.bus.negotiation.fleet import (
     Fleet,
     ShimBus,
     overlaps,
@@ -35,6 +33,8 @@ from atris_node.bus.negotiation_sim import (
     strobe_intervals,
     window_violations,
 )
+from atris_node.bus.negotiation.frames import FrameKind, decode_name, make_id, parse_id
+from atris_node.bus.negotiation.plan import Plan
 from atris_node.testing.faultbus import Faults, FaultyBus
 
 PLAN = Plan(code_length=16, chip_rate_hz=480.0)

@@ -1,4 +1,4 @@
-"""ROI narrowing (atris_node.roi): the line search skips rows where no line was lately, and
+"""ROI narrowing (atris_node.pipeline.roi): the line search skips rows where no line was lately, and
 the samples and sector distances stay exactly those of the whole-band search."""
 
 from __future__ import annotations
@@ -13,10 +13,11 @@ from atris_node import codes
 from atris_node.bench.accuracy import scaled
 from atris_node.demod import BlockDemodulator
 from atris_node.errors import ConfigError
-from atris_node.lines import Band, LineSamples, extract_lines
 from atris_node.mounting import Mounting
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
-from atris_node.roi import RoiSettings, RoiTracker
+from atris_node.pipeline.bands import Band
+from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.peaks import LineSamples, extract_lines
+from atris_node.pipeline.roi import RoiSettings, RoiTracker
 from atris_node.sim import Simulator, load_scene
 from atris_node.types import DistortionMap
 

@@ -14,7 +14,7 @@ import numpy.typing as npt
 import pytest
 
 from atris_node.demod import BlockDemodulator
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator, Truth, load_scene
 from atris_node.sim.scene import Scene
 from atris_node.types import DistortionMap, SubFrame

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from atris_node.geometry import line_row_at_range
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.geometry import line_row_at_range
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator
 from atris_node.sim.scene import parse_scene
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from atris_node import codes
-from atris_node.adaptive import rows_in_use, used_chips
-from atris_node.interference import InterferenceMeter
+from atris_node.adaptive.controller import rows_in_use, used_chips
+from atris_node.pipeline.interference import InterferenceMeter
 from atris_node.types import SubFrame
 
 N = 16

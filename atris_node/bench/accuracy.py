@@ -3,7 +3,7 @@
 For every shipped simulator scene (unit 0) and every configuration - code length N in
 {4, 8, 16, 32}, peak method, ROI bands on/off, resolution 640x400 / 1280x800, block or
 sliding demodulation - sub-frames are rendered once per (scene, resolution, N), pushed
-through the demodulator and each map through :class:`~atris_node.pipeline.Pipeline`.
+through the demodulator and each map through :class:`~atris_node.pipeline.chain.Pipeline`.
 
 Each row (JSON fields relied on by other tools): ``config`` (object: ``code_length``,
 ``peak_method``, ``roi_bands``, ``resolution``, ``demod``), ``scene``, ``ms_per_frame``
@@ -32,8 +32,8 @@ import numpy.typing as npt
 
 from atris_node import codes
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
-from atris_node.lines import IDENTITY_MODES, PEAK_METHODS
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.peaks import IDENTITY_MODES, PEAK_METHODS
 from atris_node.progress import progress
 from atris_node.sim import Simulator, Truth, load_scene, shipped_scenes
 from atris_node.sim.scene import Scene

@@ -24,7 +24,7 @@ import numpy as np
 from atris_node import config as cfg
 from atris_node.bench import skips
 from atris_node.bench.accuracy import range_errors
-from atris_node.node import Unit
+from atris_node.node.unit import Unit
 from atris_node.types import DistortionMap, FaultBits, SubFrame
 
 SCENES = ("indoor_lab", "window_sun", "outdoor_medium_sun", "outdoor_strong_sun")

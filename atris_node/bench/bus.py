@@ -21,9 +21,9 @@ from typing import Any
 
 import can
 
-from atris_node.bus.e2e import E2EChecker
-from atris_node.bus.ids import FrameKind, frame_id
-from atris_node.bus.publisher import Publisher
+from atris_node.bus.can.e2e import E2EChecker
+from atris_node.bus.can.ids import FrameKind, frame_id
+from atris_node.bus.can.publisher import Publisher
 from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 
 STATUS = UnitStatus(UnitState.RUNNING, 3, 16, 480.0, 0)

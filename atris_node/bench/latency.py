@@ -26,10 +26,10 @@ import can
 import numpy as np
 
 from atris_node import config as cfg
-from atris_node.bus.frames import FrameCodec
-from atris_node.bus.ids import FrameKind, unit_of
+from atris_node.bus.can.frames import FrameCodec
+from atris_node.bus.can.ids import FrameKind, unit_of
 from atris_node.errors import FrameDecodeError
-from atris_node.node import Unit
+from atris_node.node.unit import Unit
 from atris_node.types import Measurement
 
 CHANNEL = "atris-bench-latency"

@@ -4,7 +4,7 @@
   against every code of the plan, ms per sub-frame, with the reported energies compared;
 - the phase search (lag correlation) per sub-frame against the locked demodulator's
   re-check once per lock history, ms per sub-frame;
-- the line search over the whole bands against ROI narrowing (``atris_node.roi``), ms of
+- the line search over the whole bands against ROI narrowing (``atris_node.pipeline.roi``), ms of
   the pipeline per map on the simulated indoor_lab scene, samples and sectors compared.
 
 Sub-frames of the first two are synthetic 640x400 10-bit frames with the own line and one
@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from atris_node import codes
-from atris_node.adaptive import used_chips
+from atris_node.adaptive.controller import used_chips
 from atris_node.bench.accuracy import scaled
 from atris_node.demod import BlockDemodulator
-from atris_node.interference import InterferenceMeter
-from atris_node.pipeline import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
+from atris_node.pipeline.interference import InterferenceMeter
 from atris_node.sim import Simulator, load_scene
 from atris_node.types import DistortionMap, SubFrame
 

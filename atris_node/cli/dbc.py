@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from atris_node.bus.frames import dbc_text
+from atris_node.bus.can.frames import dbc_text
 from atris_node.cli.common import add_output_argument, write_text
 
 add_arguments = add_output_argument

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from atris_node.bus.canopen_device import eds_text
+from atris_node.bus.canopen.device import eds_text
 from atris_node.cli.common import add_output_argument, write_text
 
 add_arguments = add_output_argument

@@ -18,13 +18,13 @@ from typing import Any
 
 import can
 
-from atris_node.bus.busconfig import BusConfig, open_bus
-from atris_node.bus.e2e import E2EState
-from atris_node.bus.ids import unit_of
-from atris_node.bus.monitor import BusMonitor
-from atris_node.fleetview import fleet_table
-from atris_node.launch import LaunchSpec, describe, load_launch
-from atris_node.runner import FleetRun, ProcessRun, stop_on_signals
+from atris_node.bus.can.config import BusConfig, open_bus
+from atris_node.bus.can.e2e import E2EState
+from atris_node.bus.can.ids import unit_of
+from atris_node.bus.can.monitor import BusMonitor
+from atris_node.node.fleetview import fleet_table
+from atris_node.node.launch import LaunchSpec, describe, load_launch
+from atris_node.node.runner import FleetRun, ProcessRun, stop_on_signals
 
 logger = logging.getLogger(__name__)
 

@@ -15,8 +15,8 @@ import time
 
 import can
 
-from atris_node.bus.busconfig import BusConfig, open_bus
-from atris_node.bus.monitor import BusMonitor, render_table
+from atris_node.bus.can.config import BusConfig, open_bus
+from atris_node.bus.can.monitor import BusMonitor, render_table
 
 CLEAR = "\x1b[H\x1b[2J"
 

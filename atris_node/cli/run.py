@@ -6,7 +6,7 @@ import argparse
 import json
 
 from atris_node.cli.common import add_config_arguments, config_from_args
-from atris_node.runner import run_unit
+from atris_node.node.runner import run_unit
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

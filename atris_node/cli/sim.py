@@ -25,8 +25,8 @@ import numpy as np
 
 from atris_node.codes import walsh_chips
 from atris_node.errors import ConfigError
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.progress import progress
-from atris_node.sectors import SectorLayout
 from atris_node.types import DistortionMap, SectorState, SubFrame
 
 logger = logging.getLogger(__name__)
@@ -110,9 +110,9 @@ def frame_record(frame: int, scene: str, dmap: DistortionMap, result: Any, truth
 def _pipeline(sim: Any, layout: SectorLayout) -> Any:
     """The unit's processing chain with the true calibration, or None if not available."""
     try:
-        from atris_node.pipeline import Pipeline, PipelineConfig
+        from atris_node.pipeline.chain import Pipeline, PipelineConfig
     except ImportError:  # the chain is optional for rendering and truth
-        logger.warning("atris_node.pipeline is not available: sectors are not measured")
+        logger.warning("atris_node.pipeline.chain is not available: sectors are not measured")
         return None
     config = PipelineConfig(sector_count=layout.count, fov_deg=math.degrees(layout.fov_rad))
     return Pipeline(config, sim.calibration(), sim.mounting, layout)

@@ -6,8 +6,8 @@ import argparse
 import json
 
 from atris_node.errors import ConfigError
-from atris_node.launch import load_launch
-from atris_node.soak import soak
+from atris_node.node.launch import load_launch
+from atris_node.node.soak import soak
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -89,7 +89,7 @@ def sheet_rates(camera: CameraSpec, pose: Mounting, pattern: LinePattern, surfac
 def camera_rays(camera: CameraSpec, mounting: Mounting) -> tuple[FloatArray, FloatArray]:
     """Unit rays through every observed pixel centre: camera frame and vehicle frame,
     both (H, W, 3) float64. Lens distortion is undone per pixel."""
-    from atris_node.geometry import undistort_pixels
+    from atris_node.pipeline.geometry import undistort_pixels
 
     rows, cols = np.mgrid[0:camera.height_px, 0:camera.width_px].astype(np.float64)
     u, v = undistort_pixels(rows, cols, camera.model)

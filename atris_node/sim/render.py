@@ -33,9 +33,9 @@ import numpy.typing as npt
 from atris_node.calibration import Calibration, LaserCalibration
 from atris_node.codes import walsh_chips
 from atris_node.errors import ConfigError
-from atris_node.geometry import distort_pixels
 from atris_node.mounting import Mounting
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.geometry import distort_pixels
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import layers
 from atris_node.sim.optics import sheet_angles
 from atris_node.sim.raycast import Shape, occluded

@@ -4,14 +4,14 @@ The true row of line k in column c is where the light plane ``θ = α_k`` crosse
 column: θ (the projector-frame angle ``atan2(z, y + b)`` of the surface point each pixel
 sees) is linearly interpolated between the two pixel centres on either side, on one
 surface. Rows are observed (distorted) image rows, 0 = top row, as
-:class:`atris_node.lines.LineSamples` reports them. When a column holds several crossings
+:class:`atris_node.pipeline.peaks.LineSamples` reports them. When a column holds several crossings
 of one line (occlusions) the nearest surface is kept. A crossing counts only when the
 projector reaches the point (inside the fan, not shadowed).
 
 The true point of a crossing is Eq. 1 at the undistorted sub-pixel position, so it is
 the point the pipeline would triangulate from a perfect line row. Sector truth takes
 those points on obstacles only (never the ground plane), in the vehicle frame, and keeps
-the smallest horizontal range per sector of :class:`atris_node.sectors.SectorLayout`.
+the smallest horizontal range per sector of :class:`atris_node.pipeline.sectors.SectorLayout`.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.geometry import undistort_pixels
 from atris_node.mounting import Mounting
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.geometry import undistort_pixels
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim.layers import Surface, see
 from atris_node.sim.optics import sheet_angles
 from atris_node.sim.raycast import occluded

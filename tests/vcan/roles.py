@@ -137,7 +137,7 @@ def publisher(channel: str, unit_id: str, period_s: str, update_s: str) -> None:
     Emits ``measurement`` events with the wall-clock time of the measurement's newest
     sub-frame, so the test can compare it with the kernel receive timestamps.
     """
-    from atris_node.bus.publisher import Publisher
+    from atris_node.bus.can.publisher import Publisher
     from atris_node.types import UnitState, UnitStatus
 
     stop, counter = StdinWatch(), 0
@@ -162,7 +162,7 @@ def canopen_slave(channel: str, node_id: str, update_s: str) -> None:
     """The unit as a CANopen slave (CanopenDevice) fed a measurement every ``update_s``."""
     import canopen
 
-    from atris_node.bus.canopen_device import CanopenDevice
+    from atris_node.bus.canopen.device import CanopenDevice
     from atris_node.types import UnitState, UnitStatus
 
     stop, counter = StdinWatch(), 0
@@ -199,8 +199,8 @@ def negotiator(channel: str, name: str, unit_id: str, code_length: str,
                stall_s: str = "0") -> None:
     """A unit's Negotiator on its own socketcan bus; emits every change of what it may do.
     With ``stall_s`` its receive thread stalls that long on the first frame it gets."""
-    from atris_node.bus.negotiation import Negotiator
-    from atris_node.bus.negotiation_plan import Plan
+    from atris_node.bus.negotiation.machine import Negotiator
+    from atris_node.bus.negotiation.plan import Plan
 
     stop, reported = StdinWatch(), 0
     with can.Bus(interface="socketcan", channel=channel) as bus:
@@ -244,8 +244,9 @@ def atris(*argv: str) -> None:
 
 #: modules the zygote imports once, so forked units start at once
 PRELOAD = ("numpy", "can.interfaces.socketcan", "cantools", "canopen", "atris_node.types",
-           "atris_node.bus.frames", "atris_node.bus.publisher", "atris_node.bus.canopen_device",
-           "atris_node.bus.negotiation", "atris_node.runner", "atris_node.cli.run")
+           "atris_node.bus.can.frames", "atris_node.bus.can.publisher",
+           "atris_node.bus.canopen.device", "atris_node.bus.negotiation.machine",
+           "atris_node.node.runner", "atris_node.cli.run")
 
 
 def zygote() -> None:

@@ -1,5 +1,5 @@
 """Scene-adaptive operation (issue 11): code length N and exposure from per-frame
-assessments. Pure classes fed with :class:`~atris_node.assessment.SceneAssessment`;
+assessments. Pure classes fed with :class:`~atris_node.adaptive.assessment.SceneAssessment`;
 no I/O. The node applies their decisions (``Negotiator.request_plan``,
 ``Camera.set_exposure_us``); see docs/adaptive.md.
 
@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.assessment import SceneAssessment
+from atris_node.adaptive.assessment import SceneAssessment
 from atris_node.config import Config
 from atris_node.errors import check_setting
 from atris_node.types import Measurement, SectorState
@@ -284,7 +284,7 @@ def used_chips(chips_by_row: Mapping[int, Chips], own_row: int,
                peer_rows: Iterable[int | None], scene_rows: Iterable[int] = ()
                ) -> dict[int, Chips]:
     """``chips_by_row`` reduced to :func:`rows_in_use`: what an
-    :class:`~atris_node.interference.InterferenceMeter` needs to be given. Codes nobody
+    :class:`~atris_node.pipeline.interference.InterferenceMeter` needs to be given. Codes nobody
     strobes carry only noise, so leaving them out changes no reported energy."""
     keep = rows_in_use(chips_by_row, own_row, peer_rows, scene_rows)
     return {r: chips_by_row[r] for r in keep}

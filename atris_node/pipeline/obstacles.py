@@ -2,7 +2,7 @@
 
 Points are (n, 3) float64 in the vehicle frame (ISO 8855: x forward, y left, z up,
 metres). A point is an *obstacle* when it is a valid return and higher than the ground
-clearance above the ground plane. Per sector (see :mod:`atris_node.sectors`):
+clearance above the ground plane. Per sector (see :mod:`atris_node.pipeline.sectors`):
 
 - VALID: at least ``min_points`` obstacle points and enough confidence; the distance is
   a low quantile of their horizontal ranges, and never nearer than the ``min_points``-th
@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from atris_node import sector_kernels
 from atris_node.errors import ConfigError
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline import obstacles_kernels
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import SectorDistance, SectorState
 
 logger = logging.getLogger(__name__)
@@ -129,7 +129,7 @@ def _sector(index: int, layout: SectorLayout, settings: SectorSettings, *, sampl
             hits: int, median_snr: float, distance_m: float) -> SectorDistance:
     """One sector from the counts of its samples and obstacle points, the median SNR (of
     the obstacle points, else of every sample) and its distance (see
-    :func:`atris_node.sector_kernels.sector_statistics`)."""
+    :func:`atris_node.pipeline.obstacles_kernels.sector_statistics`)."""
     bearing = layout.bearing_of(index)
     if samples < settings.min_points:
         return SectorDistance(index, bearing, SectorState.INVALID, point_count=samples)
@@ -148,9 +148,9 @@ def sector_distances(data: SectorInput, layout: SectorLayout,
                      settings: SectorSettings) -> tuple[SectorDistance, ...]:
     """One :class:`SectorDistance` per sector of ``layout``, index 0 at the right edge.
     The samples are grouped by sector in one compiled pass and each order statistic is
-    read by selection (:func:`atris_node.sector_kernels.sector_statistics`)."""
+    read by selection (:func:`atris_node.pipeline.obstacles_kernels.sector_statistics`)."""
     idx, rng = data.placed(layout)
-    samples, hits, median, distance = sector_kernels.sector_statistics(
+    samples, hits, median, distance = obstacles_kernels.sector_statistics(
         np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(data.obstacle,
                                                                         dtype=np.bool_),
         np.ascontiguousarray(rng, dtype=np.float64),

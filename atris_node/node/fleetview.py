@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from atris_node.bus.monitor import BusMonitor, render_table
+from atris_node.bus.can.monitor import BusMonitor, render_table
 
 
 def _cell(value: Any) -> str:

@@ -27,7 +27,7 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError
 
-from atris_node.bus import payloads
+from atris_node.bus.can import payloads
 from atris_node.errors import AtrisError, NodeFaultError
 from atris_node.types import Measurement, UnitStatus
 
@@ -60,12 +60,12 @@ NMT_STATE_CODES = {name: code for code, name in canopen.nmt.NMT_STATES.items()}
 
 def eds_text() -> str:
     """Text of the shipped EDS (package data ``atris_node/bus/atris.eds``)."""
-    return importlib.resources.files("atris_node.bus").joinpath(EDS_NAME).read_text("utf-8")
+    return importlib.resources.files("atris_node.bus.canopen").joinpath(EDS_NAME).read_text("utf-8")
 
 
 def eds_path() -> Path:
     """File system path of the shipped EDS (canopen's importer wants a file)."""
-    return Path(str(importlib.resources.files("atris_node.bus").joinpath(EDS_NAME)))
+    return Path(str(importlib.resources.files("atris_node.bus.canopen").joinpath(EDS_NAME)))
 
 
 def check_config_value(name: str, od: ODVariable, value: int) -> None:

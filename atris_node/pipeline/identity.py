@@ -1,7 +1,7 @@
 """Line identity where the two greedy matchings disagree: the cheapest alignment of lines
 and peaks in each column.
 
-The top-down and bottom-up greedy matchings of :func:`atris_node.lines.identify_lines` are
+The top-down and bottom-up greedy matchings of :func:`identify_lines` are
 the two extreme order-preserving matchings. When a line is missing in the middle of a
 column (occluded, in a shadow, off a small object) the true identity lies between them:
 the lines above the gap keep their rows, those below it keep theirs. Both greedy
@@ -20,18 +20,20 @@ neighbouring columns (continuity), plus BEYOND_PX when the row is past the line'
 row (the sample would be no return, while the same peak may be a near range of the next
 line); a missing line costs SKIP_PX; a spare peak inside a band costs SPARE_PX (it would
 count as foreign light). A column costs K·M steps of a compiled loop
-(:func:`atris_node.identity_kernels.align`). All rows are int64 px; costs float64 px,
+(:func:`atris_node.pipeline.identity_kernels.align`). All rows are int64 px; costs float64 px,
 finite.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
 
-from atris_node import identity_kernels as kernels
+from atris_node.pipeline import identity_kernels as kernels
+from atris_node.pipeline.bands import Band, in_image_order
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -49,6 +51,11 @@ UNEXPLAINED_PX = 10.0
 SWITCH_PX = 10.0
 #: the costs as the kernels take them
 _COSTS = np.array([SKIP_PX, SPARE_PX, BEYOND_PX, UNEXPLAINED_PX])
+#: agreed samples a block of columns / a whole line needs to serve as continuity reference
+MIN_BLOCK_SAMPLES = 4
+MIN_LINE_SAMPLES = 16
+#: columns per block of the continuity reference used to resolve overlapping bands
+CONTINUITY_BLOCK = 32
 
 
 def align(peaks: IntArray, bands: tuple[tuple[int, int], ...], ref: FloatArray,
@@ -88,28 +95,7 @@ def _edges(bands: tuple[tuple[int, int], ...]) -> tuple[IntArray, IntArray]:
             np.array([b[1] for b in bands], dtype=np.int64))
 
 
-class Prior(Protocol):
-    """What :func:`improve` needs of :class:`atris_node.lines.VisibilityPrior`."""
-
-    @property
-    def cot_alpha(self) -> FloatArray: ...
-    @property
-    def focal_px(self) -> float: ...
-    @property
-    def cy_px(self) -> float: ...
-    @property
-    def baseline_m(self) -> float: ...
-    @property
-    def z_max_m(self) -> float: ...
-    @property
-    def ground_range_m(self) -> FloatArray: ...
-    @property
-    def geometry(self) -> FloatArray: ...
-    @property
-    def image_order(self) -> IntArray: ...
-
-
-def beyond_rows(prior: Prior | None, order: IntArray) -> FloatArray:
+def beyond_rows(prior: VisibilityPrior | None, order: IntArray) -> FloatArray:
     """(K,) first integer row past each line's z_max range, lines in ``order`` (inf
     without a prior): observed rows, no lens correction (a plausibility bound)."""
     if prior is None:
@@ -121,7 +107,7 @@ def beyond_rows(prior: Prior | None, order: IntArray) -> FloatArray:
 
 def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
             greedy: tuple[IntArray, IntArray], unsettled: BoolArray, ref: FloatArray,
-            prior: Prior | None, sep: int) -> tuple[IntArray, IntArray]:
+            prior: VisibilityPrior | None, sep: int) -> tuple[IntArray, IntArray]:
     """The greedy identity ``greedy = (rows, unsure)`` ((K, W) by line, (W,)), replaced in
     each column where the cheapest alignment costs at least max(SWITCH_PX, ``sep``) px
     less and the greedy choice was not ambiguous.
@@ -155,9 +141,9 @@ def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
     return rows_and_unsure
 
 
-def prior_arrays(prior: Prior | None, shape: tuple[int, ...]) -> tuple[
+def prior_arrays(prior: VisibilityPrior | None, shape: tuple[int, ...]) -> tuple[
         bool, FloatArray, FloatArray, FloatArray, IntArray]:
-    """The prior as the kernels of :mod:`atris_node.identity_kernels` take it: (has_prior,
+    """The prior as the kernels of :mod:`atris_node.pipeline.identity_kernels` take it: (has_prior,
     cot α (K,), geometry (5,), ground range (K, W) m, image order (K,)); placeholders and
     False without one. ``shape`` is (K, W)."""
     if prior is None:
@@ -167,3 +153,78 @@ def prior_arrays(prior: Prior | None, shape: tuple[int, ...]) -> tuple[
             np.ascontiguousarray(prior.ground_range_m, dtype=np.float64), prior.image_order)
 
 
+def _continuity_reference(rows: IntArray, good: BoolArray) -> FloatArray:
+    """(The kernel :func:`identify_lines` uses, with this module's constants.) (K, W) per
+    line: the median of the good rows in each block of CONTINUITY_BLOCK
+    columns (at least MIN_BLOCK_SAMPLES of them; the upper median of an even count);
+    elsewhere the median of all the line's good rows when there are at least
+    MIN_LINE_SAMPLES; inf where no reference can be trusted. ``rows`` (K, W) int,
+    ``good`` (K, W) bool."""
+    return np.asarray(kernels.continuity_reference(
+        np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(good, dtype=np.bool_),
+        CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES))
+
+
+@dataclass(frozen=True)
+class VisibilityPrior:
+    """Where each line would be seen if a surface were there, from the calibration and
+    the mounting: it tells a missing line that is explained (below the ground, off the
+    image, out of range) from one that is not.
+
+    ``cot_alpha`` (K,) cot α_k; ``ground_range_m`` (K, W) float64 camera range z (m) at
+    which line k's plane meets the ground (plus clearance) in column c, ``np.inf`` when it
+    never does; other fields in pixels and metres.
+    """
+
+    cot_alpha: FloatArray
+    focal_px: float
+    cy_px: float
+    height_px: int
+    baseline_m: float
+    z_max_m: float
+    ground_range_m: FloatArray
+
+    def unexplained(self, rows: IntArray, columns: IntArray | None = None) -> IntArray:
+        """(n,) number of unassigned lines that should be visible at the range of their
+        nearest assigned neighbour (above ground, inside the image, within z_max).
+        ``rows`` (K, n) by line are those of the image ``columns`` (default: all W)."""
+        ground = self.ground_range_m if columns is None else self.ground_range_m[:, columns]
+        return np.asarray(kernels.unexplained(
+            np.ascontiguousarray(rows, dtype=np.int64), self.cot_alpha, self.geometry,
+            np.ascontiguousarray(ground, dtype=np.float64), self.image_order))
+
+    @cached_property
+    def geometry(self) -> FloatArray:
+        """(5,) focal px, cy px, height px, baseline m, z_max m (as the kernels take them)."""
+        return np.array([self.focal_px, self.cy_px, self.height_px, self.baseline_m,
+                         self.z_max_m], dtype=np.float64)
+
+    @cached_property
+    def image_order(self) -> IntArray:
+        """(K,) the lines from the top of the image down (ascending cot α)."""
+        return np.argsort(self.cot_alpha)
+
+
+def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
+                   prior: VisibilityPrior | None = None, *,
+                   aligned: bool = False) -> tuple[IntArray, IntArray]:
+    """(K, W) row of each line per column (-1 = none) and (W,) ambiguous samples per column.
+
+    Order: lines keep their top-to-bottom order and each stays in its band. Both greedy
+    matchings (top down and bottom up) have the most pairs; where they agree the identity
+    is certain. Where they differ, the ``prior`` (if given) prefers the matching that
+    leaves fewer lines missing without a reason; then continuity decides: the matching
+    whose differing rows lie closer (by at least ``sep`` px) to each line's rows in the
+    neighbouring columns wins; otherwise the differing samples are dropped and counted
+    ambiguous. With ``aligned``, a confident choice is then replaced where the cheapest
+    alignment (:func:`improve`) is clearly cheaper (a line missing in the
+    middle of a column, which both greedy matchings answer with a shifted run of lines).
+    """
+    lo, hi, line = in_image_order(bands)
+    rows, unsure, unsettled, certain = kernels.greedy_identity(
+        np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, line, int(sep), aligned,
+        *prior_arrays(prior, (len(bands), peaks.shape[1])), CONTINUITY_BLOCK,
+        MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES)
+    if not aligned or not unsettled.any():
+        return rows, unsure
+    return improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain, prior, sep)

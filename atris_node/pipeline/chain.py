@@ -20,27 +20,15 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from atris_node import identity_kernels, line_kernels, sector_kernels
-from atris_node import objects as objects_mod
 from atris_node.calibration import Calibration
 from atris_node.errors import ConfigError, check_setting
-from atris_node.geometry import Points, triangulate, undistort_pixels
-from atris_node.lines import (
-    IDENTITY_MODES,
-    PEAK_METHODS,
-    Band,
-    Extraction,
-    ExtractorSettings,
-    LineSamples,
-    VisibilityPrior,
-    extract_lines,
-    line_bands,
-    select,
-    smooth_along_lines,
-    supported_along_lines,
-)
 from atris_node.mounting import Mounting
-from atris_node.obstacles import (
+from atris_node.pipeline import identity_kernels, obstacles_kernels, peaks_kernels
+from atris_node.pipeline import objects as objects_mod
+from atris_node.pipeline.bands import Band, line_bands
+from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
+from atris_node.pipeline.identity import VisibilityPrior
+from atris_node.pipeline.obstacles import (
     ClosingTracker,
     GroundPlane,
     SectorInput,
@@ -49,8 +37,19 @@ from atris_node.obstacles import (
     nearest_obstacle,
     sector_distances,
 )
-from atris_node.roi import RoiSettings, RoiTracker
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.peaks import (
+    IDENTITY_MODES,
+    PEAK_METHODS,
+    Extraction,
+    ExtractorSettings,
+    LineSamples,
+    extract_lines,
+    select,
+    smooth_along_lines,
+    supported_along_lines,
+)
+from atris_node.pipeline.roi import RoiSettings, RoiTracker
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import (
     DistortionMap,
     FaultBits,
@@ -99,7 +98,7 @@ class PipelineConfig:
     invalid_on_interference: bool = True  # flagged foreign light: every sector INVALID
     smooth_columns: int = 5  # median of this many columns along each line (1 = off)
     drop_lone_samples: bool = True  # a sample needs a neighbour on its line (±2 columns)
-    roi_narrowing: bool = False  # search lines near their recent rows (atris_node.roi)
+    roi_narrowing: bool = False  # search lines near their recent rows (atris_node.pipeline.roi)
     identity: str = "aligned"  # or "greedy": the greedy matchings only (~0.3 ms less)
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
 
@@ -259,7 +258,7 @@ class Pipeline:
         self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
-        for kernels in (line_kernels, identity_kernels, sector_kernels):
+        for kernels in (peaks_kernels, identity_kernels, obstacles_kernels):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
 

@@ -20,11 +20,11 @@ from typing import Any
 
 import can
 
-from atris_node.bus import busconfig
-from atris_node.bus.busconfig import BusConfig
+from atris_node.bus.can import config as busconfig
+from atris_node.bus.can.config import BusConfig
 from atris_node.config import Config
-from atris_node.launch import LaunchSpec
-from atris_node.node import Unit
+from atris_node.node.launch import LaunchSpec
+from atris_node.node.unit import Unit
 
 logger = logging.getLogger(__name__)
 

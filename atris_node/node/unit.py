@@ -30,17 +30,17 @@ from typing import Any
 
 import can
 
-from atris_node import wiring
-from atris_node.adaptive import AdaptiveController, controller_from_config, withheld
-from atris_node.assessment import assess
-from atris_node.bus.canopen_device import CanopenDevice
-from atris_node.bus.publisher import Publisher
+from atris_node.adaptive.assessment import assess
+from atris_node.adaptive.controller import AdaptiveController, controller_from_config, withheld
+from atris_node.bus.can.publisher import Publisher
+from atris_node.bus.canopen.device import CanopenDevice
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.errors import AtrisError, CameraLostError, DemodulationError, NodeFaultError
-from atris_node.interference import InterferenceReport, InterferenceWatch
-from atris_node.snapshot import obstacle_map, write_snapshot
+from atris_node.node import wiring
+from atris_node.node.snapshot import obstacle_map, write_snapshot
+from atris_node.pipeline.interference import InterferenceReport, InterferenceWatch
 from atris_node.types import (
     DistortionMap,
     FaultBits,

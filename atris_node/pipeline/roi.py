@@ -2,14 +2,14 @@
 
 A line's band covers every range from z_min to z_max, but in a scene that changes slowly
 each line sits on a few rows. :class:`RoiTracker` keeps, per line, the rows of its samples
-in the last ``history`` maps and hands :func:`atris_node.lines.extract_lines` those rows
+in the last ``history`` maps and hands :func:`atris_node.pipeline.peaks.extract_lines` those rows
 widened by ``margin_px`` as the rows to search for peaks. It asks for a full search
 
 - every ``full_every``-th map (a line may appear where it was not seen),
 - while any line has no recent samples (it may be anywhere in its band),
 - while the last full search saw foreign light (its peaks may be anywhere).
 
-:func:`atris_node.lines.extract_lines` itself searches every row when any pixel outside the
+:func:`atris_node.pipeline.peaks.extract_lines` itself searches every row when any pixel outside the
 recent rows reaches the peak threshold (one comparison per pixel instead of the maximum
 search): every peak it keeps reaches that threshold, so a narrowed search finds exactly the
 peaks of the full search, whatever the scene does. Noise statistics, line identity and the
@@ -27,7 +27,8 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.errors import ConfigError
-from atris_node.lines import Band, LineSamples
+from atris_node.pipeline.bands import Band
+from atris_node.pipeline.peaks import LineSamples
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,7 @@ class RoiTracker:
     """Recent rows of every line and the search rows they give.
 
     Args:
-        bands: the full band of every line (:func:`atris_node.lines.line_bands`).
+        bands: the full band of every line (:func:`atris_node.pipeline.bands.line_bands`).
         settings: :class:`RoiSettings`.
     """
 

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import DistortionMap, Measurement, SectorState, SubFrame
 
 U8 = npt.NDArray[np.uint8]

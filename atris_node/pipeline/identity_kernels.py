@@ -4,8 +4,8 @@ Line identity works column by column on a few lines (K <= 16) and a few peaks (M
 both greedy matchings, the visibility prior's count of lines missing without a reason, the
 continuity reference and the cheapest alignment. As numpy vector steps these were hundreds
 of small array operations per map (about 3 ms at 640x400); here one pass per column (about
-0.5 ms in all). Each function is the kernel of one of :mod:`atris_node.lines` or
-:mod:`atris_node.line_identity`, which check the arguments, document the method and are
+0.5 ms in all). Each function is the kernel of one of :mod:`atris_node.pipeline.peaks` or
+:mod:`atris_node.pipeline.identity`, which check the arguments, document the method and are
 what the rest of the node calls.
 
 Types: rows, lines and indices int64 (-1 = none), costs and ranges float64. Costs are sums
@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.selection import median
+from atris_node.pipeline.selection import median
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -230,7 +230,7 @@ def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
     """Per column the cheapest order-preserving alignment of K lines (bands ``[lo, hi)`` in
     image order) and the (M, n) ``peaks`` (-1 = none, any order): (K, n) rows (-1 = none)
     and (n,) cost, px. ``costs`` (skip, spare, beyond) px, as in
-    :mod:`atris_node.line_identity`; ``ref`` (K, n) and ``beyond`` (K,) in image order."""
+    :mod:`atris_node.pipeline.identity`; ``ref`` (K, n) and ``beyond`` (K,) in image order."""
     k_count, (m_count, n) = lo.size, peaks.shape
     rows = np.full((k_count, n), -1, dtype=np.int64)
     total = np.zeros(n)
@@ -277,7 +277,7 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
             unsure: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
             margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
             geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
-    """:func:`atris_node.line_identity.improve` on the given ``columns``, in place on
+    """:func:`atris_node.pipeline.identity.improve` on the given ``columns``, in place on
     ``rows`` (K, W) by line and ``unsure`` (W,). ``costs`` (skip, spare, beyond,
     unexplained) px; the prior (``cot_alpha``, ``geometry``, ``ground_range_m``,
     ``image_order``, as :func:`unexplained` takes them) counts only with ``has_prior``."""
@@ -388,8 +388,8 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
                     geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
                     block: int, min_block: int, min_line: int
                     ) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_], FloatArray]:
-    """The greedy identity of :func:`atris_node.lines.identify_lines`: (K, W) rows by line
-    (-1 = none), (W,) ambiguous samples, (W,) columns where the two greedy matchings
+    """The greedy identity of :func:`atris_node.pipeline.identity.identify_lines`: (K, W)
+    rows by line (-1 = none), (W,) ambiguous samples, (W,) columns where the two greedy matchings
     differ and, with ``aligned``, the (K, W) continuity reference of the columns where
     they agree ((0, 0) without). Bands ``[lo, hi)`` and their ``line`` in image order;
     the prior as :func:`unexplained` takes it, used only with ``has_prior``."""

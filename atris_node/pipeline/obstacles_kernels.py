@@ -1,6 +1,6 @@
 """Compiled per-sector statistics of the obstacle points (numba, ``nopython``).
 
-:func:`atris_node.obstacles.sector_distances` needs, per sector, the sample count, a low
+:func:`atris_node.pipeline.obstacles.sector_distances` needs, per sector, the sample count, a low
 quantile of the obstacle points' ranges, their ``min_points``-th nearest and a median
 SNR. As numpy steps (sorts grouped by sector, slices, a Python loop over the sectors) that
 is ~0.3 ms per map; here one pass groups the values and a selection (not a sort) reads
@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.selection import kth, median, quantile
+from atris_node.pipeline.selection import kth, median, quantile
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]

@@ -13,8 +13,8 @@ import logging
 from collections import deque
 from dataclasses import dataclass, field
 
-from atris_node.bus.negotiation_frames import Identity
-from atris_node.bus.negotiation_plan import Plan
+from atris_node.bus.negotiation.frames import Identity
+from atris_node.bus.negotiation.plan import Plan
 
 logger = logging.getLogger(__name__)
 

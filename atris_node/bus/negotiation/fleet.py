@@ -27,9 +27,9 @@ from typing import Any
 
 import can
 
-from atris_node.bus.negotiation import Negotiator
-from atris_node.bus.negotiation_frames import FrameKind, parse_id
-from atris_node.bus.negotiation_plan import Plan
+from atris_node.bus.negotiation.frames import FrameKind, parse_id
+from atris_node.bus.negotiation.machine import Negotiator
+from atris_node.bus.negotiation.plan import Plan
 
 DropRule = Callable[[can.Message], bool]
 

@@ -23,11 +23,11 @@ from dataclasses import dataclass, replace
 
 import can
 
-from atris_node.bus import payloads
-from atris_node.bus.busconfig import BusHealth
-from atris_node.bus.e2e import COUNTER_MODULO
-from atris_node.bus.frames import FrameCodec
-from atris_node.bus.ids import FrameKind, message_name
+from atris_node.bus.can import payloads
+from atris_node.bus.can.config import BusHealth
+from atris_node.bus.can.e2e import COUNTER_MODULO
+from atris_node.bus.can.frames import FrameCodec
+from atris_node.bus.can.ids import FrameKind, message_name
 from atris_node.errors import ConfigError, NodeFaultError
 from atris_node.types import FaultBits, Measurement, UnitState, UnitStatus
 

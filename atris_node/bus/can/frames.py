@@ -2,7 +2,7 @@
 
 Messages are looked up by name (encode) or by arbitration ID (decode), so messages added
 to ``atris.dbc`` (the code-negotiation frames) work without code here. A message with an
-``E2EDataID`` attribute is E2E protected (:mod:`atris_node.bus.e2e`): its ``CRC`` and
+``E2EDataID`` attribute is E2E protected (:mod:`atris_node.bus.can.e2e`): its ``CRC`` and
 ``Counter`` signals are filled in by :meth:`FrameCodec.encode`. A message with a non-zero
 ``IdMask`` attribute stands for every frame whose ID ANDed with the mask equals the
 message's ID (frames that carry the sender's identity in the low ID bits).
@@ -20,7 +20,7 @@ import can
 import cantools
 from cantools.database.can import Database, Message
 
-from atris_node.bus import e2e
+from atris_node.bus.can import e2e
 from atris_node.errors import FrameDecodeError
 
 logger = logging.getLogger(__name__)
@@ -33,7 +33,7 @@ SignalValue = int | float | str
 
 def dbc_text() -> str:
     """Text of the shipped DBC (package data ``atris_node/bus/atris.dbc``)."""
-    return importlib.resources.files("atris_node.bus").joinpath(DBC_NAME).read_text("utf-8")
+    return importlib.resources.files("atris_node.bus.can").joinpath(DBC_NAME).read_text("utf-8")
 
 
 @functools.cache

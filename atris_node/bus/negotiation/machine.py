@@ -36,18 +36,18 @@ from dataclasses import replace
 
 import can
 
-from atris_node.bus import negotiation_frames as nf
-from atris_node.bus.negotiation_hop import InterferenceMonitor
-from atris_node.bus.negotiation_peers import Peer, PeerTable
-from atris_node.bus.negotiation_plan import (
+from atris_node.bus.negotiation import frames as nf
+from atris_node.bus.negotiation.hop import InterferenceMonitor
+from atris_node.bus.negotiation.peers import Peer, PeerTable
+from atris_node.bus.negotiation.plan import (
     MAX_CODE_LENGTH,
     Plan,
     capacity,
     grow_to_fit,
     plan_code_rows,
 )
-from atris_node.bus.negotiation_rx import ReceiveBarrier, bus_descriptor
-from atris_node.bus.negotiation_sync import SyncState, worst_leak
+from atris_node.bus.negotiation.rx import ReceiveBarrier, bus_descriptor
+from atris_node.bus.negotiation.sync import SyncState, worst_leak
 from atris_node.errors import BusError, ConfigError, NegotiationError
 from atris_node.types import FaultBits
 

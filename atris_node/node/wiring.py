@@ -14,17 +14,17 @@ from typing import Any
 import can
 import canopen
 
-from atris_node.bus import negotiation_name
-from atris_node.bus.canopen_device import CanopenDevice
-from atris_node.bus.negotiation import Negotiator
-from atris_node.bus.negotiation_plan import Plan
-from atris_node.bus.publisher import Publisher
+from atris_node.bus.can.publisher import Publisher
+from atris_node.bus.canopen.device import CanopenDevice
+from atris_node.bus.negotiation import name as negotiation_name
+from atris_node.bus.negotiation.machine import Negotiator
+from atris_node.bus.negotiation.plan import Plan
 from atris_node.calibration import Calibration
 from atris_node.config import Config
 from atris_node.errors import CalibrationError, ConfigError
 from atris_node.mounting import Mounting
-from atris_node.pipeline import Pipeline, PipelineConfig
-from atris_node.sectors import SectorLayout
+from atris_node.pipeline.chain import Pipeline, PipelineConfig
+from atris_node.pipeline.sectors import SectorLayout
 from drivers import Camera, Projector
 from drivers import open_backend as registry_open_backend
 from drivers.watchdog import LeasedProjector

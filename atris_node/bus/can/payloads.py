@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from atris_node.bus.ids import MAX_SECTORS, SECTORS_PER_FRAME
+from atris_node.bus.can.ids import MAX_SECTORS, SECTORS_PER_FRAME
 from atris_node.errors import ConfigError
 from atris_node.types import (
     FaultBits,

@@ -5,8 +5,9 @@ neighbours above and below; the peak methods read a few pixels around each peak;
 support and median along lines and the per-line median SNR look at a few samples each. As
 numpy vector steps these were many passes and temporaries per map; here one pass each
 (about 0.45 ms in all at 640x400). Each function is the kernel of one of
-:mod:`atris_node.lines`, which checks the arguments, documents the methods and is what
-the rest of the node calls. Line identity's kernels are in :mod:`atris_node.identity_kernels`.
+:mod:`atris_node.pipeline.peaks`, which checks the arguments, documents the methods and is
+what the rest of the node calls. Line identity's kernels are in
+:mod:`atris_node.pipeline.identity_kernels`.
 
 Types: rows and lines int64, rows and offsets in px float64, maps int16, int32, float32 or
 float64 (:func:`map_values`), writable or read-only. Every kernel has explicit signatures:
@@ -24,7 +25,7 @@ import numpy.typing as npt
 from numba import types
 
 from atris_node.jit import kernel
-from atris_node.selection import median
+from atris_node.pipeline.selection import median
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -183,7 +184,7 @@ def _parabola(a: float, b: float, c: float) -> tuple[float, bool]:
 def _offset(window: FloatArray, method: int, r: int, cog_threshold: float,
             sigma: float) -> tuple[float, bool]:
     """Sub-pixel offset of the peak at the centre of ``window`` (2r + 1,), and ok (the
-    methods are described in :mod:`atris_node.lines`): cog above ``cog_threshold`` DN,
+    methods are described in :mod:`atris_node.pipeline.peaks`): cog above ``cog_threshold`` DN,
     parabolic, gaussian (a parabola through the logarithms), Blais-Rioux, Steger with
     stripe σ ``sigma`` px."""
     if method == 1:
@@ -333,7 +334,7 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
 
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
-    :func:`atris_node.identity_kernels.warm_up`)."""
+    :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
     i64 = np.int64
     line = np.array([0], dtype=i64)
     strong_maxima(np.zeros((4, 1), dtype=np.int16), np.array([[0, 4]], dtype=i64),

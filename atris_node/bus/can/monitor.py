@@ -19,9 +19,9 @@ from typing import Any
 
 import can
 
-from atris_node.bus.e2e import E2EChecker, E2EState
-from atris_node.bus.frames import DecodedFrame, FrameCodec
-from atris_node.bus.ids import FrameKind, unit_of
+from atris_node.bus.can.e2e import E2EChecker, E2EState
+from atris_node.bus.can.frames import DecodedFrame, FrameCodec
+from atris_node.bus.can.ids import FrameKind, unit_of
 from atris_node.errors import FrameDecodeError
 
 logger = logging.getLogger(__name__)

@@ -18,10 +18,10 @@ from typing import Any
 import can
 import psutil
 
-from atris_node.bus.monitor import BusMonitor
+from atris_node.bus.can.monitor import BusMonitor
 from atris_node.cli.launch import e2e_errors_by_unit
-from atris_node.launch import LaunchSpec, load_launch
-from atris_node.runner import FleetRun
+from atris_node.node.launch import LaunchSpec, load_launch
+from atris_node.node.runner import FleetRun
 
 WARMUP_FRACTION = 0.2
 WARMUP_MAX_S = 60.0

@@ -28,7 +28,7 @@ import enum
 import struct
 from dataclasses import dataclass
 
-from atris_node.bus.negotiation_plan import MODES, Plan
+from atris_node.bus.negotiation.plan import MODES, Plan
 from atris_node.errors import CodeError, ConfigError, FrameDecodeError
 
 PREFIX_BITS = 0x1F000000

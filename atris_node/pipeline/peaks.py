@@ -1,0 +1,317 @@
+"""Sub-pixel line samples of a distortion map: peaks in the bands, their line, their row.
+
+Inside the row bands of :mod:`atris_node.pipeline.bands`, the local maxima that reach the
+local noise threshold (:mod:`atris_node.pipeline.noise`) are found (compiled, per pixel),
+each line takes its peak in each column (:mod:`atris_node.pipeline.identity`), and each
+peak is refined to a sub-pixel row by one of five peak methods on its column profile
+(compiled, per sample, :mod:`atris_node.pipeline.peaks_kernels`).
+
+Peak methods (``PEAK_METHODS``), all on the column profile around the integer maximum:
+
+- ``cog``: centre of gravity of the values above 3 noise floors within ±2.5 σ_stripe;
+- ``parabolic``: vertex of the parabola through 3 points;
+- ``gaussian``: vertex of the parabola through the logarithms of 3 points (exact for a
+  sampled Gaussian);
+- ``blais_rioux``: zero crossing of the 4th-order derivative filter
+  ``g(i) = f(i-2) + f(i-1) - f(i+1) - f(i+2)`` (Blais & Rioux 1986);
+- ``steger``: zero of the first Gaussian derivative of the profile (Steger's ridge
+  detector along the column), refined by Newton steps with kernels sampled at the
+  sub-pixel position.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.errors import ConfigError
+from atris_node.pipeline import peaks_kernels as kernels
+from atris_node.pipeline.bands import Band, count_in_bands, read_rows
+from atris_node.pipeline.identity import VisibilityPrior, identify_lines
+from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap, noise_floor, noise_map
+
+logger = logging.getLogger(__name__)
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+PEAK_METHODS = ("cog", "parabolic", "gaussian", "blais_rioux", "steger")
+#: greedy: the two greedy matchings, prior and continuity; aligned: also the cheapest
+#: alignment per column (atris_node.pipeline.identity), about 0.3 ms more at 640x400
+IDENTITY_MODES = ("greedy", "aligned")
+#: uncertainty given to the centre of a flat-topped (saturated) stripe, pixels
+SATURATED_SIGMA_PX = 0.5
+#: half window (px) searched for the saturated run of a flat-topped stripe
+SATURATION_WINDOW_PX = 8
+#: peaks kept per column beyond one per line (reflections, foreign light)
+EXTRA_PEAKS = 4
+
+
+@dataclass(frozen=True)
+class ExtractorSettings:
+    """How peaks are found: method, acceptance SNR, stripe σ (px), pair separation (px)."""
+
+    peak_method: str = "gaussian"
+    snr_min: float = 6.0
+    stripe_sigma_px: float = 1.5
+    min_separation_px: int = 3
+    identity: str = "aligned"
+
+    def __post_init__(self) -> None:
+        if self.peak_method not in PEAK_METHODS:
+            raise ConfigError(f"peak_method {self.peak_method!r} is not one of {PEAK_METHODS}")
+        if self.identity not in IDENTITY_MODES:
+            raise ConfigError(f"identity {self.identity!r} is not one of {IDENTITY_MODES}")
+        if not self.stripe_sigma_px > 0:
+            raise ConfigError(f"stripe_sigma_px must be > 0, got {self.stripe_sigma_px}")
+
+    @property
+    def radius(self) -> int:
+        """Half window (px) the peak method reads around the integer maximum."""
+        s = self.stripe_sigma_px
+        return {"cog": max(2, int(np.ceil(2.5 * s))), "parabolic": 1, "gaussian": 1,
+                "blais_rioux": 3, "steger": int(np.ceil(3.0 * s)) + 2}[self.peak_method]
+
+
+@dataclass(frozen=True)
+class LineSamples:
+    """Accepted sub-pixel line samples, all arrays (n,).
+
+    ``row_px`` is the observed (distorted) sub-pixel image row, ``col_px`` the column (px),
+    ``snr`` the peak over the noise floor, ``sigma_u_px`` the row uncertainty (px),
+    ``saturated`` True for centres of flat-topped stripes.
+    """
+
+    line: IntArray
+    row_px: FloatArray
+    col_px: FloatArray
+    snr: FloatArray
+    sigma_u_px: FloatArray
+    saturated: BoolArray
+
+    def __len__(self) -> int:
+        return int(self.line.size)
+
+
+@dataclass(frozen=True)
+class Extraction:
+    """Samples plus the counts that say how the search went."""
+
+    samples: LineSamples
+    noise_floor_dn: float
+    background_dn: float  # median of the map rows read
+    spans: tuple[tuple[int, int], ...]  # row intervals [lo, hi) read
+    weak: int  # column slots without a peak above snr_min
+    dropped: int  # peaks above snr_min rejected (window off the image, failed fit)
+    ambiguous: int  # peaks whose line could not be told from order and continuity
+    rows_read: int  # map rows read (union of bands plus fit padding)
+    unassigned: int  # strong peaks inside the bands that belong to no line (foreign light)
+    foreign_columns: BoolArray  # (W,) columns holding such peaks
+    line_snr: tuple[float, ...]  # median SNR of the accepted samples per line, 0 if none
+    narrowed: bool = False  # peaks were looked for on the ``search`` rows only
+
+
+# --------------------------------------------------------------------------- rows read
+
+
+def read_padding(settings: ExtractorSettings) -> int:
+    """Rows read beyond each band edge: the fit window and the saturation window."""
+    return max(settings.radius, SATURATION_WINDOW_PX)
+
+
+# --------------------------------------------------------------------------- sub-pixel
+
+
+# The methods run in one compiled pass per map (atris_node.pipeline.peaks_kernels.line_samples,
+# called by _samples below); the module docstring describes them.
+
+
+# --------------------------------------------------------------------------- search
+
+
+def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]], noise: NoiseMap,
+                  snr_min: float, sep: int, per_column: int,
+                  inside: BoolArray | None = None) -> IntArray:
+    """(per_column, W) rows of the local maxima in ``spans`` that reach the local threshold
+    ``background + snr_min · σ`` of ``noise`` (DN), sorted top to bottom in each column,
+    -1 padded. A maximum is strictly above the ``sep`` rows over it and not below the
+    ``sep`` rows under it (a plateau counts once). With ``inside`` ((H,) bool) only maxima
+    on those rows are kept; the rows around them are still compared, so each kept maximum
+    is one the whole span would have found. ``values`` int16, int32, float32 or float64.
+
+    One compiled pass over the rows (:func:`atris_node.pipeline.peaks_kernels.strong_maxima`)
+    compares each pixel with its tile's threshold: no (H, W) threshold image is made.
+    """
+    height, width = values.shape
+    out = np.full((per_column, width), -1, dtype=np.int64)
+    bounds = np.array(spans, dtype=np.int64).reshape(-1, 2)
+    rows = np.zeros(height, dtype=np.bool_) if inside is None else inside
+    kernels.strong_maxima(kernels.map_values(values), bounds,
+                          noise.threshold_tiles(snr_min), noise.tile_row, NOISE_TILE_PX, sep,
+                          rows, inside is not None, out, np.zeros(width, dtype=np.int64))
+    return out
+
+
+# --------------------------------------------------------------------------- extraction
+
+
+def _samples(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArray,
+             local: NoiseMap, settings: ExtractorSettings, noise: float
+             ) -> tuple[LineSamples, int, int]:
+    """The samples of the identified peaks ``rows`` (K, W) with SNR >= snr_min that the
+    peak method accepts, the number of peaks that strong and how many of them were
+    dropped: one compiled pass (:func:`atris_node.pipeline.peaks_kernels.line_samples`; the methods
+    are described at the top of this module). An offset beyond ±1 px is dropped. A flat
+    top (a saturated pixel next to the peak) takes the centre of the saturated run and
+    σ_u SATURATED_SIGMA_PX; other samples σ_u = CRLB / SNR."""
+    any_saturated = bool(saturated.any())
+    mask = np.require(saturated, np.bool_, ["W"]) if any_saturated else _NO_MASK
+    crlb = float(np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi)))
+    line, row, col, snr, sigma, flat, strong, dropped = kernels.line_samples(
+        kernels.map_values(values), mask, any_saturated, np.asarray(rows, dtype=np.int64),
+        local.tile_row, local.background_tiles, local.sigma_tiles, NOISE_TILE_PX,
+        float(settings.snr_min), kernels.METHOD_CODES[settings.peak_method], settings.radius,
+        3.0 * noise, settings.stripe_sigma_px, crlb, SATURATED_SIGMA_PX, SATURATION_WINDOW_PX)
+    return LineSamples(line, row, col, snr, sigma, flat), int(strong), int(dropped)
+
+
+#: the saturation mask passed to the kernel when nothing is saturated (never read)
+_NO_MASK = np.zeros((1, 1), dtype=np.bool_)
+
+
+def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float, ...]:
+    """Median SNR (as ``np.median``) of the samples of each of ``count`` lines, 0.0 for a
+    line without any."""
+    medians = kernels.line_medians(np.ascontiguousarray(line, dtype=np.int64),
+                                   np.ascontiguousarray(snr, dtype=np.float64), count)
+    return tuple(float(m) for m in medians)
+
+
+def _runs(mask: BoolArray) -> list[tuple[int, int]]:
+    """Intervals ``[lo, hi)`` where the (H,) ``mask`` is True."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([False], mask, [False]))))
+    return [(int(lo), int(hi)) for lo, hi in zip(edges[::2], edges[1::2], strict=True)]
+
+
+@dataclass(frozen=True)
+class _Search:
+    """Where :func:`strong_maxima` looks: ``scan`` spans, the (H,) ``inside`` rows whose
+    maxima count (None: every row of ``scan``), the ``elsewhere`` spans read but skipped."""
+
+    scan: list[tuple[int, int]]
+    inside: BoolArray | None = None
+    elsewhere: tuple[tuple[int, int], ...] = ()
+
+
+def _search_rows(spans: list[tuple[int, int]], search: list[tuple[int, int]] | None,
+                 sep: int, height: int) -> _Search:
+    """``search`` within ``spans``, scanned ``sep`` rows wider so edge rows compare as in
+    the whole span; the rows of ``spans`` left out are ``elsewhere``."""
+    if search is None:
+        return _Search(spans)
+    read = np.zeros(height, dtype=np.bool_)
+    for lo, hi in spans:
+        read[lo:hi] = True
+    inside = np.zeros(height, dtype=np.bool_)
+    scan = np.zeros(height, dtype=np.bool_)
+    for lo, hi in search:
+        inside[max(lo, 0):max(hi, 0)] = True
+        scan[max(lo - sep, 0):max(hi + sep, 0)] = True
+    inside &= read
+    return _Search(_runs(scan & read), inside, tuple(_runs(read & ~inside)))
+
+
+def _above_elsewhere(values: npt.NDArray[Any], noise: NoiseMap, snr_min: float,
+                     elsewhere: tuple[tuple[int, int], ...]) -> bool:
+    """True when a pixel of the ``elsewhere`` rows reaches the local threshold. Every
+    maximum :func:`strong_maxima` keeps reaches it, so False proves that searching the
+    other rows alone finds every maximum of the rows read."""
+    if not elsewhere:
+        return False
+    threshold = noise.threshold(snr_min)
+    return any(bool((values[lo:hi] >= threshold[lo:hi]).any()) for lo, hi in elsewhere)
+
+
+def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
+                  bands: tuple[Band, ...], settings: ExtractorSettings, *,
+                  roi_bands: bool = True, prior: VisibilityPrior | None = None,
+                  search: list[tuple[int, int]] | None = None) -> Extraction:
+    """Line samples of a distortion map.
+
+    Args:
+        values: (H, W) int16/int32 (or float) demodulated map, DN.
+        saturated: (H, W) bool saturation mask of the same map.
+        bands: one :class:`Band` per line, from :func:`line_bands`.
+        settings: peak method, SNR threshold, stripe σ.
+        roi_bands: True reads only the bands (plus :func:`read_padding` rows); False
+            searches every whole column for the K strongest peaks and identifies them by
+            band and order.
+        prior: optional geometry that helps tell lines apart (see :func:`identify_lines`).
+        search: row intervals ``[lo, hi)`` where peaks are looked for (ROI narrowing,
+            :mod:`atris_node.pipeline.roi`); None looks in every row read. When a pixel of another
+            row read reaches the peak threshold, every row read is searched after all, so
+            the peaks are always those of the whole search. Noise statistics, line
+            identity and the foreign-light counts use every row read.
+    """
+    height = values.shape[0]
+    spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
+    background, noise = noise_floor(values, spans)
+    local = noise_map(values, spans)
+    where = _search_rows(spans, search, settings.min_separation_px, height)
+    if _above_elsewhere(values, local, settings.snr_min, where.elsewhere):
+        where = _Search(spans)  # something outside the recent rows: search them all
+    peaks = strong_maxima(values, where.scan, local, settings.snr_min, settings.min_separation_px,
+                          len(bands) + EXTRA_PEAKS, where.inside)
+    rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
+                                  aligned=settings.identity == "aligned")
+    ambiguous = int(unsure.sum())
+    unassigned = np.maximum(count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
+    samples, strong, dropped = _samples(values, saturated, rows, local, settings, noise)
+    searched = sum(values.shape[1] for b in bands if not b.empty)
+    return Extraction(samples, noise, background, tuple(spans),
+                      weak=max(searched - strong - ambiguous, 0),
+                      dropped=dropped, ambiguous=ambiguous,
+                      rows_read=sum(hi - lo for lo, hi in spans),
+                      unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
+                      line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
+                      narrowed=where.inside is not None)
+
+
+def smooth_along_lines(samples: LineSamples, lines: int, width: int,
+                       taps: int = 5, max_step_px: float = 2.0) -> LineSamples:
+    """Median of ``taps`` neighbouring columns of the same line for each sample whose
+    neighbours all exist and lie within ``max_step_px`` of each other (one surface);
+    other samples (edges, gaps) keep their row. Returns new samples, σ_u unchanged."""
+    if taps < 3 or len(samples) == 0:
+        return samples
+    row = kernels.smooth(*_on_grid(samples), lines, width, taps | 1, max_step_px)
+    return LineSamples(samples.line, row, samples.col_px, samples.snr, samples.sigma_u_px,
+                       samples.saturated)
+
+
+def supported_along_lines(samples: LineSamples, lines: int, width: int, reach: int = 2,
+                          max_step_px: float = 2.0) -> BoolArray:
+    """(n,) True for samples with a sample of the same line within ``reach`` columns and
+    ``max_step_px`` rows: a lone sample is more likely a wrong identity than a surface."""
+    if len(samples) == 0:
+        return np.zeros(0, dtype=np.bool_)
+    return np.asarray(kernels.supported(*_on_grid(samples), lines, width, reach, max_step_px))
+
+
+def _on_grid(samples: LineSamples) -> tuple[IntArray, IntArray, FloatArray]:
+    """(line, column, row) of the samples as the kernels take them: int64, int64 (whole
+    columns), float64 px."""
+    return (np.ascontiguousarray(samples.line, dtype=np.int64),
+            np.ascontiguousarray(samples.col_px, dtype=np.int64),
+            np.ascontiguousarray(samples.row_px, dtype=np.float64))
+
+
+def select(samples: LineSamples, keep: BoolArray) -> LineSamples:
+    """The samples where ``keep`` is True."""
+    return LineSamples(samples.line[keep], samples.row_px[keep], samples.col_px[keep],
+                       samples.snr[keep], samples.sigma_u_px[keep], samples.saturated[keep])
