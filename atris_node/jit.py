@@ -39,8 +39,8 @@ def can_cache(source_file: str) -> bool:
     return any(_writable(path) for path in candidates)
 
 
-#: whether the kernels (all in this package's directory) are cached on disk
-CACHE = can_cache(__file__)
+#: whether the kernels (all in ``atris_node/pipeline/``) are cached on disk
+CACHE = can_cache(os.path.join(os.path.dirname(__file__), "pipeline", "__init__.py"))
 
 
 def kernel(signatures: Any = None) -> Callable[[Any], Any]:

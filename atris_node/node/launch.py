@@ -138,7 +138,7 @@ def load_launch(path: str | Path) -> LaunchSpec:
 
 def launch_dir() -> Path:
     """The shipped ``launch/`` folder (beside the package in a source checkout)."""
-    return Path(__file__).resolve().parent.parent / "launch"
+    return Path(__file__).resolve().parents[2] / "launch"
 
 
 def resolve_launch_path(path: str | Path) -> Path:

@@ -36,17 +36,12 @@ from dataclasses import replace
 
 import can
 
+from atris_node.bus.negotiation import choice
 from atris_node.bus.negotiation import frames as nf
 from atris_node.bus.negotiation.hop import InterferenceMonitor
+from atris_node.bus.negotiation.link import Link
 from atris_node.bus.negotiation.peers import Peer, PeerTable
-from atris_node.bus.negotiation.plan import (
-    MAX_CODE_LENGTH,
-    Plan,
-    capacity,
-    grow_to_fit,
-    plan_code_rows,
-)
-from atris_node.bus.negotiation.rx import ReceiveBarrier, bus_descriptor
+from atris_node.bus.negotiation.plan import MAX_CODE_LENGTH, Plan, capacity, grow_to_fit
 from atris_node.bus.negotiation.sync import SyncState, worst_leak
 from atris_node.errors import BusError, ConfigError, NegotiationError
 from atris_node.types import FaultBits
@@ -55,8 +50,6 @@ logger = logging.getLogger(__name__)
 
 Clock = Callable[[], float]
 ChangeCallback = Callable[["NegotiationState", int | None, Plan], None]
-#: most frames :meth:`Negotiator.tick` reads from the bus in one call (poll mode)
-MAX_FRAMES_PER_TICK = 512
 #: shortest gap between two re-announcements (answers to request-for-claims), seconds
 MIN_ANNOUNCE_GAP_S = 0.05
 
@@ -69,23 +62,6 @@ class NegotiationState(enum.Enum):
     OWNED = 2  # the claim stood the window
     NO_CODE = 3  # every code is taken by a lower NAME: cannot-claim sent, laser off
     CONFLICT = 4  # plan it cannot adopt, or duplicate NAME/identity: laser off
-
-
-class _Listener(can.Listener):
-    """Feeds received frames to the negotiator; never lets the receive thread die."""
-
-    def __init__(self, negotiator: Negotiator) -> None:
-        self._negotiator = negotiator
-
-    def on_message_received(self, msg: can.Message) -> None:
-        try:
-            self._negotiator.on_message(msg, self._negotiator.clock())
-        except Exception:
-            logger.exception("negotiation frame %#x could not be handled", msg.arbitration_id)
-
-    def on_error(self, exc: Exception) -> None:
-        logger.error("negotiation receive failed: %s", exc)
-        self._negotiator.store_error(exc)
 
 
 class Negotiator:
@@ -121,7 +97,6 @@ class Negotiator:
                  notifier: can.Notifier | None = None, poll_bus: bool = False,
                  on_change: ChangeCallback | None = None,
                  interference: InterferenceMonitor | None = None) -> None:
-        self.bus = bus
         self.name = name
         self.unit_id = unit_id
         self.identity = nf.identity_of(name, unit_id)
@@ -136,17 +111,15 @@ class Negotiator:
         self.max_misalignment_chips = max_misalignment_chips
         self.on_change = on_change
         self.interference = interference or InterferenceMonitor()
-        self._notifier, self._own_notifier, self._poll = notifier, False, poll_bus
-        self._listener = _Listener(self)
-        self.receive = ReceiveBarrier(None if poll_bus else bus_descriptor(bus))
+        self.link = Link(bus, lambda msg: self.on_message(msg, self.clock()), self.store_error,
+                         notifier, poll_bus)
+        self.receive = self.link.receive
         self._lock = threading.RLock()
         self.peers = PeerTable()
         self.sync = SyncState()
         self.timeline: list[tuple[float, bool, int | None]] = []
         self.plan_history: list[tuple[float, Plan]] = []
-        self.sent: list[tuple[float, nf.RawFrame]] = []
         self.malformed_frames = 0
-        self.send_failures = 0
         self.plan_growths: list[tuple[Plan, Plan]] = []
         self.sync_leak: float | None = None
         self.conflict_reason: str | None = None
@@ -172,7 +145,7 @@ class Negotiator:
         self._listening = False
         self._last_announce_s = -1e9
         self._announce_due = False
-        self._outbox: list[nf.RawFrame] = []
+        self.link.outbox.clear()
         self._nonce = secrets.randbelow(255) + 1
         self._duplicate_until_s = -1e9
         self._plan_conflict = False
@@ -182,6 +155,15 @@ class Negotiator:
         self._reported: tuple[NegotiationState, int | None, Plan] | None = None
 
     # ------------------------------------------------------------------ public state
+    @property
+    def bus(self) -> can.BusABC:
+        """The python-can bus the negotiation frames go over (replaceable before start)."""
+        return self.link.bus
+
+    @bus.setter
+    def bus(self, bus: can.BusABC) -> None:
+        self.link.bus = bus
+
     @property
     def state(self) -> NegotiationState:
         """The negotiation state."""
@@ -243,22 +225,13 @@ class Negotiator:
             self._started_s, self._listening = now, True
             self._set_state(NegotiationState.CLAIMING, None, now)
             self._plan_changed(now)
-            self._outbox.append(nf.encode_request(self.name, self.unit_id))
-            self._attach()
-            self._flush(now)
-
-    def _attach(self) -> None:
-        if self._poll:
-            return
-        if self._notifier is None:
+            self.link.outbox.append(nf.encode_request(self.name, self.unit_id))
             try:
-                self._notifier = can.Notifier(self.bus, [self._listener], timeout=0.1)
-            except ValueError as exc:  # python-can allows one active Notifier per bus
+                self.link.attach()
+            except BusError:
                 self._set_state(NegotiationState.IDLE, None, self.clock())
-                raise BusError(f"{exc}: pass the bus's Notifier as notifier=") from exc
-            self._own_notifier = True
-        else:
-            self._notifier.add_listener(self._listener)
+                raise
+            self.link.flush(now)
 
     def stop(self) -> None:
         """Laser off, send cannot-claim so the code frees at once, detach. Idempotent."""
@@ -267,21 +240,11 @@ class Negotiator:
                 return
             now = self.clock()
             self._set_state(NegotiationState.IDLE, None, now)
-            self._outbox = [nf.encode_cannot_claim(self.name, self.unit_id, leaving=True)]
-            self._flush(now)
+            self.link.outbox = [nf.encode_cannot_claim(self.name, self.unit_id, leaving=True)]
+            self.link.flush(now)
             self.peers.clear()
-        self._detach()
+        self.link.detach()
         self._notify()
-
-    def _detach(self) -> None:
-        notifier, self._notifier = self._notifier, (None if self._own_notifier else self._notifier)
-        if notifier is None or self._poll:
-            return
-        if self._own_notifier:
-            notifier.stop()
-            self._own_notifier = False
-        elif self._listener in notifier.listeners:
-            notifier.remove_listener(self._listener)
 
     def store_error(self, exc: BaseException) -> None:
         """Keep a receive error; :meth:`tick` turns the laser off and raises it."""
@@ -373,7 +336,7 @@ class Negotiator:
             self._lose(now, f"unit {peer.label()} (lower NAME) claims row {header.field}")
         elif now - self._last_defence_s >= MIN_ANNOUNCE_GAP_S:
             self._last_defence_s = now
-            self._outbox.append(nf.encode_claim(self.name, self.unit_id, header.field))
+            self.link.outbox.append(nf.encode_claim(self.name, self.unit_id, header.field))
 
     def _on_cannot_claim(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
         if not self._learn_name(peer, data, now):
@@ -406,16 +369,6 @@ class Negotiator:
         if peer.name is not None and peer is self._leader_peer():
             self.sync.on_sync(counter, now)
 
-    def _drain(self, now: float) -> None:
-        for _ in range(MAX_FRAMES_PER_TICK):
-            try:
-                msg = self.bus.recv(timeout=0.0)
-            except can.CanError as exc:
-                raise BusError(f"negotiation could not read the bus: {exc}") from exc
-            if msg is None:
-                return
-            self.on_message(msg, now)
-
     # ------------------------------------------------------------------ the tick
     def tick(self, now: float | None = None) -> None:
         """Advance timers: windows, re-announcements, silence, plan; send queued frames.
@@ -426,8 +379,9 @@ class Negotiator:
         if self._state is NegotiationState.IDLE:
             return
         now = self.clock() if now is None else now
-        if self._poll:
-            self._drain(now)
+        if self.link.poll:
+            for msg in self.link.received():
+                self.on_message(msg, now)
         with self._lock:
             self._raise_stored_error(now)
             self._expire(now)
@@ -438,7 +392,7 @@ class Negotiator:
                 self._advance(now)
             self._reannounce(now)
             self._refresh(now)
-            self._flush(now)
+            self.link.flush(now)
         self._notify()
 
     def _raise_stored_error(self, now: float) -> None:
@@ -461,10 +415,9 @@ class Negotiator:
         if now - self._started_s < self.listen_s or not self.receive.caught_up():
             return
         self._listening = False
-        running = [(p.name or 0, p.plan) for p in self._live_named()
-                   if p.plan is not None and p.established and not p.conflict]
-        if running:  # join a running fleet on its plan, whatever our NAME
-            self._adopt_or_conflict(min(running, key=lambda item: item[0])[1], now)
+        running = choice.running_plan(self._live_named())
+        if running is not None:  # join a running fleet on its plan, whatever our NAME
+            self._adopt_or_conflict(running, now)
         else:
             self._agree_plan(now)
         self._maybe_grow(now)
@@ -492,11 +445,11 @@ class Negotiator:
         if self._listening:
             return
         self._announce_due, self._last_announce_s = False, now
-        self._outbox.append(self._plan_frame())
+        self.link.outbox.append(self._plan_frame())
         if self._code_row is not None and self._state is not NegotiationState.CONFLICT:
-            self._outbox.append(nf.encode_claim(self.name, self.unit_id, self._code_row))
+            self.link.outbox.append(nf.encode_claim(self.name, self.unit_id, self._code_row))
         else:
-            self._outbox.append(nf.encode_cannot_claim(self.name, self.unit_id))
+            self.link.outbox.append(nf.encode_cannot_claim(self.name, self.unit_id))
 
     def _plan_frame(self, plan: Plan | None = None, proposal: bool = False) -> nf.RawFrame:
         owned = self._state is NegotiationState.OWNED
@@ -504,26 +457,12 @@ class Negotiator:
                                            self._nonce, owned and not proposal)
         return nf.encode_plan(self.name, self.unit_id, announcement)
 
-    def _flush(self, now: float) -> None:
-        outbox, self._outbox = self._outbox, []
-        for frame in outbox:
-            msg = can.Message(arbitration_id=frame.can_id, data=frame.data,
-                              is_extended_id=True)
-            try:
-                self.bus.send(msg, timeout=0.0)
-            except can.CanError as exc:
-                self.send_failures += 1
-                logger.warning("negotiation frame %#x not sent: %s", frame.can_id, exc)
-            else:
-                self.sent.append((now, frame))
-        del self.sent[:-1000]
-
     # ------------------------------------------------------------------ codes
     def _live_named(self) -> list[Peer]:
         return self.peers.named()
 
     def _same_plan(self, peer: Peer) -> bool:
-        return (peer.plan is None or peer.plan == self._plan) and not peer.conflict
+        return choice.same_plan(peer, self._plan)
 
     def _holds(self, row: int) -> bool:
         claiming = self._state in (NegotiationState.CLAIMING, NegotiationState.OWNED)
@@ -531,18 +470,10 @@ class Negotiator:
 
     def _taken_by(self) -> dict[int, int]:
         """Rows of our plan claimed by other units -> the lowest NAME claiming each."""
-        taken: dict[int, int] = {}
-        for peer in self._live_named():
-            if peer.code_row is not None and self._same_plan(peer):
-                assert peer.name is not None
-                taken[peer.code_row] = min(taken.get(peer.code_row, peer.name), peer.name)
-        return taken
+        return choice.taken_by(self._live_named(), self._plan)
 
     def _free_rows(self, now: float) -> list[int]:
-        taken = self._taken_by()
-        rows = [r for r in plan_code_rows(self._plan)
-                if r not in taken and not self.interference.is_jammed(r, now)]
-        return self.interference.preference(rows)
+        return choice.free_rows(self._taken_by(), self._plan, self.interference, now)
 
     def _choose_code(self, now: float, prefer: int | None = None) -> None:
         """Claim a free row (``prefer`` first), else the row of the highest higher NAME."""
@@ -552,20 +483,18 @@ class Negotiator:
             if self._state is not NegotiationState.NO_CODE:
                 logger.warning("no free code in N=%d %s (%d codes): cannot-claim, laser off",
                                self._plan.code_length, self._plan.mode, capacity(self._plan))
-                self._outbox.append(nf.encode_cannot_claim(self.name, self.unit_id))
+                self.link.outbox.append(nf.encode_cannot_claim(self.name, self.unit_id))
             self._set_state(NegotiationState.NO_CODE, None, now)
             return
         self._claim_since_s = now
         self._set_state(NegotiationState.CLAIMING, row, now)
-        self._outbox.append(nf.encode_claim(self.name, self.unit_id, row))
+        self.link.outbox.append(nf.encode_claim(self.name, self.unit_id, row))
         logger.debug("claiming row %d of N=%d", row, self._plan.code_length)
 
     def _preemptable(self, now: float) -> int | None:
         """The row held by the highest NAME above ours (lowest NAME wins), or None."""
-        higher = {row: name for row, name in self._taken_by().items()
-                  if name > self.name and not self.interference.is_jammed(row, now)
-                  and row in plan_code_rows(self._plan)}
-        return max(higher, key=lambda row: higher[row]) if higher else None
+        return choice.preemptable(self._taken_by(), self.name, self._plan, self.interference,
+                                  now)
 
     def _lose(self, now: float, reason: str) -> None:
         """Stop strobing at once and look for another code."""
@@ -575,16 +504,12 @@ class Negotiator:
 
     # ------------------------------------------------------------------ plan
     def _leader_peer(self) -> Peer | None:
-        named = [p for p in self._live_named() if self._same_plan(p)]
-        lowest = min(named, key=lambda p: p.name or 0, default=None)
-        return lowest if lowest is not None and (lowest.name or 0) < self.name else None
+        return choice.leader_peer(self._live_named(), self._plan, self.name)
 
     def _agree_plan(self, now: float) -> None:
-        candidates = [p for p in self._live_named()
-                      if p.plan is not None and not p.conflict and (p.name or 0) < self.name]
-        winner = min(candidates, key=lambda p: p.name or 0, default=None)
-        if winner is not None and winner.plan is not None:
-            self._adopt_or_conflict(winner.plan, now)
+        winner = choice.plan_leader(self._live_named(), self.name)
+        if winner is not None:
+            self._adopt_or_conflict(winner, now)
         elif self._plan_conflict:
             self._adopt_or_conflict(self._plan, now)
 
@@ -624,7 +549,7 @@ class Negotiator:
         self._plan = plan
         self.sync.reset()
         self._plan_changed(now)
-        self._outbox.append(self._plan_frame())
+        self.link.outbox.append(self._plan_frame())
         if self.conflict_reason is not None:  # a duplicate: stay dark, keep the plan
             self._set_state(NegotiationState.CONFLICT, None, now)
             return
@@ -668,8 +593,8 @@ class Negotiator:
             if self.is_leader:
                 self._on_proposal(None, wanted, self.clock())
             else:
-                self._outbox.append(self._plan_frame(wanted, proposal=True))
-                self._flush(self.clock())
+                self.link.outbox.append(self._plan_frame(wanted, proposal=True))
+                self.link.flush(self.clock())
         self._notify()
 
     def _on_proposal(self, peer: Peer | None, plan: Plan, now: float) -> None:
@@ -684,7 +609,7 @@ class Negotiator:
             return
         logger.info("plan request N=%d from %s accepted", plan.code_length, source)
         self._adopt(plan, now)
-        self._flush(now)
+        self.link.flush(now)
 
     # ------------------------------------------------------------------ conflicts
     def _duplicate(self, now: float, reason: str) -> None:
@@ -717,9 +642,9 @@ class Negotiator:
 
     def _send_sync(self, now: float) -> None:
         self._sync_counter = (self._sync_counter + 1) & 0xFFFF
-        self._outbox.append(nf.encode_sync(self.name, self.unit_id, self._sync_counter,
+        self.link.outbox.append(nf.encode_sync(self.name, self.unit_id, self._sync_counter,
                                            self._plan))
-        self._flush(now)
+        self.link.flush(now)
 
     def _update_leak(self) -> None:
         error = self.sync.error_chips
@@ -753,7 +678,7 @@ class Negotiator:
             strobing = self._state is NegotiationState.OWNED
             if self.interference.report(own_excess, foreign, now, strobing):
                 self._hop(now)
-                self._flush(now)
+                self.link.flush(now)
         self._notify()
 
     def _hop(self, now: float) -> None:
