@@ -31,8 +31,8 @@ class Windows:
         demodulate, on_map = unit._demodulate, unit._on_map
 
         def recording_demodulate(sub: SubFrame) -> DistortionMap | None:
-            assert unit._demod is not None
-            self.pushed[sub.sequence] = (unit._demod.code_length, sub.exposure_us)
+            assert unit.measure is not None and unit.measure.demod is not None
+            self.pushed[sub.sequence] = (unit.measure.demod.code_length, sub.exposure_us)
             return demodulate(sub)
 
         def recording_on_map(dmap: DistortionMap) -> None:

@@ -108,8 +108,8 @@ def record_maps(unit: Unit) -> list[DistortionMap]:
     maps: list[DistortionMap] = []
 
     def keep(_: Measurement) -> None:
-        assert unit._last_map is not None  # set by the node before it measures
-        maps.append(unit._last_map)
+        assert unit.measure is not None and unit.measure.last_map is not None  # set first
+        maps.append(unit.measure.last_map)
 
     unit.on_measurement = keep
     return maps

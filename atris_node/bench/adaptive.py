@@ -67,10 +67,10 @@ class _Probe:
         self.maps += 1
         self.frame_ms.append(self.busy_s * 1e3)
         simulator = getattr(self.unit.camera, "simulator", None)
-        pipeline = self.unit._pipeline
-        if simulator is not None and self.unit._last_result is not None:
-            truth = simulator.truth(dmap.last_sequence, pipeline.layout)
-            self.errors.append(range_errors(self.unit._last_result, truth))
+        work = self.unit.measure
+        if simulator is not None and work is not None and work.last_result is not None:
+            truth = simulator.truth(dmap.last_sequence, work.pipeline.layout)
+            self.errors.append(range_errors(work.last_result, truth))
 
 
 def run_scene(scene: str, overrides: list[str], settle: int, measure: int) -> dict[str, Any]:

@@ -24,23 +24,22 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import can
 
-from atris_node.adaptive.assessment import assess
-from atris_node.adaptive.controller import AdaptiveController, controller_from_config, withheld
+from atris_node.adaptive.controller import controller_from_config
 from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
-from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.errors import AtrisError, CameraLostError, DemodulationError, NodeFaultError
 from atris_node.node import wiring
+from atris_node.node.measure import Measurer
 from atris_node.node.snapshot import obstacle_map, write_snapshot
-from atris_node.pipeline.interference import InterferenceReport, InterferenceWatch
+from atris_node.node.stats import NodeStats
 from atris_node.types import (
     DistortionMap,
     FaultBits,
@@ -66,23 +65,6 @@ class Lifecycle:
     INACTIVE = "inactive"
     ACTIVE = "active"
     FINALIZED = "finalized"
-
-
-@dataclass
-class NodeStats:
-    """Counters a node reports (status frame, logs, launch summary)."""
-
-    sub_frames: int = 0
-    maps: int = 0
-    measurements: int = 0
-    dropped_sub_frames: int = 0
-    deadline_misses: int = 0
-    camera_faults: int = 0
-    bad_sub_frames: int = 0
-    reconnects: int = 0
-    strobe_lit_while_not_allowed: int = 0
-    last_lag: int = 0
-    history: list[tuple[float, bool, int | None]] = field(default_factory=list)
 
 
 def invalid_sectors(count: int, fov_rad: float) -> tuple[SectorDistance, ...]:
@@ -111,9 +93,7 @@ class Unit:
         self._open_backend = open_backend
         self._camera: Camera | None = None
         self._projector: Projector | None = None
-        self._demod: BlockDemodulator | SlidingDemodulator | None = None
-        self._demod_key: tuple[int, int] | None = None
-        self._pipeline: Any = None
+        self._measure: Measurer | None = None
         self._publisher: Publisher | CanopenDevice | None = None
         self._negotiator: Any = None
         self._services: wiring.BusServices | None = None
@@ -121,12 +101,6 @@ class Unit:
         self._stop = threading.Event()
         self._fatal: BaseException | None = None
         self._next_seq: int | None = None
-        self._last_map: DistortionMap | None = None
-        self._last_sub: SubFrame | None = None
-        self._last_result: Any = None
-        self._watch: InterferenceWatch | None = None
-        self._interference: InterferenceReport | None = None
-        self._adaptive: AdaptiveController | None = None
         self._counter = 0
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
@@ -138,13 +112,15 @@ class Unit:
             return
         self._camera, self._projector = wiring.open_driver(self.config, self._open_backend)
         self._projector.off()
-        self._pipeline = wiring.make_pipeline(self.config, self._camera)
+        pipeline = wiring.make_pipeline(self.config, self._camera)
         self._services = wiring.make_bus_services(self.config, self.bus)
         self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
                                                   self._services)
-        self._adaptive = controller_from_config(self.config,
-                                                float(getattr(self._camera, "rate_hz", 0.0)))
+        adaptive = controller_from_config(self.config,
+                                          float(getattr(self._camera, "rate_hz", 0.0)))
+        self._measure = Measurer(self.config, pipeline, adaptive, self._negotiator, self.stats,
+                                 self.clock)
         self.lifecycle = Lifecycle.INACTIVE
         logger.info("unit %s configured", self.label)
 
@@ -202,7 +178,12 @@ class Unit:
     @property
     def last_result(self) -> Any:
         """The newest PipelineResult, or None."""
-        return self._last_result
+        return None if self._measure is None else self._measure.last_result
+
+    @property
+    def measure(self) -> Measurer | None:
+        """The per-map work (demodulator, pipeline, adaptation); None before configure()."""
+        return self._measure
 
     @property
     def camera(self) -> Camera | None:
@@ -250,7 +231,8 @@ class Unit:
             self._on_camera_lost(exc)
             return
         self._record_strobe(allowed)
-        self._last_sub = sub
+        assert self._measure is not None
+        self._measure.last_sub = sub
         if self.faults & FaultBits.CAMERA_LOST:
             self.faults &= ~FaultBits.CAMERA_LOST
             self._emcy("emcy_reset")
@@ -285,123 +267,42 @@ class Unit:
         if row is None:
             return None
         key = (int(plan.code_length), int(row))
-        if key != self._demod_key:
-            self._new_demodulator(key)
+        assert self._measure is not None
+        if key != self._measure.key:
+            self._new_code(key)
         return walsh_chips(*key)
 
-    def _new_demodulator(self, key: tuple[int, int]) -> None:
-        chips = walsh_chips(*key)
-        bits = int(getattr(self._camera, "bits", 8))
-        # the strobe lag is known only for a simulator without lag; otherwise lock to it
-        known = self.config["driver.name"] == "sim" and not self.config["driver.lag_sub_frames"]
-        lag = 0 if known else None
-        kind = SlidingDemodulator if self.config["code.demod"] == "sliding" else BlockDemodulator
-        self._demod = kind(chips, bits=bits, lag=lag)
-        self._demod_key = key
-        self._watch = None
+    def _new_code(self, key: tuple[int, int]) -> None:
+        """Demodulate code ``key`` = (N, row) from now on; the device strobes it too."""
+        assert self._measure is not None
+        self._measure.set_code(key, int(getattr(self._camera, "bits", 8)))
         set_code = getattr(self._projector, "set_code", None)
         if set_code is not None:  # backends that strobe on the device (depthai Script)
-            set_code(chips)
+            set_code(walsh_chips(*key))
         logger.info("unit %s: code row %d of N=%d", self.label, key[1], key[0])
 
-    def _check_sub_frame(self, sub: SubFrame) -> None:
-        """Reject a sub-frame that does not fit the calibrated camera."""
-        camera = self._pipeline.calibration.camera
-        expected = (camera.height_px, camera.width_px)
-        if sub.pixels.shape != expected:
-            raise DemodulationError(f"sub-frame {sub.sequence} is {sub.pixels.shape[::-1]} "
-                                    f"(w, h) but the calibration is for {expected[::-1]}")
-
     def _demodulate(self, sub: SubFrame) -> DistortionMap | None:
-        assert self._demod is not None
+        assert self._measure is not None
         try:
-            self._check_sub_frame(sub)
-            dmap = self._demod.push(sub)
+            return self._measure.demodulate(sub)
         except DemodulationError as exc:
             self._on_bad_sub_frame(exc)
             return None
-        self._watch_interference(sub)
-        if dmap is not None:
-            self.stats.maps += 1
-            self.stats.dropped_sub_frames += dmap.dropped
-            self.stats.last_lag = dmap.phase
-        return dmap
-
-    def _peer_rows(self) -> list[int]:
-        return [p.code_row for p in self._negotiator.peers.named() if p.code_row]
-
-    def _reference_row(self) -> int | None:
-        """A row nobody on the bus uses: its energy is the broadband level (motion trails,
-        flicker) that every code sees and that is no sign of a unit on the own code."""
-        assert self._demod_key is not None
-        n, own = self._demod_key
-        taken = {own, *self._peer_rows()}
-        free = [r for r in code_set(n, str(self._negotiator.plan.mode)) if r not in taken]
-        others = [r for r in range(n, 1, -1) if r not in taken]
-        candidates = free or others
-        return candidates[0] if candidates else None
-
-    def _rows_to_measure(self) -> list[int]:
-        reference = self._reference_row()
-        return self._peer_rows() + ([] if reference is None else [reference])
-
-    def _watch_interference(self, sub: SubFrame) -> None:
-        """Sampled foreign-code energy; sustained energy on the own code makes us hop."""
-        every = int(self.config["interference.every_windows"])
-        demod, key = self._demod, self._demod_key
-        if not every or demod is None or key is None or not demod.locked:
-            return
-        if self._watch is None:
-            self._watch = InterferenceWatch(key[0], key[1], demod.lag or 0, every,
-                                            self._rows_to_measure)
-        report = self._watch.push(sub)
-        if report is not None:
-            self._interference = report
-            reference = self._reference_row()
-            broadband = report.foreign.get(reference, 0.0) if reference else 0.0
-            self._negotiator.report_interference(max(report.own_excess - broadband, 0.0),
-                                                 report.foreign)
 
     def _on_map(self, dmap: DistortionMap) -> None:
-        self._last_map = dmap
-        result = self._pipeline.process(dmap)
-        self._last_result = result
-        self._count_deadline(dmap)
-        self.stats.measurements += 1
-        self._publish(self._adapt(dmap, result))
-
-    def _adapt(self, dmap: DistortionMap, result: Any) -> Measurement:
-        """Scene assessment, adaptive exposure and N (docs/adaptive.md); off by default."""
-        if self._adaptive is None or self._camera is None:
-            return result.measurement
-        diag = result.diagnostics
-        dmap.extra["foreign_code_energy"] = diag.foreign_energy
-        decision = self._adaptive.on_frame(
-            assess(dmap, result.samples.snr, diag.line_snr, diag.foreign_energy,
-                   self._last_sub), int(self._negotiator.plan.code_length))
-        if decision.exposure_us is not None:
-            self._camera.set_exposure_us(decision.exposure_us)
-        if decision.code_length is not None:
-            self._negotiator.request_plan(decision.code_length)
-        self.faults = (self.faults | FaultBits.LOW_SIGNAL if decision.low_signal
-                       else self.faults & ~FaultBits.LOW_SIGNAL)
-        return withheld(result.measurement) if decision.low_signal else result.measurement
-
-    def _count_deadline(self, dmap: DistortionMap) -> None:
-        """A map not processed within one output period of its newest sub-frame is late."""
-        rate = float(getattr(self._camera, "rate_hz", 0.0))
-        if rate <= 0.0:
-            return
-        period_s = dmap.code_length / rate
-        if self.clock() - dmap.last_time_s > period_s:
-            self.stats.deadline_misses += 1
+        assert self._measure is not None
+        measurement = self._measure.measure(dmap, self._camera)
+        if self._measure.low_signal is not None:
+            self.faults = (self.faults | FaultBits.LOW_SIGNAL if self._measure.low_signal
+                           else self.faults & ~FaultBits.LOW_SIGNAL)
+        self._publish(measurement)
 
     def _on_bad_sub_frame(self, exc: DemodulationError) -> None:
         """A sub-frame that cannot be demodulated: drop it, restart the window, go invalid."""
         self.stats.bad_sub_frames += 1
         logger.warning("unit %s: sub-frame rejected: %s", self.label, exc)
-        assert self._demod is not None
-        self._demod.reset()
+        assert self._measure is not None
+        self._measure.reset()
         self._publish(None)
 
     def _on_camera_lost(self, exc: AtrisError) -> None:
@@ -413,8 +314,8 @@ class Unit:
         self.stats.camera_faults += 1
         logger.warning("unit %s: camera lost: %s", self.label, exc)
         self._publish(None)
-        if self._demod is not None:
-            self._demod.reset()
+        if self._measure is not None:
+            self._measure.reset()
         self._next_seq = None
         self._reconnect()
 
@@ -447,27 +348,29 @@ class Unit:
     def truth_sector_distances(self) -> tuple[float | None, ...] | None:
         """The simulator's true sector distances for the newest map, or None (hardware)."""
         simulator = getattr(self._camera, "simulator", None)
-        if simulator is None or self._last_map is None or self._pipeline is None:
+        work = self._measure
+        if simulator is None or work is None or work.last_map is None:
             return None
-        truth = simulator.truth(self._last_map.last_sequence, self._pipeline.layout)
+        truth = simulator.truth(work.last_map.last_sequence, work.pipeline.layout)
         return tuple(truth.sector_distance_m)
 
     def snapshot(self, directory: str | Path) -> list[Path]:
         """Write the newest plain sub-frame, distortion map and top-down obstacle map."""
-        result = self._last_result
-        top_down = None
-        if self._pipeline is not None:
-            top_down = obstacle_map(
-                None if result is None else result.measurement, self._pipeline.layout,
-                None if result is None else result.points_vehicle_m,
-                float(self.config["pipeline.z_max_m"]))
-        return write_snapshot(directory, self.label, self._last_sub, self._last_map, top_down)
+        work = self._measure
+        if work is None:
+            return write_snapshot(directory, self.label, None, None, None)
+        result = work.last_result
+        top_down = obstacle_map(
+            None if result is None else result.measurement, work.pipeline.layout,
+            None if result is None else result.points_vehicle_m,
+            float(self.config["pipeline.z_max_m"]))
+        return write_snapshot(directory, self.label, work.last_sub, work.last_map, top_down)
 
     # ----------------------------------------------------------------- output
     def status(self) -> UnitStatus:
         """The content of the status frame now."""
         neg = self._negotiator
-        dmap = self._last_map
+        dmap = None if self._measure is None else self._measure.last_map
         extra = dmap.extra if dmap is not None else {}
         plan = neg.plan
         return UnitStatus(
@@ -479,15 +382,10 @@ class Unit:
             faults=self.faults | self._negotiator.faults,
             ambient_level=float(extra.get("ambient_level", 0.0)),
             saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
-            foreign_code_energy=self._foreign_energy(extra),
+            foreign_code_energy=(0.0 if self._measure is None
+                                 else self._measure.foreign_energy(extra)),
             dropped_sub_frames=self.stats.dropped_sub_frames,
         )
-
-    def _foreign_energy(self, extra: dict[str, float]) -> float:
-        """Sampled energy of other codes (fraction of the own lines), else the pipeline's."""
-        if self._interference is not None:
-            return float(self._interference.total)
-        return float(extra.get("foreign_code_energy", 0.0))
 
     def _unit_state(self) -> UnitState:
         if self.faults & FaultBits.CAMERA_LOST:

@@ -1,0 +1,177 @@
+"""The per-map work of one unit: sub-frames into a distortion map, the map into a Measurement.
+
+:class:`Measurer` owns the demodulator of the owned code, the sampled foreign-code energy,
+the pipeline and the scene adaptation. The unit's loop (:mod:`atris_node.node.unit`) reads
+the camera, strobes the projector and hands each sub-frame here; what comes back is the
+Measurement to publish. Everything here runs in the loop's thread.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from atris_node.adaptive.assessment import assess
+from atris_node.adaptive.controller import AdaptiveController, withheld
+from atris_node.codes import code_set, walsh_chips
+from atris_node.config import Config
+from atris_node.demod import BlockDemodulator, SlidingDemodulator
+from atris_node.errors import DemodulationError
+from atris_node.node.stats import NodeStats
+from atris_node.pipeline.interference import InterferenceReport, InterferenceWatch
+from atris_node.types import DistortionMap, Measurement, SubFrame
+from drivers import Camera
+
+logger = logging.getLogger(__name__)
+
+
+class Measurer:
+    """Demodulates the sub-frames of the owned code and measures each complete map.
+
+    Args:
+        config: the unit's configuration (demodulator kind, interference sampling).
+        pipeline: the unit's :class:`~atris_node.pipeline.chain.Pipeline`.
+        adaptive: the scene adaptation, or None when it is off.
+        negotiator: the unit's negotiator (peers, plan; hears the interference reports
+            and the adaptation's plan requests).
+        stats: the unit's counters (maps, dropped sub-frames, lag, measurements, late maps).
+        clock: seconds, the clock sub-frame host times are on.
+    """
+
+    def __init__(self, config: Config, pipeline: Any, adaptive: AdaptiveController | None,
+                 negotiator: Any, stats: NodeStats, clock: Callable[[], float]) -> None:
+        self.config = config
+        self.pipeline = pipeline
+        self.adaptive = adaptive
+        self.negotiator = negotiator
+        self.stats = stats
+        self.clock = clock
+        self.demod: BlockDemodulator | SlidingDemodulator | None = None
+        self.key: tuple[int, int] | None = None  # (N, row) of the demodulator
+        self.watch: InterferenceWatch | None = None
+        self.interference: InterferenceReport | None = None
+        self.last_sub: SubFrame | None = None
+        self.last_map: DistortionMap | None = None
+        self.last_result: Any = None
+        #: the adaptation's LOW_SIGNAL verdict on the last map, None without adaptation
+        self.low_signal: bool | None = None
+
+    # ----------------------------------------------------------------- sub-frames
+    def set_code(self, key: tuple[int, int], bits: int) -> None:
+        """A new demodulator for code ``key`` = (N, row) of ``bits``-bit sub-frames."""
+        chips = walsh_chips(*key)
+        # the strobe lag is known only for a simulator without lag; otherwise lock to it
+        known = self.config["driver.name"] == "sim" and not self.config["driver.lag_sub_frames"]
+        lag = 0 if known else None
+        kind = SlidingDemodulator if self.config["code.demod"] == "sliding" else BlockDemodulator
+        self.demod = kind(chips, bits=bits, lag=lag)
+        self.key = key
+        self.watch = None
+
+    def reset(self) -> None:
+        """Restart the demodulation window (a rejected sub-frame, a camera loss)."""
+        if self.demod is not None:
+            self.demod.reset()
+
+    def demodulate(self, sub: SubFrame) -> DistortionMap | None:
+        """Push ``sub``; the distortion map when its window is complete, else None.
+
+        Raises:
+            DemodulationError: the sub-frame does not fit the calibration or the window.
+        """
+        assert self.demod is not None
+        self._check_sub_frame(sub)
+        dmap = self.demod.push(sub)
+        self._watch_interference(sub)
+        if dmap is not None:
+            self.stats.maps += 1
+            self.stats.dropped_sub_frames += dmap.dropped
+            self.stats.last_lag = dmap.phase
+        return dmap
+
+    def _check_sub_frame(self, sub: SubFrame) -> None:
+        """Reject a sub-frame that does not fit the calibrated camera."""
+        camera = self.pipeline.calibration.camera
+        expected = (camera.height_px, camera.width_px)
+        if sub.pixels.shape != expected:
+            raise DemodulationError(f"sub-frame {sub.sequence} is {sub.pixels.shape[::-1]} "
+                                    f"(w, h) but the calibration is for {expected[::-1]}")
+
+    # ----------------------------------------------------------------- interference
+    def _peer_rows(self) -> list[int]:
+        return [p.code_row for p in self.negotiator.peers.named() if p.code_row]
+
+    def _reference_row(self) -> int | None:
+        """A row nobody on the bus uses: its energy is the broadband level (motion trails,
+        flicker) that every code sees and that is no sign of a unit on the own code."""
+        assert self.key is not None
+        n, own = self.key
+        taken = {own, *self._peer_rows()}
+        free = [r for r in code_set(n, str(self.negotiator.plan.mode)) if r not in taken]
+        others = [r for r in range(n, 1, -1) if r not in taken]
+        candidates = free or others
+        return candidates[0] if candidates else None
+
+    def _rows_to_measure(self) -> list[int]:
+        reference = self._reference_row()
+        return self._peer_rows() + ([] if reference is None else [reference])
+
+    def _watch_interference(self, sub: SubFrame) -> None:
+        """Sampled foreign-code energy; sustained energy on the own code makes us hop."""
+        every = int(self.config["interference.every_windows"])
+        demod, key = self.demod, self.key
+        if not every or demod is None or key is None or not demod.locked:
+            return
+        if self.watch is None:
+            self.watch = InterferenceWatch(key[0], key[1], demod.lag or 0, every,
+                                           self._rows_to_measure)
+        report = self.watch.push(sub)
+        if report is not None:
+            self.interference = report
+            reference = self._reference_row()
+            broadband = report.foreign.get(reference, 0.0) if reference else 0.0
+            self.negotiator.report_interference(max(report.own_excess - broadband, 0.0),
+                                                report.foreign)
+
+    def foreign_energy(self, extra: dict[str, float]) -> float:
+        """Sampled energy of other codes (fraction of the own lines), else the pipeline's."""
+        if self.interference is not None:
+            return float(self.interference.total)
+        return float(extra.get("foreign_code_energy", 0.0))
+
+    # ----------------------------------------------------------------- maps
+    def measure(self, dmap: DistortionMap, camera: Camera | None) -> Measurement:
+        """The Measurement of a complete map (``camera``: its rate, and the exposure the
+        adaptation sets)."""
+        self.last_map = dmap
+        result = self.pipeline.process(dmap)
+        self.last_result = result
+        self._count_deadline(dmap, camera)
+        self.stats.measurements += 1
+        return self._adapt(dmap, result, camera)
+
+    def _adapt(self, dmap: DistortionMap, result: Any, camera: Camera | None) -> Measurement:
+        """Scene assessment, adaptive exposure and N (docs/adaptive.md); off by default."""
+        if self.adaptive is None or camera is None:
+            return result.measurement
+        diag = result.diagnostics
+        dmap.extra["foreign_code_energy"] = diag.foreign_energy
+        decision = self.adaptive.on_frame(
+            assess(dmap, result.samples.snr, diag.line_snr, diag.foreign_energy,
+                   self.last_sub), int(self.negotiator.plan.code_length))
+        if decision.exposure_us is not None:
+            camera.set_exposure_us(decision.exposure_us)
+        if decision.code_length is not None:
+            self.negotiator.request_plan(decision.code_length)
+        self.low_signal = decision.low_signal
+        return withheld(result.measurement) if decision.low_signal else result.measurement
+
+    def _count_deadline(self, dmap: DistortionMap, camera: Camera | None) -> None:
+        """A map not processed within one output period of its newest sub-frame is late."""
+        rate = float(getattr(camera, "rate_hz", 0.0))
+        if rate <= 0.0:
+            return
+        period_s = dmap.code_length / rate
+        if self.clock() - dmap.last_time_s > period_s:
+            self.stats.deadline_misses += 1

@@ -1,0 +1,22 @@
+"""Counters a unit keeps about its own run (status frame, logs, launch summary)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class NodeStats:
+    """Counters a node reports (status frame, logs, launch summary)."""
+
+    sub_frames: int = 0
+    maps: int = 0
+    measurements: int = 0
+    dropped_sub_frames: int = 0
+    deadline_misses: int = 0
+    camera_faults: int = 0
+    bad_sub_frames: int = 0
+    reconnects: int = 0
+    strobe_lit_while_not_allowed: int = 0
+    last_lag: int = 0
+    history: list[tuple[float, bool, int | None]] = field(default_factory=list)
