@@ -19,9 +19,7 @@ from typing import Any
 import can
 
 from atris_node.bus.can.config import BusConfig, open_bus
-from atris_node.bus.can.e2e import E2EState
-from atris_node.bus.can.ids import unit_of
-from atris_node.bus.can.monitor import BusMonitor
+from atris_node.bus.can.monitor import BusMonitor, e2e_errors_by_unit
 from atris_node.node.fleetview import fleet_table
 from atris_node.node.launch import LaunchSpec, describe, load_launch
 from atris_node.node.runner import FleetRun, ProcessRun, stop_on_signals
@@ -29,7 +27,6 @@ from atris_node.node.runner import FleetRun, ProcessRun, stop_on_signals
 logger = logging.getLogger(__name__)
 
 CLEAR = "\x1b[H\x1b[2J"
-E2E_ERRORS = (E2EState.WRONG_CRC, E2EState.WRONG_SEQUENCE, E2EState.REPEATED)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -108,18 +105,6 @@ def _show(runner: FleetRun | ProcessRun, monitor: BusMonitor, live: bool) -> Non
         return
     sys.stdout.write((CLEAR if live else "") + table + "\n")
     sys.stdout.flush()
-
-
-def e2e_errors_by_unit(monitor: BusMonitor) -> dict[int, int]:
-    """Frames whose E2E check failed (wrong CRC, skipped or repeated), per unit id."""
-    errors: dict[int, int] = {}
-    for arbitration_id, checker in monitor.checkers.items():
-        owner = unit_of(arbitration_id)
-        if owner is None:
-            continue
-        counts = checker.counts or {}
-        errors[owner[0]] = errors.get(owner[0], 0) + sum(counts.get(s, 0) for s in E2E_ERRORS)
-    return errors
 
 
 def summarize(spec: LaunchSpec, runner: FleetRun | ProcessRun,

@@ -18,8 +18,7 @@ from typing import Any
 import can
 import psutil
 
-from atris_node.bus.can.monitor import BusMonitor
-from atris_node.cli.launch import e2e_errors_by_unit
+from atris_node.bus.can.monitor import BusMonitor, e2e_errors_by_unit
 from atris_node.node.launch import LaunchSpec, load_launch
 from atris_node.node.runner import FleetRun
 

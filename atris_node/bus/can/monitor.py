@@ -189,3 +189,19 @@ def render_table(snapshot: dict[str, Any]) -> str:
     lines.append(f"unknown frames: {snapshot['unknown_frames']}  "
                  f"error frames: {snapshot['error_frames']}")
     return "\n".join(lines)
+
+
+#: the E2E states that count as errors
+E2E_ERRORS = (E2EState.WRONG_CRC, E2EState.WRONG_SEQUENCE, E2EState.REPEATED)
+
+
+def e2e_errors_by_unit(monitor: BusMonitor) -> dict[int, int]:
+    """Frames whose E2E check failed (wrong CRC, skipped or repeated), per unit id."""
+    errors: dict[int, int] = {}
+    for arbitration_id, checker in monitor.checkers.items():
+        owner = unit_of(arbitration_id)
+        if owner is None:
+            continue
+        counts = checker.counts or {}
+        errors[owner[0]] = errors.get(owner[0], 0) + sum(counts.get(s, 0) for s in E2E_ERRORS)
+    return errors
