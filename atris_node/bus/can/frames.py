@@ -32,7 +32,7 @@ SignalValue = int | float | str
 
 
 def dbc_text() -> str:
-    """Text of the shipped DBC (package data ``atris_node/bus/atris.dbc``)."""
+    """Text of the shipped DBC (package data ``atris_node/bus/can/atris.dbc``)."""
     return importlib.resources.files("atris_node.bus.can").joinpath(DBC_NAME).read_text("utf-8")
 
 

@@ -59,7 +59,7 @@ NMT_STATE_CODES = {name: code for code, name in canopen.nmt.NMT_STATES.items()}
 
 
 def eds_text() -> str:
-    """Text of the shipped EDS (package data ``atris_node/bus/atris.eds``)."""
+    """Text of the shipped EDS (package data ``atris_node/bus/canopen/atris.eds``)."""
     return importlib.resources.files("atris_node.bus.canopen").joinpath(EDS_NAME).read_text("utf-8")
 
 
