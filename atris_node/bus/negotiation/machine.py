@@ -36,7 +36,7 @@ from dataclasses import replace
 
 import can
 
-from atris_node.bus.negotiation import choice
+from atris_node.bus.negotiation import choice, inbox
 from atris_node.bus.negotiation import frames as nf
 from atris_node.bus.negotiation.hop import InterferenceMonitor
 from atris_node.bus.negotiation.link import Link
@@ -116,6 +116,7 @@ class Negotiator:
         self.receive = self.link.receive
         self._lock = threading.RLock()
         self.peers = PeerTable()
+        self.inbox = inbox.Inbox(self.peers, name, unit_id, self.identity)
         self.sync = SyncState()
         self.timeline: list[tuple[float, bool, int | None]] = []
         self.plan_history: list[tuple[float, Plan]] = []
@@ -277,97 +278,41 @@ class Negotiator:
         self._notify()
 
     def _dispatch(self, header: nf.Header, data: bytes, now: float) -> None:
-        if header.identity == self.identity and self._own_or_clash(header, data, now):
+        events = self.inbox.read(header, data, now, self._nonce)
+        if events is None:
             return
-        if header.kind is nf.FrameKind.PLAN:
-            nf.decode_plan(data)
-        elif header.kind is not nf.FrameKind.SYNC:
-            nf.decode_name(data)
-        if header.kind is nf.FrameKind.CLAIM and header.field < 2:
-            raise nf.FrameDecodeError(f"CLAIM of row {header.field}: rows start at 2")
-        if header.kind is not nf.FrameKind.CLAIM and header.field > nf.LEAVING:
-            raise nf.FrameDecodeError(f"{header.kind.name} with field {header.field}")
-        peer = self.peers.accept(header.identity, now)
-        if peer is None:
-            return
-        handler = {nf.FrameKind.REQUEST: self._on_request, nf.FrameKind.CLAIM: self._on_claim,
-                   nf.FrameKind.CANNOT_CLAIM: self._on_cannot_claim,
-                   nf.FrameKind.PLAN: self._on_plan, nf.FrameKind.SYNC: self._on_sync}
-        handler[header.kind](peer, header, data, now)
+        for event in events:
+            self._react(event, now)
         self._refresh(now)
 
-    def _own_or_clash(self, header: nf.Header, data: bytes, now: float) -> bool:
-        """True for our own echoed frame; a foreign frame with our identity is a clash."""
-        kind = header.kind
-        if kind is nf.FrameKind.SYNC:
-            return True
-        if kind is nf.FrameKind.PLAN:
-            if nf.decode_plan(data).nonce == self._nonce:
-                return True
-        elif nf.decode_name(data) == self.name:
-            return True
-        self._duplicate(now, f"another unit sends with our identity (unit_id {self.unit_id})")
-        return True
-
-    def _learn_name(self, peer: Peer, data: bytes, now: float) -> bool:
-        """Store the NAME of ``peer``; False (and a conflict) when it is our own NAME."""
-        name = nf.decode_name(data)
-        if name == self.name:
-            self._duplicate(now, f"duplicate NAME {name:#018x} from unit_id "
-                                 f"{peer.identity.unit_id}")
-            return False
-        peer.name = name
-        return True
-
-    def _on_request(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
-        if self._learn_name(peer, data, now):
+    def _react(self, event: inbox.Event, now: float) -> None:
+        if isinstance(event, inbox.Duplicate):
+            self._duplicate(now, event.reason)
+        elif isinstance(event, inbox.AnnounceDue):
             self._announce_due = True
+        elif isinstance(event, inbox.Claimed):
+            self._on_claim(event.peer, event.row, now)
+        elif isinstance(event, inbox.Proposed):
+            self._on_proposal(event.peer, event.plan, now)
+        else:
+            self._on_sync(event, now)
 
-    def _on_claim(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
-        if not self._learn_name(peer, data, now):
-            return
-        if peer.code_row != header.field and not self.peers.allow_change(peer, now):
-            return
-        peer.code_row, peer.cannot_claim = header.field, False
-        if not self._holds(header.field) or not self._same_plan(peer):
+    def _on_claim(self, peer: Peer, row: int, now: float) -> None:
+        """A lower NAME's claim of our row takes it; a higher NAME's is answered."""
+        if not self._holds(row) or not self._same_plan(peer):
             return
         assert peer.name is not None
         if peer.name < self.name:
-            self._lose(now, f"unit {peer.label()} (lower NAME) claims row {header.field}")
+            self._lose(now, f"unit {peer.label()} (lower NAME) claims row {row}")
         elif now - self._last_defence_s >= MIN_ANNOUNCE_GAP_S:
             self._last_defence_s = now
-            self.link.outbox.append(nf.encode_claim(self.name, self.unit_id, header.field))
+            self.link.outbox.append(nf.encode_claim(self.name, self.unit_id, row))
 
-    def _on_cannot_claim(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
-        if not self._learn_name(peer, data, now):
+    def _on_sync(self, event: inbox.SyncHeard, now: float) -> None:
+        if self._plan.mode != "sync" or event.code_length != self._plan.code_length:
             return
-        peer.code_row, peer.cannot_claim = None, True
-        if header.field == nf.LEAVING:
-            logger.info("unit %s leaves the bus", peer.label())
-            self.peers.forget(peer)
-
-    def _on_plan(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
-        announcement = nf.decode_plan(data)
-        changed = announcement.proposal or peer.plan not in (None, announcement.plan)
-        if changed and not self.peers.allow_change(peer, now):
-            return
-        if announcement.proposal:
-            self._on_proposal(peer, announcement.plan, now)
-            return
-        if peer.plan != announcement.plan:
-            peer.code_row = None  # its claims were for its previous plan
-        peer.plan, peer.conflict = announcement.plan, announcement.conflict
-        peer.established = announcement.established
-        if peer.nonce is not None and peer.nonce != announcement.nonce and peer.name:
-            logger.info("unit %s restarted", peer.label())
-        peer.nonce = announcement.nonce
-
-    def _on_sync(self, peer: Peer, header: nf.Header, data: bytes, now: float) -> None:
-        counter, code_length, _ = nf.decode_sync(data)
-        if self._plan.mode != "sync" or code_length != self._plan.code_length:
-            return
-        if peer.name is not None and peer is self._leader_peer():
-            self.sync.on_sync(counter, now)
+        if event.peer.name is not None and event.peer is self._leader_peer():
+            self.sync.on_sync(event.counter, now)
 
     # ------------------------------------------------------------------ the tick
     def tick(self, now: float | None = None) -> None:
