@@ -40,7 +40,8 @@ def _measurement(distance_m: float) -> Measurement:
 
 
 def _record(path: Path, channel: str, duration_s: float) -> None:
-    """Two units publishing on a virtual bus, recorded with can.Logger."""
+    """Two units publishing on a virtual bus, recorded with can.Logger while they run (the
+    final STOPPED cycles of their stop() are not part of the recording)."""
     with can.Bus(interface="virtual", channel=channel) as rx, \
             can.Bus(interface="virtual", channel=channel) as tx:
         logger = can.Logger(str(path))
@@ -50,11 +51,10 @@ def _record(path: Path, channel: str, duration_s: float) -> None:
             publisher.update(_measurement(unit), _status(unit + 1))
             publisher.start()
         time.sleep(duration_s)
-        for publisher in publishers:
-            publisher.stop()
-        time.sleep(0.05)
         notifier.stop()
         logger.stop()
+        for publisher in publishers:
+            publisher.stop()
 
 
 def test_monitor_decodes_a_recorded_exchange(tmp_path: Path) -> None:

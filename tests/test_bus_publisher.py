@@ -258,11 +258,12 @@ def test_a_full_transmit_queue_hands_the_cycle_to_the_scheduler_thread(
         before = len(bus.sends)
         publisher.update(_measurement(), RUNNING)
         frames = _collect(listener, 0.2)
+        sends = bus.sends[before:]  # the final cycle of stop() is not part of it
         publisher.stop()
     finally:
         bus.shutdown()
-    assert len(bus.sends) - before == len(frames) >= 4  # sent once, by the thread
-    assert all(ident != MAIN_THREAD and timeout == 1.0 for ident, timeout in bus.sends[before:])
+    assert len(sends) == len(frames) >= 4  # sent once, by the thread
+    assert all(ident != MAIN_THREAD and timeout == 1.0 for ident, timeout in sends)
     assert publisher.stats.send_errors == 0 and not publisher.stats.deadline_misses
     assert frames[-1][1].name.endswith("Sectors")
     assert _of(frames, "Sectors")[0].signals["Distance0"] == 1.0
@@ -319,7 +320,13 @@ def test_each_frame_is_sent_as_soon_as_it_is_encoded(channel: str) -> None:
 def test_nothing_is_sent_after_stop(channel: str, listener: can.BusABC) -> None:
     with can.Bus(interface="virtual", channel=channel) as bus:
         publisher = _run(bus, period_s=1.0)
+        publisher.update(_measurement(), RUNNING)
         _collect(listener, 0.1)
         publisher.stop()
+        final = _collect(listener, 0.1)  # stop() sends one last cycle
         publisher.update(_measurement(), RUNNING)
+        publisher.stop()
         assert listener.recv(timeout=0.1) is None
+    assert str(_of(final, "Status")[0].signals["State"]) == "STOPPED"
+    assert all(str(f.signals[k]) == "invalid" for f in _of(final, "Sectors")
+               for k in f.signals if k.startswith("Distance"))

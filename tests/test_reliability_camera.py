@@ -10,17 +10,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from typing import Any
 
 import can
 import pytest
+from cycle_frames import CycleFrames
 from listened_bus import listened_bus
 
 from atris_node import config as cfg
-from atris_node.bus.can.frames import FrameCodec
-from atris_node.bus.can.ids import FrameKind, unit_of
-from atris_node.errors import FrameDecodeError
 from atris_node.node.unit import Unit
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera, InjectedFault
 from atris_node.types import DistortionMap, Measurement
@@ -30,47 +27,6 @@ from drivers import open_backend as open_registry_backend
 CODE_LENGTH = 8
 BASE = [f"code.length={CODE_LENGTH}", "negotiation.window_s=0.1",
         "negotiation.reannounce_s=0.5", "negotiation.silence_timeout_s=1.5"]
-
-
-@dataclass
-class Cycle:
-    """One publish cycle of unit 0 as a controller sees it: the arrival time and state of
-    its status frame, and the distances of its sector frames (floats, or the strings of
-    the invalid and no-return codes)."""
-
-    time_s: float
-    state: str
-    distances: list[Any] = field(default_factory=list)
-
-    @property
-    def valid(self) -> bool:
-        """True when any sector carries a distance."""
-        return any(isinstance(d, float) for d in self.distances)
-
-
-class CycleFrames(can.Listener):
-    """The cycles of unit 0, in arrival order (a status frame opens a cycle)."""
-
-    def __init__(self) -> None:
-        self.codec = FrameCodec()
-        self.cycles: list[Cycle] = []
-
-    def on_message_received(self, msg: can.Message) -> None:
-        found = None if msg.is_extended_id else unit_of(msg.arbitration_id)
-        if found is None or found[0] != 0:
-            return
-        try:
-            signals = self.codec.decode_message(msg).signals
-        except FrameDecodeError:
-            return
-        if found[1] is FrameKind.STATUS:
-            self.cycles.append(Cycle(time.monotonic(), str(signals["State"])))
-        elif found[1] is FrameKind.SECTORS and self.cycles:
-            self.cycles[-1].distances += [v for k, v in signals.items()
-                                          if k.startswith("Distance")]
-
-    def on_error(self, exc: Exception) -> None:
-        raise exc
 
 
 @pytest.fixture

@@ -72,16 +72,18 @@ def run_launch(spec: LaunchSpec, duration_s: float, log: str | None = None,
         notifier = can.Notifier(bus, listeners, timeout=0.1)
         runner: FleetRun | ProcessRun = (FleetRun(spec) if spec.mode == "threads"
                                          else ProcessRun(spec))
+        running: dict[str, Any] | None = None
         try:
             with stop_on_signals(stop):
                 runner.start()
                 _watch(runner, monitor, duration_s, stop, refresh_s=refresh_s, live=live)
+                running = monitor.snapshot()["units"]  # before the units' final frames
         finally:
             runner.stop()
             notifier.stop()
             for listener in listeners:
                 listener.stop()
-    return summarize(spec, runner, monitor)
+    return summarize(spec, runner, monitor, running)
 
 
 def _watch(runner: FleetRun | ProcessRun, monitor: BusMonitor, duration_s: float,
@@ -107,21 +109,24 @@ def _show(runner: FleetRun | ProcessRun, monitor: BusMonitor, live: bool) -> Non
     sys.stdout.flush()
 
 
-def summarize(spec: LaunchSpec, runner: FleetRun | ProcessRun,
-              monitor: BusMonitor) -> dict[str, Any]:
-    """The summary object of a launch run (fields are relied on by other tools)."""
+def summarize(spec: LaunchSpec, runner: FleetRun | ProcessRun, monitor: BusMonitor,
+              running: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The summary object of a launch run (fields are relied on by other tools): state
+    and code as at the end of the run (``running``, the monitor's units then; the final
+    STOPPED frames of the units come after), frame and error counts of the whole run."""
     snapshot = monitor.snapshot()["units"]
+    at_end = snapshot if running is None else running
     errors = e2e_errors_by_unit(monitor)
     units = []
     for config in spec.units:
         unit_id = int(config["unit.unit_id"])
-        view = snapshot.get(str(unit_id), {})
+        view, end = snapshot.get(str(unit_id), {}), at_end.get(str(unit_id), {})
         units.append({
             "name": config["unit.label"],
             "unit_id": unit_id,
-            "code_row": view.get("code_row"),
-            "code_length": view.get("code_length"),
-            "state": view.get("state"),
+            "code_row": end.get("code_row"),
+            "code_length": end.get("code_length"),
+            "state": end.get("state"),
             "frames_sent": int(view.get("frames", 0)),
             "e2e_errors": errors.get(unit_id, 0),
         })

@@ -139,14 +139,19 @@ class Unit:
             self._thread.start()
 
     def deactivate(self) -> None:
-        """Stop the loop and the bus services; the laser goes off first."""
+        """Stop the loop and the bus services: laser off, the loop stopped (and the laser
+        off again, in case the loop lit it on its way out), the code released, then a
+        final frame with state STOPPED and invalid distances."""
         if self.lifecycle != Lifecycle.ACTIVE:
             return
         self._stop.set()
         self._laser_off()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
+            if self._thread.is_alive():
+                logger.error("unit %s: the loop did not stop within 5 s", self.label)
             self._thread = None
+        self._laser_off()
         self._negotiator.stop()
         assert self._publisher is not None
         self._publisher.stop()
@@ -211,6 +216,14 @@ class Unit:
             logger.exception("unit %s loop failed", self.label)
             self._fatal = exc
             self._laser_off()
+            self._publish_fault()
+
+    def _publish_fault(self) -> None:
+        """After the loop died: state FAULT and invalid distances on the bus at once."""
+        try:
+            self._publish(None)
+        except Exception:
+            logger.exception("unit %s: the FAULT state could not be published", self.label)
 
     def run_for(self, duration_s: float) -> None:
         """Run the loop in the calling thread for ``duration_s`` seconds."""
@@ -242,6 +255,9 @@ class Unit:
             self._on_map(dmap)
         elif chips is None:
             self._publish(None)
+        else:
+            assert self._publisher is not None
+            self._publisher.heartbeat()  # progress: the loop is alive between maps
 
     def _read_with_strobe(self, chips: Any) -> SubFrame:
         camera, projector = self._camera, self._projector
@@ -388,7 +404,7 @@ class Unit:
         )
 
     def _unit_state(self) -> UnitState:
-        if self.faults & FaultBits.CAMERA_LOST:
+        if self.faults & FaultBits.CAMERA_LOST or self._fatal is not None:
             return UnitState.FAULT
         name = getattr(self._negotiator.state, "name", str(self._negotiator.state))
         if self._negotiator.may_strobe:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 from atris_node.bus.can.ids import MAX_SECTORS, SECTORS_PER_FRAME
 from atris_node.errors import ConfigError
@@ -45,14 +46,26 @@ def data_usable(measurement: Measurement | None, status: UnitStatus, age_s: floa
                 max_age_s: float) -> bool:
     """True when ``measurement`` (``age_s`` old) may go out as valid distances.
 
-    False without a measurement, when older than ``max_age_s``, when the unit is not
-    RUNNING, or when a fault in SPOILING_FAULTS is set.
+    False without a measurement, when older than ``max_age_s`` or stamped in the future
+    (a negative age is a clock error, not fresh data), when the unit is not RUNNING, or
+    when a fault in SPOILING_FAULTS is set.
     """
     if measurement is None or age_s is None or not math.isfinite(age_s):
         return False
     if status.state is not UnitState.RUNNING or status.faults & SPOILING_FAULTS:
         return False
-    return age_s <= max_age_s
+    return 0.0 <= age_s <= max_age_s
+
+
+def alive_status(status: UnitStatus, progress_s: float | None, now: float,
+                 deadline_s: float) -> UnitStatus:
+    """``status`` as it may go out at ``now`` (seconds, one clock): FAULT with
+    DEADLINE_MISS when the measurement loop last reported progress (``progress_s``, None
+    before it ever did) more than ``deadline_s`` ago: it died or hangs, so neither its
+    state nor its distances can be vouched for."""
+    if progress_s is None or now - progress_s <= deadline_s:
+        return status
+    return replace(status, state=UnitState.FAULT, faults=status.faults | FaultBits.DEADLINE_MISS)
 
 
 def scaled(value: float, scale: float, lo: int, hi: int) -> int:

@@ -7,7 +7,11 @@ ever blocking that thread: when the scheduler thread is sending, during a back-o
 a frame cannot be queued at once, the scheduler thread sends the cycle instead.
 
 Data older than ``max_age_s``, or from a unit that is not RUNNING or has a fault that
-spoils its distances, goes out as "invalid", never as a stale distance. A failed send
+spoils its distances, goes out as "invalid", never as a stale distance. The owner's
+measurement loop reports progress (:meth:`Publisher.update`, :meth:`Publisher.heartbeat`);
+when it has not for ``max_age_s`` (it died or hangs) every cycle says FAULT with
+DEADLINE_MISS and invalid distances, whatever the last status said. :meth:`Publisher.stop`
+sends a final cycle: STOPPED, distances invalid. A failed send
 starts a back-off (doubling from one period to ``backoff_cap_s``) during which cycles are
 skipped; the thread never dies silently: an unexpected error is logged and kept, and
 :meth:`Publisher.check` re-raises it in the owner's loop.
@@ -83,6 +87,7 @@ class Publisher:
         self._counters = dict.fromkeys(self._names.values(), 0)
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
+        self._progress_s: float | None = None  # the owner's loop last made progress
         self._lock = threading.Lock()  # the newest measurement and status
         self._send_lock = threading.Lock()  # composing and sending one cycle
         self._next_due_s = 0.0
@@ -106,11 +111,29 @@ class Publisher:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop and join the thread; safe to call more than once."""
+        """Stop and join the thread, then send a final cycle (STOPPED, distances invalid,
+        the last fault bits); safe to call more than once (one final cycle)."""
+        if self._stopping.is_set():
+            return
         self._stopping.set()
         self._wake.set()
-        if self._thread is not None:
-            self._thread.join()
+        if self._thread is None:
+            return
+        self._thread.join()
+        with self._lock:
+            self._measurement = None
+            self._status = replace(self._status, state=UnitState.STOPPED)
+            self._progress_s = None
+        try:
+            with self._send_lock:
+                self._cycle(self.clock(), immediate=True, timeout_s=self.period_s)
+        except Exception:
+            logger.exception("final cycle of unit %d not sent", self.unit_id)
+
+    def heartbeat(self) -> None:
+        """The owner's measurement loop made progress (a sub-frame handled) without a new
+        measurement or state to hand over; call it from that loop, never another thread."""
+        self._progress_s = self.clock()
 
     def update(self, measurement: Measurement | None, status: UnitStatus) -> None:
         """Hand over the newest measurement and status; a new measurement or a change of
@@ -121,6 +144,7 @@ class Publisher:
             fresh = measurement is not None and measurement is not self._measurement
             fresh |= status.state != self._status.state  # e.g. a camera fault: invalid at once
             self._measurement, self._status = measurement, status
+            self._progress_s = self.clock()
         if fresh and not self._send_inline():
             self._wake.set()
 
@@ -187,6 +211,7 @@ class Publisher:
         else:
             with self._lock:
                 measurement, status = self._measurement, self._status
+                status = payloads.alive_status(status, self._progress_s, now, self.max_age_s)
             sent = self._send_all(self.frames(measurement, status, now, late), timeout_s)
             if not sent and timeout_s == 0.0:
                 return False

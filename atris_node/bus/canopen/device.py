@@ -9,6 +9,13 @@ each TPDO's event timer (types 254/255), and only in OPERATIONAL. PDO parameters
 over SDO are re-read (``tpdo.read(from_od=False)``) before the next transmission. SDO
 writes to the configuration (0x2000) are checked against the EDS limits and the rules
 below, aborted with the CiA 301 codes, and handed to ``on_config(name, value)``.
+
+The values a TPDO carries are composed when it is sent, from the newest measurement and
+status the loop handed over: distances older than MaxDataAge (0x2000) go out invalid, and
+when the loop has not reported progress (:meth:`CanopenDevice.update`,
+:meth:`CanopenDevice.heartbeat`) for that long the status says FAULT with DEADLINE_MISS.
+:meth:`CanopenDevice.stop` sends the enabled TPDOs once more with state STOPPED and
+invalid distances.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +37,7 @@ from canopen.sdo import SdoAbortedError
 
 from atris_node.bus.can import payloads
 from atris_node.errors import AtrisError, NodeFaultError
-from atris_node.types import Measurement, UnitStatus
+from atris_node.types import Measurement, UnitState, UnitStatus
 
 logger = logging.getLogger(__name__)
 
@@ -108,6 +116,9 @@ class CanopenDevice:
         self._timer: threading.Thread | None = None
         self._fatal: BaseException | None = None
         self._last_event_s: dict[int, float] = {}
+        self._measurement: Measurement | None = None
+        self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
+        self._progress_s: float | None = None  # the owner's loop last made progress
 
     # -- lifecycle -----------------------------------------------------------------------
     def start(self) -> None:
@@ -125,12 +136,19 @@ class CanopenDevice:
         self._timer.start()
 
     def stop(self) -> None:
-        """Stop the event timer and heartbeat and leave the network; idempotent."""
+        """Stop the event timer and heartbeat, send the enabled TPDOs once with state
+        STOPPED and invalid distances (in OPERATIONAL), and leave the network; idempotent."""
         self._stopping.set()
         if self._timer is None:
             return
         self._timer.join()
         self._timer = None
+        with self._lock:
+            self._measurement, self._progress_s = None, None
+            self._status = replace(self._status, state=UnitState.STOPPED)
+        if self.node.nmt.state == "OPERATIONAL":
+            for pdo in self._tpdos():
+                self._transmit(pdo)
         self.network.unsubscribe(SYNC_COB_ID, self._on_sync)
         self.node.remove_network()
         self.network.nodes.pop(self.node_id, None)
@@ -153,19 +171,29 @@ class CanopenDevice:
 
     # -- values --------------------------------------------------------------------------
     def update(self, measurement: Measurement | None, status: UnitStatus) -> None:
-        """Write the newest values into the object dictionary (sent by the next TPDOs)."""
-        now = self.clock()
-        age = None if measurement is None else now - measurement.newest_time_s
-        usable = self._usable(measurement, status, age)
+        """Hand over the newest values (the loop made progress); they are written into the
+        object dictionary now and again, aged, before each TPDO is sent."""
         with self._lock:
-            self._write_status(status, age)
-            self._write_sectors(measurement, usable)
-            self._write_nearest(measurement, usable)
+            self._measurement, self._status = measurement, status
+            self._progress_s = self.clock()
+            self._write_values(self._progress_s)
 
-    def _usable(self, measurement: Measurement | None, status: UnitStatus,
-                age: float | None) -> bool:
+    def heartbeat(self) -> None:
+        """The owner's measurement loop made progress (a sub-frame handled) without new
+        values; call it from that loop, never another thread."""
+        self._progress_s = self.clock()
+
+    def _write_values(self, now: float) -> None:
+        """The newest values as they may go out at ``now`` into the object dictionary
+        (the lock held): aged, invalid when stale, FAULT when the loop stopped reporting."""
+        measurement = self._measurement
         max_age_s = self.config("MaxDataAge_ms") / 1000.0
-        return payloads.data_usable(measurement, status, age, max_age_s)
+        status = payloads.alive_status(self._status, self._progress_s, now, max_age_s)
+        age = None if measurement is None else now - measurement.newest_time_s
+        usable = payloads.data_usable(measurement, status, age, max_age_s)
+        self._write_status(status, age)
+        self._write_sectors(measurement, usable)
+        self._write_nearest(measurement, usable)
 
     def _od(self, index: int, subindex: int | str) -> ODVariable:
         entry = self.node.object_dictionary[index]
@@ -285,6 +313,7 @@ class CanopenDevice:
 
     def _transmit(self, pdo: Any) -> None:
         with self._lock:
+            self._write_values(self.clock())
             for variable in pdo.map:
                 variable.set_data(self.node.get_data(variable.index, variable.subindex))
             data = bytes(pdo.data)

@@ -1,0 +1,255 @@
+"""A measurement loop that hangs or dies, and a unit that stops: what goes out on the bus.
+
+The promise: a distance on the bus is fresh, or it is invalid; the state says RUNNING only
+while the measurement loop itself reports progress. The loop hangs in a camera read that
+never returns (a hung driver) or dies of an unexpected error; a controller on a second bus
+object of the channel decodes every cycle (DBC mode), or a canopen master receives the
+TPDOs on SYNC (CANopen mode).
+
+Each protection was removed once and the test watched fail, then put back:
+- ``payloads.alive_status`` returning ``status`` unchanged: the hung loop's cycles stayed
+  RUNNING (DBC test) and the TPDO status stayed RUNNING (CANopen test);
+- ``CanopenDevice._transmit`` not re-composing the values (the old cache): the TPDOs
+  carried the last distances as valid 0.3 s after they went stale;
+- ``Unit._publish_fault`` not called: the first FAULT cycle after the loop died came
+  only after MaxDataAge (~0.3 s), not at once;
+- ``Publisher.stop`` / ``CanopenDevice.stop`` without the final cycle: the last status
+  said RUNNING;
+- ``data_usable`` accepting a negative age: the future-stamped measurement was valid.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import canopen
+import pytest
+from cycle_frames import Cycle, CycleFrames
+from listened_bus import listened_bus
+
+from atris_node import config as cfg
+from atris_node.bus.can import payloads
+from atris_node.bus.canopen.device import CanopenDevice, eds_path
+from atris_node.errors import NodeFaultError
+from atris_node.node.unit import Unit
+from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
+from atris_node.types import (
+    FaultBits,
+    Measurement,
+    SectorDistance,
+    SectorState,
+    SubFrame,
+    UnitState,
+    UnitStatus,
+)
+from drivers import Camera, Projector
+from drivers import open_backend as open_registry_backend
+
+BASE = ["code.length=8", "negotiation.window_s=0.1", "negotiation.reannounce_s=0.5",
+        "negotiation.silence_timeout_s=1.5"]
+NODE_ID = 0x23
+
+
+class StallingCamera(FaultyCamera):
+    """A healthy camera until ``stall`` is set; then a read blocks until ``release`` (a
+    hung driver), or raises ``error`` when one is given. ``stalled_at_s`` is the
+    ``time.monotonic()`` of the first stalled read."""
+
+    def __init__(self, inner: Camera) -> None:
+        super().__init__(inner, CameraFaults())
+        self.stall, self.release = threading.Event(), threading.Event()
+        self.error: Exception | None = None
+        self.stalled_at_s: float | None = None
+
+    def _read(self, timeout_s: float) -> SubFrame:
+        if self.stall.is_set():
+            if self.stalled_at_s is None:
+                self.stalled_at_s = time.monotonic()
+            if self.error is not None:
+                raise self.error
+            self.release.wait()
+        return super()._read(timeout_s)
+
+
+@pytest.fixture
+def rig(request: pytest.FixtureRequest) -> Iterator[tuple[Unit, StallingCamera, CycleFrames]]:
+    """A threaded unit with a :class:`StallingCamera` that has published valid distances."""
+    frames = CycleFrames()
+    cameras: list[StallingCamera] = []
+
+    def opener(name: str, **settings: Any) -> tuple[Camera, Projector]:
+        camera, projector = open_registry_backend(name, **settings)
+        cameras.append(StallingCamera(camera))
+        return cameras[-1], projector
+
+    with listened_bus(f"reliability-loop-{request.node.name}", frames, 0.01) as bus:
+        unit = Unit(cfg.load(environ={}, overrides=BASE), bus, open_backend=opener)
+        unit.configure()
+        unit.activate(threaded=True)
+        try:
+            wait_for(lambda: any(c.valid for c in frames.cycles), 60.0)
+            yield unit, cameras[0], frames
+        finally:
+            cameras[0].release.set()
+            unit.shutdown()
+
+
+def wait_for(done: Callable[[], bool], timeout_s: float) -> None:
+    end = time.monotonic() + timeout_s
+    while not done():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.01)
+
+
+def cycles_after(frames: CycleFrames, start_s: float) -> list[Cycle]:
+    return [c for c in list(frames.cycles) if c.time_s > start_s]
+
+
+def test_a_hung_loop_goes_out_as_fault_with_invalid_distances(
+        rig: tuple[Unit, StallingCamera, CycleFrames]) -> None:
+    unit, camera, frames = rig
+    camera.stall.set()
+    wait_for(lambda: camera.stalled_at_s is not None, 5.0)
+    assert camera.stalled_at_s is not None
+    max_age_s = float(unit.config["publish.max_age_s"])
+    period_s = float(unit.config["publish.period_s"])
+    time.sleep(max_age_s + 0.6)
+    # the last progress was before the stalled read: FAULT within max_age + one cycle
+    bound_s = camera.stalled_at_s + max_age_s + 2 * period_s + 0.05
+    late = cycles_after(frames, bound_s)
+    assert len(late) >= 5
+    assert all(c.state == "FAULT" for c in late), [c.state for c in late]
+    assert all(c.status["Fault_DeadlineMiss"] == 1 for c in late)
+    assert all(d == "invalid" for c in late for d in c.distances)
+    first = next(c for c in cycles_after(frames, camera.stalled_at_s) if c.state == "FAULT")
+    print(f"\nloop hung -> first FAULT cycle {1e3 * (first.time_s - camera.stalled_at_s):.0f} ms"
+          f" (max age {1e3 * max_age_s:.0f} ms)")
+
+
+def test_a_dead_loop_is_fault_on_the_bus_at_once_and_stays_dark(
+        rig: tuple[Unit, StallingCamera, CycleFrames]) -> None:
+    unit, camera, frames = rig
+    camera.error = RuntimeError("injected driver bug")
+    camera.stall.set()
+    wait_for(lambda: camera.stalled_at_s is not None, 5.0)
+    assert camera.stalled_at_s is not None
+    max_age_s = float(unit.config["publish.max_age_s"])
+    time.sleep(max_age_s + 0.3)
+    after = cycles_after(frames, camera.stalled_at_s)
+    first = next(c for c in after if c.state == "FAULT")
+    latency_s = first.time_s - camera.stalled_at_s
+    print(f"\nloop died -> first FAULT cycle {latency_s * 1e3:.1f} ms")
+    assert latency_s < max_age_s / 2
+    assert all(c.state == "FAULT" for c in after[after.index(first):])
+    assert all(d == "invalid" for c in after[after.index(first):] for d in c.distances)
+    assert unit.projector is not None and not unit.projector.is_lit
+    with pytest.raises(NodeFaultError, match="injected driver bug"):
+        unit.check()
+
+
+def test_shutdown_ends_with_a_stopped_cycle_of_invalid_distances(
+        rig: tuple[Unit, StallingCamera, CycleFrames]) -> None:
+    unit, _, frames = rig
+    unit.shutdown()
+    time.sleep(0.1)
+    last = frames.cycles[-1]
+    assert last.state == "STOPPED"
+    assert last.distances and all(d == "invalid" for d in last.distances)
+    assert unit.projector is not None and not unit.projector.is_lit
+
+
+# ----------------------------------------------------------------------------- CANopen
+RUNNING = UnitStatus(UnitState.RUNNING, 3, 16, 480.0, 9)
+
+
+class CanopenPair:
+    """A canopen master and the device on one virtual channel, device OPERATIONAL."""
+
+    def __init__(self, max_age_ms: int) -> None:
+        channel = f"co-loop-{uuid.uuid4().hex}"
+        self.master_net, self.device_net = canopen.Network(), canopen.Network()
+        self.master_net.connect(interface="virtual", channel=channel)
+        self.device_net.connect(interface="virtual", channel=channel)
+        self.device = CanopenDevice(self.device_net, NODE_ID)
+        self.master = canopen.RemoteNode(NODE_ID, str(eds_path()))
+        self.master_net.add_node(self.master)
+        self.device.start()
+        self.master.nmt.wait_for_heartbeat(timeout=2.0)
+        self.master.sdo["Configuration"]["MaxDataAge_ms"].raw = max_age_ms
+        self.master.tpdo.read(from_od=True)
+        self.master.nmt.state = "OPERATIONAL"
+        time.sleep(0.05)
+
+    def sync(self) -> tuple[int, int, int]:
+        """SYNC; the (state, sector 0 distance, nearest distance) raw values the TPDOs
+        carried (0xFFFF: invalid)."""
+        before = [self.master.tpdo[n].timestamp for n in (1, 2, 3)]
+        self.master_net.sync.transmit()
+        wait_for(lambda: all(self.master.tpdo[n].timestamp != t
+                             for n, t in zip((1, 2, 3), before, strict=True)), 1.0)
+        return (self.master.tpdo[1]["Status.State"].raw,
+                self.master.tpdo[3]["SectorDistance_mm.Sector0"].raw,
+                self.master.tpdo[2]["Nearest.Distance_mm"].raw)
+
+    def close(self) -> None:
+        self.device.stop()
+        self.master_net.disconnect()
+        self.device_net.disconnect()
+
+
+@pytest.fixture
+def canopen_pair() -> Iterator[CanopenPair]:
+    pair = CanopenPair(max_age_ms=100)
+    try:
+        yield pair
+    finally:
+        pair.close()
+
+
+def _measurement() -> Measurement:
+    sectors = tuple(SectorDistance(i, 0.0, SectorState.VALID, 1.0 + 0.5 * i, 0.5)
+                    for i in range(8))
+    return Measurement(42, sectors, time.monotonic(), 9, nearest=sectors[0])
+
+
+def test_canopen_tpdos_go_invalid_and_fault_when_the_loop_stops_reporting(
+        canopen_pair: CanopenPair) -> None:
+    canopen_pair.device.update(_measurement(), RUNNING)
+    assert canopen_pair.sync() == (int(UnitState.RUNNING), 1000, 1000)
+    time.sleep(0.3)  # no update, no heartbeat: the loop hangs, the data ages past 100 ms
+    assert canopen_pair.sync() == (int(UnitState.FAULT), 0xFFFF, 0xFFFF)
+    faults = canopen_pair.master.sdo["Status"]["Faults"].raw
+    assert faults & int(FaultBits.DEADLINE_MISS)
+
+
+def test_canopen_heartbeat_keeps_running_but_stale_data_is_invalid(
+        canopen_pair: CanopenPair) -> None:
+    canopen_pair.device.update(_measurement(), RUNNING)
+    end = time.monotonic() + 0.3
+    while time.monotonic() < end:  # the loop is alive, but brings no new measurement
+        canopen_pair.device.heartbeat()
+        time.sleep(0.02)
+    assert canopen_pair.sync() == (int(UnitState.RUNNING), 0xFFFF, 0xFFFF)
+
+
+def test_canopen_stop_sends_the_tpdos_once_more_as_stopped_and_invalid(
+        canopen_pair: CanopenPair) -> None:
+    canopen_pair.device.update(_measurement(), RUNNING)
+    assert canopen_pair.sync()[0] == int(UnitState.RUNNING)
+    before = canopen_pair.master.tpdo[3].timestamp
+    canopen_pair.device.stop()
+    wait_for(lambda: canopen_pair.master.tpdo[3].timestamp != before, 1.0)
+    assert canopen_pair.master.tpdo[1]["Status.State"].raw == int(UnitState.STOPPED)
+    assert canopen_pair.master.tpdo[3]["SectorDistance_mm.Sector0"].raw == 0xFFFF
+
+
+@pytest.mark.parametrize(("age_s", "usable"), [
+    (-0.001, False), (-6.0, False), (0.0, True), (0.1, True), (0.25, True), (0.2501, False),
+    (float("nan"), False), (float("inf"), False), (float("-inf"), False)])
+def test_a_distance_is_usable_only_when_fresh_and_not_from_the_future(
+        age_s: float, usable: bool) -> None:
+    assert payloads.data_usable(_measurement(), RUNNING, age_s, 0.25) is usable
