@@ -22,7 +22,7 @@ from vcan_support import REPO_ROOT, summary_ms
 
 pytestmark = pytest.mark.vcan
 
-EDS_PATH = REPO_ROOT / "atris_node" / "bus" / "atris.eds"
+EDS_PATH = REPO_ROOT / "atris_node" / "bus" / "canopen" / "atris.eds"
 NODE_ID = 0x05
 TPDO1, TPDO3, HEARTBEAT = 0x180 + NODE_ID, 0x380 + NODE_ID, 0x700 + NODE_ID
 SYNC_PERIOD_S = 0.05

@@ -11,7 +11,7 @@ import can
 from e2e_reference import P01Receiver
 from vcan_support import REPO_ROOT
 
-DBC_PATH = REPO_ROOT / "atris_node" / "bus" / "atris.dbc"
+DBC_PATH = REPO_ROOT / "atris_node" / "bus" / "can" / "atris.dbc"
 
 
 @dataclass
