@@ -26,6 +26,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import can
 import canopen
 import pytest
 from cycle_frames import Cycle, CycleFrames
@@ -36,6 +37,7 @@ from atris_node.bus.can import payloads
 from atris_node.bus.canopen.device import CanopenDevice, eds_path
 from atris_node.errors import NodeFaultError
 from atris_node.node.unit import Unit
+from atris_node.testing.faultbus import Faults, FaultyBus
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
 from atris_node.types import (
     FaultBits,
@@ -253,3 +255,43 @@ def test_canopen_stop_sends_the_tpdos_once_more_as_stopped_and_invalid(
 def test_a_distance_is_usable_only_when_fresh_and_not_from_the_future(
         age_s: float, usable: bool) -> None:
     assert payloads.data_usable(_measurement(), RUNNING, age_s, 0.25) is usable
+
+
+# ----------------------------------------------------------------------------- transmit
+def test_a_unit_whose_distance_frames_are_refused_goes_dark_within_a_publish_period(
+        request: pytest.FixtureRequest) -> None:
+    """The bus stops taking the unit's frames (bus-off): the laser goes off as soon as
+    the publisher's first refused frame is seen, not at the negotiation's next
+    re-announcement (0.5 s here), and the unit strobes again only after it re-claimed.
+
+    Checked by removing ``Unit._watch_output``: dark only 0.3-0.5 s after the bus-off
+    (at the negotiator's own refused re-announcement); the 0.15 s assert failed.
+    """
+    inner = can.Bus(interface="virtual", channel=f"reliability-tx-{request.node.name}")
+    bus = FaultyBus(inner, Faults())
+    unit = Unit(cfg.load(environ={}, overrides=BASE), bus)
+    try:
+        unit.configure()
+        unit.activate(threaded=False)
+        end = time.monotonic() + 30.0
+        while unit.stats.measurements < 3:
+            assert time.monotonic() < end, "timed out"
+            unit.step()
+        assert unit.negotiator.may_strobe
+        bus.faults.bus_off = True
+        off_at = time.monotonic()
+        lit_after: list[float] = []
+        while time.monotonic() < off_at + 1.0:
+            unit.step()
+            if unit.negotiator.may_strobe or (unit.projector and unit.projector.is_lit):
+                lit_after.append(time.monotonic() - off_at)
+        assert bus.counts.failed_sends > 0
+        print(f"\nbus-off -> laser dark after {max(lit_after, default=0.0) * 1e3:.0f} ms")
+        assert max(lit_after, default=0.0) < 0.15
+        bus.faults.bus_off = False
+        while not unit.negotiator.may_strobe:
+            assert time.monotonic() < off_at + 10.0, "never strobed again"
+            unit.step()
+    finally:
+        unit.shutdown()
+        bus.shutdown()

@@ -45,18 +45,24 @@ _channels = itertools.count()
 
 
 class TappedBus(FaultyBus):
-    """A FaultyBus that records, on the fleet clock, what its unit sent (even when the
-    fault then dropped it) and what was delivered to it."""
+    """A FaultyBus that records, on the fleet clock, what its unit sent (the bus took it;
+    a loss fault may then drop it on the way), the times the bus refused a frame (a send
+    that raised: not sent), and what was delivered to it."""
 
     def __init__(self, inner: ShimBus, faults: Faults, seed: int) -> None:
         super().__init__(inner, faults, seed=seed)
         self.clock = inner.clock
         self.sent: list[tuple[float, can.Message]] = []
+        self.refused: list[float] = []
         self.received: list[tuple[float, can.Message]] = []
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        try:
+            super().send(msg, timeout)
+        except can.CanError:
+            self.refused.append(self.clock())
+            raise
         self.sent.append((self.clock(), msg))
-        super().send(msg, timeout)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         msg, filtered = super()._recv_internal(timeout)
@@ -193,3 +199,37 @@ def test_claims_of_a_joining_unit_lost_for_two_seconds_share_a_row_only_until_on
     assert fleet.units[highest].code_row is None or not fleet.units[highest].may_strobe
     rows = [r for r in owners(fleet) if r is not None]
     assert len(rows) == 4 and len(set(rows)) == 4
+
+
+def test_a_unit_whose_frames_the_bus_refuses_does_not_strobe_and_an_owner_goes_dark_at_once(
+        lossy_fleet: MakeFleet) -> None:
+    """A claim the bus refused protects nobody, and neither does a unit whose frames go
+    nowhere. Unit 2 starts on a bus that refuses every frame (bus-off); unit 0, owning its
+    row, loses its bus at 2 s; both buses come back at 4 s.
+
+    Checked by removing the protections: with ``Negotiator._bus_refused`` doing nothing,
+    unit 0 strobed through the whole outage (to 4.0 s; the assert on ``last_lit``
+    failed); with that and the claim window counted from when the claim was queued
+    instead of when the bus took it, unit 2 also owned row 5, never claimed on the bus,
+    from 0.36 s on (the first assert failed). Either protection alone keeps unit 2 dark.
+    """
+    fleet = lossy_fleet(NAMES[:3], max_code_length=16)
+    fleet.faults[2].bus_off = True
+    fleet.start_all(spread_s=0.01)
+    fleet.run_until(2.0)
+    assert strobe_intervals(fleet.units[2], 2.0) == []
+    assert fleet.units[0].may_strobe and fleet.units[1].may_strobe
+    fleet.faults[0].bus_off = True
+    fleet.run_until(4.0)
+    refused = [t for t in fleet.buses[0].refused if t >= 2.0]  # type: ignore[attr-defined]
+    assert refused, "unit 0 sent nothing during the outage: the test proves nothing"
+    last_lit = max(end for _, end, _ in strobe_intervals(fleet.units[0], 4.0))
+    assert last_lit <= refused[0] + 1e-9
+    assert strobe_intervals(fleet.units[2], 4.0) == []
+    fleet.faults[0].bus_off = fleet.faults[2].bus_off = False
+    fleet.run_until(7.0)
+    rows = [r for r in owners(fleet) if r is not None]
+    assert len(rows) == 3 and len(set(rows)) == 3
+    assert overlaps(fleet, 7.0) == []
+    assert_invariant(fleet, 7.0)
+    print(f"\nowner's first refused frame at {refused[0]:.3f} s, dark at {last_lit:.3f} s")

@@ -102,6 +102,7 @@ class Unit:
         self._fatal: BaseException | None = None
         self._next_seq: int | None = None
         self._counter = 0
+        self._output_errors = 0  # the output's refused frames, as last seen
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
 
@@ -233,6 +234,7 @@ class Unit:
 
     def step(self) -> None:
         """One sub-frame: negotiate, strobe, read, demodulate, measure, publish."""
+        self._watch_output()
         self._negotiator.tick()
         allowed = bool(self._negotiator.may_strobe)
         chips = self._chips() if allowed else None
@@ -258,6 +260,14 @@ class Unit:
         else:
             assert self._publisher is not None
             self._publisher.heartbeat()  # progress: the loop is alive between maps
+
+    def _watch_output(self) -> None:
+        """The bus refused one of our distance frames: nobody may hear our claim either,
+        so the negotiator takes the strobe permission back until it is heard again."""
+        errors = int(getattr(self._publisher, "send_errors", 0))
+        if errors > self._output_errors:
+            self._negotiator.report_send_failure()
+        self._output_errors = errors
 
     def _read_with_strobe(self, chips: Any) -> SubFrame:
         camera, projector = self._camera, self._projector

@@ -170,6 +170,11 @@ class Publisher:
                                  f"{self._fatal!r}") from self._fatal
 
     @property
+    def send_errors(self) -> int:
+        """Frames the bus refused so far (a blocking send that raised)."""
+        return self.stats.send_errors
+
+    @property
     def alive(self) -> bool:
         """True while the scheduler thread runs."""
         return self._thread is not None and self._thread.is_alive()

@@ -116,6 +116,7 @@ class CanopenDevice:
         self._timer: threading.Thread | None = None
         self._fatal: BaseException | None = None
         self._last_event_s: dict[int, float] = {}
+        self.send_errors = 0  # TPDOs and heartbeats the bus refused
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
         self._progress_s: float | None = None  # the owner's loop last made progress
@@ -321,6 +322,7 @@ class CanopenDevice:
             self.network.send_message(pdo.cob_id, data)
         except can.CanError as exc:
             logger.error("TPDO 0x%X not sent: %s", pdo.cob_id, exc)
+            self.send_errors += 1
             self._bus_trouble = True
             return
         if self._bus_trouble:
@@ -347,6 +349,7 @@ class CanopenDevice:
                 self.nmt_state, 0)]))
         except can.CanError as exc:
             logger.error("heartbeat of node %d not sent: %s", self.node_id, exc)
+            self.send_errors += 1
 
     def _event_tick(self, now: float) -> None:
         if self.node.nmt.state != "OPERATIONAL":

@@ -108,17 +108,22 @@ class Link:
                 return
             yield msg
 
-    def flush(self, now: float) -> None:
-        """Send the outbox in order; a refused frame is counted, logged and dropped."""
+    def flush(self, now: float) -> tuple[list[RawFrame], int]:
+        """Send the outbox in order: the frames the bus took and how many it refused (each
+        counted, logged and dropped)."""
         outbox, self.outbox = self.outbox, []
+        taken, refused = [], 0
         for frame in outbox:
             msg = can.Message(arbitration_id=frame.can_id, data=frame.data,
                               is_extended_id=True)
             try:
                 self.bus.send(msg, timeout=0.0)
-            except can.CanError as exc:
+            except (can.CanError, OSError) as exc:
                 self.send_failures += 1
+                refused += 1
                 logger.warning("negotiation frame %#x not sent: %s", frame.can_id, exc)
             else:
+                taken.append(frame)
                 self.sent.append((now, frame))
         del self.sent[:-SENT_KEPT]
+        return taken, refused

@@ -141,7 +141,7 @@ class Negotiator:
         self._plan = self.configured_plan
         self._code_row: int | None = None
         self._may_strobe = False
-        self._claim_since_s = 0.0
+        self._claim_sent_s: float | None = None  # our CLAIM of the row first went out
         self._started_s = 0.0
         self._listening = False
         self._last_announce_s = -1e9
@@ -232,7 +232,7 @@ class Negotiator:
             except BusError:
                 self._set_state(NegotiationState.IDLE, None, self.clock())
                 raise
-            self.link.flush(now)
+            self._flush(now)
 
     def stop(self) -> None:
         """Laser off, send cannot-claim so the code frees at once, detach. Idempotent."""
@@ -242,7 +242,7 @@ class Negotiator:
             now = self.clock()
             self._set_state(NegotiationState.IDLE, None, now)
             self.link.outbox = [nf.encode_cannot_claim(self.name, self.unit_id, leaving=True)]
-            self.link.flush(now)
+            self._flush(now)
             self.peers.clear()
         self.link.detach()
         self._notify()
@@ -337,7 +337,7 @@ class Negotiator:
                 self._advance(now)
             self._reannounce(now)
             self._refresh(now)
-            self.link.flush(now)
+            self._flush(now)
         self._notify()
 
     def _raise_stored_error(self, now: float) -> None:
@@ -375,7 +375,9 @@ class Negotiator:
             return
         self._maybe_grow(now)
         if self._state is NegotiationState.CLAIMING and self._code_row is not None:
-            if now - self._claim_since_s >= self.window_s and self.receive.caught_up():
+            sent_s = self._claim_sent_s
+            if (sent_s is not None and now - sent_s >= self.window_s
+                    and self.receive.caught_up()):
                 self._set_state(NegotiationState.OWNED, self._code_row, now)
                 logger.info("row %d of N=%d owned", self._code_row, self._plan.code_length)
         elif self._code_row is None and (self._state is NegotiationState.CLAIMING
@@ -401,6 +403,41 @@ class Negotiator:
         announcement = nf.PlanAnnouncement(plan or self._plan, proposal, self._plan_conflict,
                                            self._nonce, owned and not proposal)
         return nf.encode_plan(self.name, self.unit_id, announcement)
+
+    # ------------------------------------------------------------------ sending
+    def _flush(self, now: float) -> None:
+        """Send the queued frames. The claim window runs from the moment our CLAIM of the
+        row went out; a frame the bus refuses revokes the strobe permission."""
+        taken, refused = self.link.flush(now)
+        if refused:
+            self._bus_refused(now)
+        elif self._claim_sent_s is None and any(self._is_our_claim(f) for f in taken):
+            self._claim_sent_s = now
+
+    def _is_our_claim(self, frame: nf.RawFrame) -> bool:
+        header = nf.parse_id(frame.can_id)
+        return (header is not None and header.kind is nf.FrameKind.CLAIM
+                and header.identity == self.identity and header.field == self._code_row)
+
+    def report_send_failure(self, now: float | None = None) -> None:
+        """Another of this unit's frames (its distances) could not be sent: the bus does
+        not take our frames, so nobody may have heard our claim either."""
+        with self._lock:
+            self._bus_refused(self.clock() if now is None else now)
+        self._notify()
+
+    def _bus_refused(self, now: float) -> None:
+        """Laser off and claim again once the bus takes our frames: a claim that was not
+        sent, or a unit whose frames go nowhere, protects nobody."""
+        if self._state not in (NegotiationState.CLAIMING, NegotiationState.OWNED):
+            return
+        if self._state is NegotiationState.OWNED:
+            logger.warning("row %s: our frames are refused by the bus: laser off, claiming "
+                           "again", self._code_row)
+        self._claim_sent_s = None
+        self._announce_due = True
+        if self._code_row is not None:
+            self._set_state(NegotiationState.CLAIMING, self._code_row, now)
 
     # ------------------------------------------------------------------ codes
     def _live_named(self) -> list[Peer]:
@@ -431,7 +468,7 @@ class Negotiator:
                 self.link.outbox.append(nf.encode_cannot_claim(self.name, self.unit_id))
             self._set_state(NegotiationState.NO_CODE, None, now)
             return
-        self._claim_since_s = now
+        self._claim_sent_s = None  # the window starts when the claim went out
         self._set_state(NegotiationState.CLAIMING, row, now)
         self.link.outbox.append(nf.encode_claim(self.name, self.unit_id, row))
         logger.debug("claiming row %d of N=%d", row, self._plan.code_length)
@@ -539,7 +576,7 @@ class Negotiator:
                 self._on_proposal(None, wanted, self.clock())
             else:
                 self.link.outbox.append(self._plan_frame(wanted, proposal=True))
-                self.link.flush(self.clock())
+                self._flush(self.clock())
         self._notify()
 
     def _on_proposal(self, peer: Peer | None, plan: Plan, now: float) -> None:
@@ -554,7 +591,7 @@ class Negotiator:
             return
         logger.info("plan request N=%d from %s accepted", plan.code_length, source)
         self._adopt(plan, now)
-        self.link.flush(now)
+        self._flush(now)
 
     # ------------------------------------------------------------------ conflicts
     def _duplicate(self, now: float, reason: str) -> None:
@@ -589,7 +626,7 @@ class Negotiator:
         self._sync_counter = (self._sync_counter + 1) & 0xFFFF
         self.link.outbox.append(nf.encode_sync(self.name, self.unit_id, self._sync_counter,
                                            self._plan))
-        self.link.flush(now)
+        self._flush(now)
 
     def _update_leak(self) -> None:
         error = self.sync.error_chips
@@ -623,7 +660,7 @@ class Negotiator:
             strobing = self._state is NegotiationState.OWNED
             if self.interference.report(own_excess, foreign, now, strobing):
                 self._hop(now)
-                self.link.flush(now)
+                self._flush(now)
         self._notify()
 
     def _hop(self, now: float) -> None:
