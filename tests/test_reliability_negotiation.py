@@ -33,7 +33,16 @@ from atris_node.bus.negotiation.fleet import (
     strobe_intervals,
     window_violations,
 )
-from atris_node.bus.negotiation.frames import FrameKind, decode_name, make_id, parse_id
+from atris_node.bus.negotiation.frames import (
+    FrameKind,
+    PlanAnnouncement,
+    decode_name,
+    encode_plan,
+    encode_request,
+    encode_sync,
+    make_id,
+    parse_id,
+)
 from atris_node.bus.negotiation.plan import Plan
 from atris_node.testing.faultbus import Faults, FaultyBus
 
@@ -233,3 +242,62 @@ def test_a_unit_whose_frames_the_bus_refuses_does_not_strobe_and_an_owner_goes_d
     assert overlaps(fleet, 7.0) == []
     assert_invariant(fleet, 7.0)
     print(f"\nowner's first refused frame at {refused[0]:.3f} s, dark at {last_lit:.3f} s")
+
+
+def test_garbage_sync_and_plan_frames_do_not_change_n_and_growth_goes_back(
+        lossy_fleet: MakeFleet) -> None:
+    """Frames from identities that never said a NAME (SYNC, PLAN, PLAN proposals for
+    N = 128) leave the fleet on N = 16. Units that do say their NAME count: one more
+    makes the leader grow N to 32 (five units, four codes at 16, five at 32); once it is
+    silent for the silence timeout the fleet goes back to 16 and every unit owns a
+    distinct row.
+
+    Checked by counting every peer as demand again (``Negotiator.demand`` over all peers,
+    as before): N went 16 -> 128 on the garbage and the first assert failed; by letting
+    unnamed identities propose (the inbox's NAME check removed): N went to 128 on the
+    proposals; and without the way back (``_maybe_grow`` growing only): N stayed 32 and
+    the last plan assert failed.
+    """
+    fleet = lossy_fleet(NAMES[:4], max_code_length=128)
+    fleet.start_all(spread_s=0.01)
+    fleet.run_until(1.0)
+    forger = ShimBus(fleet.channel, fleet.clock)
+    try:
+        run_garbage_then_a_joiner(fleet, forger)
+    finally:
+        forger.shutdown()
+    assert {u.plan.code_length for u in fleet.units} == {16}
+    rows = [r for r in owners(fleet) if r is not None]
+    assert len(rows) == 4 and len(set(rows)) == 4
+    assert_invariant(fleet, 12.0)
+
+
+def run_garbage_then_a_joiner(fleet: LossyFleet, forger: ShimBus) -> None:
+    huge = Plan(code_length=128, chip_rate_hz=480.0)
+
+    def garbage(k: int) -> None:
+        unit_id = 8 + k % 8
+        name = 0x1000 + k
+        for frame in (encode_sync(name, unit_id, k, PLAN),
+                      encode_plan(name, unit_id, PlanAnnouncement(huge, True, False, k % 250 + 1,
+                                                                  False)),
+                      encode_plan(name, unit_id, PlanAnnouncement(huge, False, False,
+                                                                  k % 250 + 1, True))):
+            forger.send(can.Message(arbitration_id=frame.can_id, data=frame.data,
+                                    is_extended_id=True))
+
+    for k in range(40):
+        fleet.at(1.0 + 0.02 * k, lambda k=k: garbage(k))
+    fleet.run_until(3.0)
+    assert {u.plan.code_length for u in fleet.units} == {16}
+
+    def joiner() -> None:
+        frame = encode_request(0x2000, 12)
+        forger.send(can.Message(arbitration_id=frame.can_id, data=frame.data,
+                                is_extended_id=True))
+
+    for k in range(10):
+        fleet.at(3.0 + 0.2 * k, joiner)
+    fleet.run_until(5.0)
+    assert {u.plan.code_length for u in fleet.units} == {32}
+    fleet.run_until(12.0)  # the joiner fell silent at 4.8 s; gone after 3 s

@@ -146,8 +146,8 @@ class Inbox:
         changed = announcement.proposal or peer.plan not in (None, announcement.plan)
         if changed and not self.peers.allow_change(peer, now):
             return []
-        if announcement.proposal:
-            return [Proposed(peer, announcement.plan)]
+        if announcement.proposal:  # only a unit that said its NAME may ask for a plan
+            return [] if peer.name is None else [Proposed(peer, announcement.plan)]
         if peer.plan != announcement.plan:
             peer.code_row = None  # its claims were for its previous plan
         peer.plan, peer.conflict = announcement.plan, announcement.conflict

@@ -150,6 +150,7 @@ class Negotiator:
         self._nonce = secrets.randbelow(255) + 1
         self._duplicate_until_s = -1e9
         self._plan_conflict = False
+        self._growth: tuple[Plan, Plan] | None = None  # (plan grown from, grown plan)
         self._sync_counter = 0
         self._last_defence_s = -1e9
         self._error: BaseException | None = None
@@ -543,23 +544,32 @@ class Negotiator:
         self.plan_history.append((now, self._plan))
 
     def demand(self) -> int:
-        """Units that want a code: this one and every live peer not in plan conflict."""
-        return 1 + sum(1 for p in self.peers.peers.values() if not p.conflict)
+        """Units that want a code: this one and every live peer whose NAME is known (it
+        sent a REQUEST, CLAIM or CANNOT_CLAIM) and that is not in plan conflict. An
+        identity heard only in SYNC or PLAN frames is no unit that wants a code."""
+        return 1 + sum(1 for p in self.peers.named() if not p.conflict)
 
     def _maybe_grow(self, now: float) -> None:
+        """The leader fits N to the units: it grows when they exceed the codes, and goes
+        back towards the plan it grew from when they are gone (never below that plan)."""
         if not self.is_leader or self._state is NegotiationState.CONFLICT:
             return
         units = self.demand()
-        if units <= capacity(self._plan) or self._plan.code_length >= self.max_code_length:
+        if units > capacity(self._plan) and self._plan.code_length < self.max_code_length:
+            fitted = grow_to_fit(self._plan, units, self.max_code_length)
+        elif self._growth is not None and self._plan == self._growth[1]:
+            fitted = grow_to_fit(self._growth[0], units, self.max_code_length)
+        else:
             return
-        grown = grow_to_fit(self._plan, units, self.max_code_length)
-        if grown == self._plan:
+        if fitted == self._plan:
             return
-        logger.warning("%d units but %d codes: N %d -> %d, output rate %.2f -> %.2f Hz",
-                       units, capacity(self._plan), self._plan.code_length, grown.code_length,
-                       self._plan.output_rate_hz, grown.output_rate_hz)
-        self.plan_growths.append((self._plan, grown))
-        self._adopt(grown, now)
+        logger.warning("%d units, %d codes: N %d -> %d, output rate %.2f -> %.2f Hz",
+                       units, capacity(self._plan), self._plan.code_length, fitted.code_length,
+                       self._plan.output_rate_hz, fitted.output_rate_hz)
+        self.plan_growths.append((self._plan, fitted))
+        base = self._plan if self._growth is None else self._growth[0]
+        self._growth = None if fitted == base else (base, fitted)
+        self._adopt(fitted, now)
 
     def request_plan(self, code_length: int) -> None:
         """Ask the bus for code length ``code_length`` (same chip rate and mode).
