@@ -35,14 +35,17 @@ from atris_node.bus.negotiation.fleet import (
 )
 from atris_node.bus.negotiation.frames import (
     FrameKind,
+    Identity,
     PlanAnnouncement,
     decode_name,
+    encode_claim,
     encode_plan,
     encode_request,
     encode_sync,
     make_id,
     parse_id,
 )
+from atris_node.bus.negotiation.peers import PeerTable
 from atris_node.bus.negotiation.plan import Plan
 from atris_node.testing.faultbus import Faults, FaultyBus
 
@@ -121,6 +124,8 @@ def delivered_lower_claims(fleet: LossyFleet, index: int) -> list[tuple[float, i
         header = parse_id(msg.arbitration_id)
         if header is None or header.kind is not FrameKind.CLAIM or len(msg.data) != 8:
             continue
+        if not any(u.identity == header.identity for u in fleet.units):
+            continue  # a forged identity, no unit of the fleet
         sender = fleet.units[header.identity.unit_id]
         if decode_name(bytes(msg.data)) < unit.name and plan_at(sender, t) == plan_at(unit, t):
             found.append((t, header.field))
@@ -301,3 +306,110 @@ def run_garbage_then_a_joiner(fleet: LossyFleet, forger: ShimBus) -> None:
     fleet.run_until(5.0)
     assert {u.plan.code_length for u in fleet.units} == {32}
     fleet.run_until(12.0)  # the joiner fell silent at 4.8 s; gone after 3 s
+
+
+def test_seventy_forged_identities_neither_overflow_the_peer_table_nor_hide_an_owner(
+        lossy_fleet: MakeFleet) -> None:
+    """Seventy identities that are no unit (forged NAMEs above the real ones, each
+    claiming one of the rows 3, 5, 9 every 0.5 s, well under the babbling limits) keep
+    the 64-entry peer tables full. The owner (row 2) and a unit that starts at 2 s into
+    a full table must still contest row 2: the newcomer must not strobe it.
+
+    Checked without the protection (``PeerTable.accept`` dropping every new identity when
+    the table is full, as before, and no contest for a claim the full table cannot
+    hold): both units strobed row 2 from 2.36 s to the end, and the overlap assert failed.
+    """
+    fleet = lossy_fleet([0x50, 0x60], max_code_length=16)
+    forger = ShimBus(fleet.channel, fleet.clock)
+    try:
+        forged = [(0x9000 + 7 * k, 8 + k % 8) for k in range(70)]
+
+        def claims() -> None:  # every forged identity at once, every 0.5 s
+            for k, (name, unit_id) in enumerate(forged):
+                frame = encode_claim(name, unit_id, (3, 5, 9)[k % 3])
+                forger.send(can.Message(arbitration_id=frame.can_id, data=frame.data,
+                                        is_extended_id=True))
+
+        for step in range(16):
+            fleet.at(0.5 * step + 0.499, claims)  # just before the newcomer's start at 2.0
+        def fresh_start() -> None:  # a unit that starts hears nothing sent before
+            while fleet.buses[1].recv(0.0) is not None:
+                pass
+
+        fleet.at(1.998, fresh_start)
+        fleet.start(0, 0.05)
+        fleet.run_until(2.0)
+        fleet.start(1, 2.0)
+        fleet.run_until(8.0)
+    finally:
+        forger.shutdown()
+    real = [(i, j, s, e, r) for i, j, s, e, r in overlaps(fleet, 8.0)]
+    assert real == []
+    assert all(len(u.peers.peers) <= u.peers.max_peers for u in fleet.units)
+    assert fleet.units[0].may_strobe
+    assert_invariant(fleet, 8.0)
+
+
+def test_a_claim_a_full_table_of_owners_cannot_hold_still_contests_the_row(
+        lossy_fleet: MakeFleet) -> None:
+    """Every entry of a (two-entry) peer table owns a row: identities that are no unit
+    claim rows 3 and 5. The real units cannot store each other, yet the newcomer's claim
+    of the owner's row 2 is contested and it never strobes row 2.
+
+    Checked by making ``Inbox._unheld_claim`` return None (the frame simply dropped, as
+    before): the newcomer strobed row 2 beside the owner from 2.36 s on and the overlap
+    assert failed; and by dropping a defence that comes within 50 ms of the last one
+    instead of sending it with the next announcement (as before): overlap from 2.42 s.
+    (Neither unit can store the other here, so the newcomer keeps re-claiming row 2 and
+    losing it: no code for it, no sharing.)
+    """
+    fleet = lossy_fleet([0x50, 0x60], max_code_length=16)
+    for unit in fleet.units:
+        unit.peers.max_peers = 2
+    forger = ShimBus(fleet.channel, fleet.clock)
+    try:
+        def claims() -> None:
+            for name, unit_id, row in ((0x9000, 9, 3), (0x9100, 10, 5)):
+                frame = encode_claim(name, unit_id, row)
+                forger.send(can.Message(arbitration_id=frame.can_id, data=frame.data,
+                                        is_extended_id=True))
+
+        for step in range(16):
+            fleet.at(0.5 * step + 0.001, claims)
+        fleet.start(0, 0.05)
+        fleet.run_until(2.0)
+        fleet.start(1, 2.0)
+        fleet.run_until(8.0)
+    finally:
+        forger.shutdown()
+    assert fleet.units[0].code_row == 2 and fleet.units[0].may_strobe
+    assert all(len(u.peers.peers) <= 2 for u in fleet.units)
+    assert overlaps(fleet, 8.0) == []
+    assert_invariant(fleet, 8.0)
+
+
+def test_a_full_peer_table_evicts_what_matters_least_and_never_a_rows_owner() -> None:
+    """Checked by making ``PeerTable._make_room`` evict nothing: the new identities were
+    dropped (``accept`` returned None) and the assert in the loop failed."""
+    table = PeerTable(max_peers=4)
+    ids = [Identity(k, 1) for k in range(8)]
+
+    def heard(k: int, now: float, name: int | None = None, row: int | None = None) -> None:
+        peer = table.accept(ids[k], now)
+        assert peer is not None
+        peer.name, peer.code_row, peer.plan = name, row, PLAN
+
+    heard(0, 0.0, 0x10, 2)  # owner of row 2
+    heard(1, 0.1, 0x20, 2)  # shadowed on row 2
+    heard(2, 0.2, 0x30)  # named, no row
+    heard(3, 0.3)  # NAME unknown
+    order = []
+    for k in (4, 5, 6):
+        before = set(table.peers)
+        assert table.accept(ids[k], 1.0 + k) is not None
+        order += [bits for bits in before if bits not in table.peers]
+        table.peers[ids[k].bits].name, table.peers[ids[k].bits].code_row = 0x40 + k, 3 + k
+        table.peers[ids[k].bits].plan = PLAN
+    assert order == [ids[3].bits, ids[2].bits, ids[1].bits]
+    assert table.accept(ids[7], 9.0) is None and table.overflowed  # four owners: full
+    assert ids[0].bits in table.peers and table.evicted == 3

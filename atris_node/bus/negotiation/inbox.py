@@ -93,8 +93,16 @@ class Inbox:
         check(header, data)
         peer = self.peers.accept(header.identity, now)
         if peer is None:
-            return None
+            return self._unheld_claim(header, data, now) if self.peers.overflowed else None
         return self._handlers[header.kind](peer, header, data, now)
+
+    def _unheld_claim(self, header: nf.Header, data: bytes, now: float) -> list[Event] | None:
+        """A CLAIM from an identity a full table of code owners cannot hold still
+        contests our row: it is judged from a record that is not kept."""
+        if header.kind is not nf.FrameKind.CLAIM:
+            return None
+        peer = Peer(header.identity, now)
+        return self._claim(peer, header, data, now)
 
     def _own_or_clash(self, header: nf.Header, data: bytes, nonce: int) -> list[Event] | None:
         """None for our own echoed frame; a foreign frame with our identity is a clash."""

@@ -308,6 +308,8 @@ class Negotiator:
         elif now - self._last_defence_s >= MIN_ANNOUNCE_GAP_S:
             self._last_defence_s = now
             self.link.outbox.append(nf.encode_claim(self.name, self.unit_id, row))
+        else:  # answered a moment ago: answer again with the next announcement, never drop
+            self._announce_due = True
 
     def _on_sync(self, event: inbox.SyncHeard, now: float) -> None:
         if self._plan.mode != "sync" or event.code_length != self._plan.code_length:

@@ -3,14 +3,15 @@
 The table is bounded and rate-limited so that a babbling or flooding sender costs memory
 and time in proportion to the limits, never more: an identity that sends more than
 ``babble_limit`` frames in one second is quarantined (its frames are counted and dropped,
-its last accepted claim still counts as taken), and identities beyond ``max_peers`` are
-ignored.
+its last accepted claim still counts as taken), and beyond ``max_peers`` identities a
+new one takes the place of one that owns no code (:class:`PeerTable`).
 """
 
 from __future__ import annotations
 
 import logging
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from atris_node.bus.negotiation.frames import Identity
@@ -63,6 +64,13 @@ class Peer:
 class PeerTable:
     """Bounded table of peers with per-identity rate limiting.
 
+    When the table is full, a new identity takes the place of the peer that matters
+    least (:func:`keep_rank`): one whose NAME is unknown, then one that claims nothing,
+    then a claimant shadowed by a lower NAME on its row, least recently heard first. The
+    lowest NAME claiming each row is never evicted, so identities that are no unit cannot
+    push a code's owner out. Only when every entry owns a row is a new identity's frame
+    dropped (``overflowed`` says so for that frame).
+
     Args:
         max_peers: most identities remembered at once.
         babble_limit: frames per second above which an identity is quarantined.
@@ -81,13 +89,17 @@ class PeerTable:
         self.peers: dict[int, Peer] = {}
         self.dropped_frames = 0
         self.babblers = 0
+        self.evicted = 0
+        self.overflowed = False
 
     def accept(self, identity: Identity, now: float) -> Peer | None:
         """The peer a frame received at ``now`` belongs to, or None to drop the frame."""
         peer = self.peers.get(identity.bits)
+        self.overflowed = False
         if peer is None:
-            if len(self.peers) >= self.max_peers:
+            if len(self.peers) >= self.max_peers and not self._make_room():
                 self.dropped_frames += 1
+                self.overflowed = True
                 return None
             peer = self.peers[identity.bits] = Peer(identity, now)
         peer.last_seen_s = now
@@ -100,6 +112,17 @@ class PeerTable:
             self.dropped_frames += 1
             return None
         return peer
+
+    def _make_room(self) -> bool:
+        """Evict the entry that matters least; False when every entry owns a row."""
+        owners = row_owners(self.peers.values())
+        victim = min(self.peers.values(), key=lambda p: keep_rank(p, owners))
+        if keep_rank(victim, owners)[0] >= OWNER_RANK:
+            return False
+        del self.peers[victim.identity.bits]
+        self.evicted += 1
+        logger.debug("peer table full: %s makes room", victim.label())
+        return True
 
     def allow_change(self, peer: Peer, now: float) -> bool:
         """Count a change of claim or plan; False (and quarantine) when there are too many."""
@@ -141,3 +164,32 @@ def _count(times: deque[float], now: float) -> int:
     while times and now - times[0] > BABBLE_WINDOW_S:
         times.popleft()
     return len(times)
+
+
+#: :func:`keep_rank` of the lowest NAME claiming a row: never evicted
+OWNER_RANK = 3
+
+
+def row_owners(peers: Iterable[Peer]) -> dict[tuple[Plan | None, int], int]:
+    """(plan, row) -> the lowest NAME claiming that row under that plan."""
+    owners: dict[tuple[Plan | None, int], int] = {}
+    for p in peers:
+        if p.name is not None and p.code_row is not None:
+            key = (p.plan, p.code_row)
+            owners[key] = min(owners.get(key, p.name), p.name)
+    return owners
+
+
+def keep_rank(peer: Peer, owners: dict[tuple[Plan | None, int], int]) -> tuple[int, float]:
+    """How much ``peer`` matters, lowest first: (0) NAME unknown, (1) claims no row,
+    (2) claims a row a lower NAME also claims, (3) the lowest NAME on its row; then the
+    time it was last heard (the least recent goes first)."""
+    if peer.name is None:
+        rank = 0
+    elif peer.code_row is None:
+        rank = 1
+    elif owners.get((peer.plan, peer.code_row)) != peer.name:
+        rank = 2
+    else:
+        rank = OWNER_RANK
+    return rank, peer.last_seen_s
