@@ -20,6 +20,7 @@ Each protection was removed once and the test watched fail, then put back:
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 import uuid
@@ -295,3 +296,42 @@ def test_a_unit_whose_distance_frames_are_refused_goes_dark_within_a_publish_per
     finally:
         unit.shutdown()
         bus.shutdown()
+
+
+# ----------------------------------------------------------------------------- status bits
+def test_the_pipelines_low_signal_verdict_reaches_the_status_frame(
+        request: pytest.FixtureRequest) -> None:
+    """In strong sun most maps show no line (the pipeline's LOW_SIGNAL); the status frames
+    that follow such a map carry Fault_LowSignal, those after a map with lines (when
+    there is one) do not.
+
+    Checked by leaving ``Unit._map_faults`` out of ``Unit.status`` (as before): no status
+    frame ever carried the bit and the first assert failed.
+    """
+    frames = CycleFrames()
+    verdicts: list[tuple[float, bool]] = []
+    with listened_bus(f"reliability-bits-{request.node.name}", frames, 0.01) as bus:
+        unit = Unit(cfg.load(environ={}, overrides=[*BASE, "driver.scene=outdoor_strong_sun"]),
+                    bus)
+        unit.configure()
+        unit.activate(threaded=False)
+        try:
+            end = time.monotonic() + 60.0
+            while len(verdicts) < 20:
+                assert time.monotonic() < end, "timed out"
+                count = unit.stats.measurements
+                unit.step()
+                if unit.stats.measurements > count:
+                    low = bool(unit.last_result.faults & FaultBits.LOW_SIGNAL)
+                    verdicts.append((time.monotonic(), low))
+            time.sleep(0.1)
+        finally:
+            unit.shutdown()
+    assert any(low for _, low in verdicts), "no map without lines: the test proves nothing"
+    running = [c for c in frames.cycles if c.state == "RUNNING"]
+    flagged = [c.status["Fault_LowSignal"] == 1 for c in running]
+    assert any(flagged), "no status frame carried the pipeline's LOW_SIGNAL"
+    margin_s = 0.01  # a map's cycle goes out inside the step that ends at its verdict time
+    for (t0, low), (t1, _) in itertools.pairwise(verdicts):
+        between = [c for c in running if t0 + margin_s < c.time_s < t1 - margin_s]
+        assert all((c.status["Fault_LowSignal"] == 1) == low for c in between)

@@ -20,7 +20,7 @@ from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.errors import DemodulationError
 from atris_node.node.stats import NodeStats
 from atris_node.pipeline.interference import InterferenceReport, InterferenceWatch
-from atris_node.types import DistortionMap, Measurement, SubFrame
+from atris_node.types import DistortionMap, FaultBits, Measurement, SubFrame
 from drivers import Camera
 
 logger = logging.getLogger(__name__)
@@ -56,6 +56,9 @@ class Measurer:
         self.last_result: Any = None
         #: the adaptation's LOW_SIGNAL verdict on the last map, None without adaptation
         self.low_signal: bool | None = None
+        #: the pipeline's verdict on the last map (FOREIGN_CODE, LOW_SIGNAL); NONE when
+        #: the window restarted since
+        self.map_faults = FaultBits.NONE
 
     # ----------------------------------------------------------------- sub-frames
     def set_code(self, key: tuple[int, int], bits: int) -> None:
@@ -68,9 +71,11 @@ class Measurer:
         self.demod = kind(chips, bits=bits, lag=lag)
         self.key = key
         self.watch = None
+        self.map_faults = FaultBits.NONE
 
     def reset(self) -> None:
         """Restart the demodulation window (a rejected sub-frame, a camera loss)."""
+        self.map_faults = FaultBits.NONE
         if self.demod is not None:
             self.demod.reset()
 
@@ -147,6 +152,7 @@ class Measurer:
         self.last_map = dmap
         result = self.pipeline.process(dmap)
         self.last_result = result
+        self.map_faults = FaultBits(result.faults)
         self._count_deadline(dmap, camera)
         self.stats.measurements += 1
         return self._adapt(dmap, result, camera)

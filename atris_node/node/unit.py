@@ -405,13 +405,19 @@ class Unit:
             code_length=int(plan.code_length),
             chip_rate_hz=float(getattr(self._camera, "rate_hz", 0.0)),
             measurement_counter=self._counter,
-            faults=self.faults | self._negotiator.faults,
+            faults=self.faults | self._negotiator.faults | self._map_faults(),
             ambient_level=float(extra.get("ambient_level", 0.0)),
             saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
             foreign_code_energy=(0.0 if self._measure is None
                                  else self._measure.foreign_energy(extra)),
             dropped_sub_frames=self.stats.dropped_sub_frames,
         )
+
+    def _map_faults(self) -> FaultBits:
+        """The pipeline's verdict on the newest map, while the unit measures."""
+        if self._measure is None or not self._negotiator.may_strobe:
+            return FaultBits.NONE
+        return self._measure.map_faults
 
     def _unit_state(self) -> UnitState:
         if self.faults & FaultBits.CAMERA_LOST or self._fatal is not None:
