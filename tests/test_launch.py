@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import signal
 import subprocess
@@ -92,26 +93,50 @@ def test_escalation_goes_to_sigkill_when_ignored() -> None:
     assert escalate(process, waits=(0.2, 0.2)) == -signal.SIGKILL
 
 
-def test_respawn_policy_limits_restarts(tmp_path: Path) -> None:
+def test_respawn_policy_limits_restarts_with_back_off(tmp_path: Path) -> None:
+    """Respawns wait 0.5 s, then 1 s (doubling); after the last allowed one the unit stays
+    down and is named failed. Checked by respawning at once (no back-off, as before): the
+    respawns came one supervision step (0.05 s) apart and the delay assert failed."""
     path = tmp_path / "procs.toml"
     path.write_text("[launch]\nmode='processes'\nrespawn=true\nmax_respawns=2\n"
                     "[[unit]]\nunit={label='x'}\n")
     spec = load_launch(path)
-    started: list[list[str]] = []
+    started: list[tuple[float, list[str]]] = []
+    now = [0.0]
 
     def spawn(command: list[str]) -> subprocess.Popen[bytes]:
-        started.append(command)
-        return subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+        started.append((now[0], command))
+        process = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+        process.wait()
+        return process
 
     run = ProcessRun(spec, spawn=spawn)
     run.start()
-    for _ in range(20):
-        time.sleep(0.05)
-        run.supervise()
+    while now[0] < 10.0:
+        run.supervise(now[0])
+        now[0] += 0.05
     run.stop()
     assert len(started) == 3 and run.children[0].respawns == 2
-    assert started[0] == unit_command(spec.units[0])
-    assert "unit.label=x" in started[0]
+    delays = [b[0] - a[0] for a, b in itertools.pairwise(started)]
+    assert delays == pytest.approx([0.5, 1.0], abs=0.06)
+    assert run.failed == ["x"] and run.children[0].gave_up == 3
+    assert started[0][1] == unit_command(spec.units[0])
+    assert "unit.label=x" in started[0][1]
+
+
+def test_launch_exits_1_when_a_unit_stays_down(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """A unit process that cannot start (its scene does not exist) and is not respawned
+    makes ``atris launch`` exit 1 and names it. Checked by returning 0 regardless (as
+    before): the exit-code assert failed."""
+    path = tmp_path / "broken.toml"
+    path.write_text("[launch]\nmode='processes'\n"
+                    "[[unit]]\nunit={label='broken'}\n"
+                    f"driver={{scene='{tmp_path / 'missing.toml'}'}}\n"
+                    "bus={interface='virtual', channel='launch-broken'}\n")
+    assert main(["launch", str(path), "--duration", "8", "--json", "--quiet"]) == 1
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["failed"] == ["broken"]
 
 
 def test_threaded_pair_negotiates_and_logs_every_frame(tmp_path: Path,

@@ -52,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=1))
     else:
         print(summary_text(summary))
+    if summary.get("failed"):
+        logger.error("units that stopped and stay down: %s", ", ".join(summary["failed"]))
+        return 1
     return 0
 
 
@@ -135,7 +138,8 @@ def summarize(spec: LaunchSpec, runner: FleetRun | ProcessRun, monitor: BusMonit
         entry["deadline_misses"] = unit.stats.deadline_misses
         entry["dropped_sub_frames"] = unit.stats.dropped_sub_frames
     return {"launch": spec.name, "mode": spec.mode, "units": units,
-            "error_frames": monitor.error_frames, "unknown_frames": monitor.unknown_frames}
+            "error_frames": monitor.error_frames, "unknown_frames": monitor.unknown_frames,
+            "failed": list(getattr(runner, "failed", []))}
 
 
 def summary_text(summary: dict[str, Any]) -> str:

@@ -2,7 +2,9 @@
 one in-process bus or as supervised processes on a real bus (``atris launch``).
 
 Process supervision escalates SIGINT -> SIGTERM -> SIGKILL (as ROS 2 launch does) and
-restarts a unit that exits when the launch file asks for it.
+restarts a unit that exits when the launch file asks for it, after a back-off that doubles
+with each respawn (RESPAWN_BACKOFF_S). A unit that exits and is not (or no longer)
+restarted is a failed unit: ``ProcessRun.failed`` names it and ``atris launch`` exits 1.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ logger = logging.getLogger(__name__)
 
 #: seconds to wait after SIGINT, then after SIGTERM, before the next signal
 ESCALATION_S = (3.0, 2.0)
+#: first respawn delay and its cap, seconds; the delay doubles with each respawn
+RESPAWN_BACKOFF_S = (0.5, 8.0)
 
 
 def open_bus(config: Config, **extra: Any) -> can.BusABC:
@@ -154,11 +158,24 @@ def unit_command(config: Config) -> list[str]:
 
 @dataclass
 class Supervised:
-    """One unit process and its respawn count."""
+    """One unit process, its respawn count, when it may be respawned (monotonic s, None
+    while it runs) and the exit code it ended with when it stays down."""
 
     config: Config
     process: subprocess.Popen[bytes] | None = None
     respawns: int = 0
+    respawn_at_s: float | None = None
+    gave_up: int | None = None
+
+    @property
+    def label(self) -> str:
+        return str(self.config["unit.label"])
+
+
+def respawn_delay(respawns: int) -> float:
+    """Seconds before respawn number ``respawns + 1``: doubling from the first delay."""
+    first, cap = RESPAWN_BACKOFF_S
+    return float(min(cap, first * 2.0 ** min(respawns, 16)))
 
 
 def escalate(process: subprocess.Popen[bytes], waits: tuple[float, float] = ESCALATION_S) -> int:
@@ -189,17 +206,32 @@ class ProcessRun:
         for child in self.children:
             child.process = self.spawn(unit_command(child.config))
 
-    def supervise(self) -> None:
-        """Respawn exited units within the launch file's limits."""
+    def supervise(self, now: float | None = None) -> None:
+        """Respawn exited units within the launch file's limits, each after its back-off."""
+        now = time.monotonic() if now is None else now
         for child in self.children:
             process = child.process
-            if process is None or process.poll() is None:
+            if process is None or process.poll() is None or child.gave_up is not None:
                 continue
-            if self.spec.respawn and child.respawns < self.spec.max_respawns:
+            if not self.spec.respawn or child.respawns >= self.spec.max_respawns:
+                child.gave_up = int(process.returncode)
+                logger.error("unit %s exited with %s and stays down (%d of %d respawns used)",
+                             child.label, process.returncode, child.respawns,
+                             self.spec.max_respawns if self.spec.respawn else 0)
+            elif child.respawn_at_s is None:
+                child.respawn_at_s = now + respawn_delay(child.respawns)
+                logger.warning("unit %s exited with %s; respawn %d of %d in %.1f s",
+                               child.label, process.returncode, child.respawns + 1,
+                               self.spec.max_respawns, child.respawn_at_s - now)
+            elif now >= child.respawn_at_s:
                 child.respawns += 1
-                logger.warning("unit %s exited with %s; respawn %d",
-                               child.config["unit.label"], process.returncode, child.respawns)
+                child.respawn_at_s = None
                 child.process = self.spawn(unit_command(child.config))
+
+    @property
+    def failed(self) -> list[str]:
+        """Labels of the units that exited and stay down."""
+        return [child.label for child in self.children if child.gave_up is not None]
 
     def check(self) -> None:
         self.supervise()
