@@ -10,6 +10,7 @@ from typing import Any
 import can
 import pytest
 from listened_bus import listened_bus
+from strobe_audit import AuditedProjector, audited, unpermitted_light
 
 from atris_node import config as cfg
 from atris_node.bus.can.frames import FrameCodec
@@ -79,8 +80,14 @@ def run_steps(unit: Unit, seconds: float) -> None:
 def test_laser_stays_off_until_code_is_owned_then_valid_distances(
         bus_pair: tuple[can.BusABC, Frames]) -> None:
     bus, frames = bus_pair
+    """The projector is told to light only while the negotiator's timeline permits it:
+    checked on an independent record of the projector calls (``AuditedProjector``), not on
+    the node's own counter. Checked by strobing whenever a row is known (``Unit.step``
+    taking the chips without asking ``may_strobe``): chips = 1 were told during the claim
+    window and the unpermitted-light assert failed."""
     measurements: list[Measurement] = []
-    unit = make_unit(bus)
+    projectors: list[AuditedProjector] = []
+    unit = make_unit(bus, opener=audited(open_registry_backend, projectors))
     unit.on_measurement = measurements.append
     unit.configure()
     assert unit.projector is not None and not unit.projector.is_lit
@@ -91,7 +98,8 @@ def test_laser_stays_off_until_code_is_owned_then_valid_distances(
     history = unit.stats.history
     first_lit = next(i for i, (_, lit, _) in enumerate(history) if lit)
     assert first_lit > 0, "the laser was lit before the claim stood its window"
-    assert unit.stats.strobe_lit_while_not_allowed == 0
+    assert unpermitted_light(projectors, unit.negotiator.timeline) == []
+    assert any(chip == 1 for p in projectors for _, chip, _ in p.calls)
     assert measurements, "no measurement after the code was owned"
     valid = [s for s in measurements[-1].sectors if s.state is SectorState.VALID]
     assert valid and all(0.3 <= s.distance_m <= 10.0 for s in valid)

@@ -7,11 +7,13 @@ import time
 from pathlib import Path
 
 import can
+from strobe_audit import AuditedProjector, audited, unpermitted_light
 
 from atris_node import config as cfg
 from atris_node.node.launch import launch_dir
 from atris_node.node.unit import Unit
 from atris_node.types import FaultBits
+from drivers import open_backend as open_registry_backend
 
 JAMMER = """
 [[interferer]]
@@ -39,13 +41,18 @@ def jammed_scene(tmp_path: Path, row: int, power: float) -> Path:
     return path
 
 
+#: the audited projectors of the last run_unit (hops re-open nothing: one per unit)
+PROJECTORS: list[AuditedProjector] = []
+
+
 def run_unit(scene: Path, channel: str, seconds: float) -> tuple[Unit, int | None]:
     """Run until the first hop (or ``seconds``) and a little after; the row then owned."""
+    PROJECTORS.clear()
     config = cfg.load(environ={}, overrides=[
         f"driver.scene={scene}", "code.length=8", "negotiation.window_s=0.1",
         "interference.every_windows=2", f"bus.channel={channel}"])
     with can.Bus(interface="virtual", channel=channel) as bus:
-        unit = Unit(config, bus)
+        unit = Unit(config, bus, open_backend=audited(open_registry_backend, PROJECTORS))
         unit.configure()
         unit.activate(threaded=False)
         end = time.monotonic() + seconds
@@ -67,7 +74,7 @@ def test_jammed_own_code_makes_the_unit_hop(tmp_path: Path) -> None:
     assert row not in (None, 2)
     rows_lit = {row for _, lit, row in unit.stats.history if lit}
     assert 2 in rows_lit and len(rows_lit) >= 2
-    assert unit.stats.strobe_lit_while_not_allowed == 0
+    assert unpermitted_light(PROJECTORS, unit.negotiator.timeline) == []
 
 
 def test_orthogonal_foreign_code_does_not_make_the_unit_hop(tmp_path: Path) -> None:
