@@ -33,6 +33,7 @@ from drivers.depthai_frames import FrameReader
 from drivers.depthai_script import (
     CONTROL_INPUT,
     EVENT_INPUT,
+    RENEW_FRAMES,
     check_chips,
     check_intensity,
     state_message,
@@ -124,8 +125,9 @@ class DepthaiProjector(Projector):
     """The host side of the on-device strobe timeline.
 
     ``strobe(chip, sequence)`` records the commanded chip and writes it into the code
-    slot ``sequence % code_length``; when the code changes, the whole state is sent to the
-    Script (``control`` queue). ``off()`` (and ``close()``) tells the Script to go dark and
+    slot ``sequence % code_length``; when the code changes, and at least every
+    RENEW_FRAMES sub-frames (the Script's lease), the whole state is sent to the Script
+    (``control`` queue). ``off()`` (and ``close()``) tells the Script to go dark and
     sets both emitter intensities to 0 on the device directly.
     """
 
@@ -138,6 +140,7 @@ class DepthaiProjector(Projector):
         self.intensity = check_intensity(intensity)
         self.enabled = False
         self.commanded: OrderedDict[int, int] = OrderedDict()
+        self._renewed_at: int | None = None  # sequence of the last state sent while strobing
 
     def _send_state(self) -> None:
         if self.control is None:
@@ -158,10 +161,13 @@ class DepthaiProjector(Projector):
     def _strobe(self, chip: int, sequence: int) -> None:
         self._remember(chip, sequence)
         slot = sequence % len(self.code)
-        if self.code[slot] != chip or not self.enabled:
+        renewed = self._renewed_at
+        due = renewed is None or not 0 <= sequence - renewed < RENEW_FRAMES
+        if self.code[slot] != chip or not self.enabled or due:
             self.code[slot] = chip
             self.enabled = True
             self._send_state()
+            self._renewed_at = sequence
 
     def set_code(self, chips: Sequence[int]) -> None:
         """Load a whole code (chip for ``sequence % N``) at once and start strobing it."""

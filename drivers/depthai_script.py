@@ -13,6 +13,14 @@ The host changes the Script's state with one text message on its ``control`` inp
 
 Every message carries the whole state, so the newest one wins and a dropped message
 loses nothing. ``enabled 0`` switches both emitters to 0 at once and keeps them dark.
+
+Every message is also a lease: the Script strobes only while the newest message arrived
+at most ``LEASE_FRAMES`` frame events ago; then it keeps the emitters at 0 until the next
+message. The host renews the lease at least every ``RENEW_FRAMES`` sub-frames while it
+strobes (:class:`drivers.depthai_backend.DepthaiProjector`), so a host that stops, is
+killed or hangs leaves the laser lit for at most LEASE_FRAMES frame events after its last
+message reached the device (plus that message's few frames on the link): 16 frames,
+0.13 s at 120 Hz, 27 ms at 600 Hz.
 """
 
 from __future__ import annotations
@@ -26,12 +34,19 @@ EMITTERS = ("dot", "flood")
 #: names of the Script node's inputs
 EVENT_INPUT = "event"
 CONTROL_INPUT = "control"
+#: frame events a control message keeps the Script strobing (the lease)
+LEASE_FRAMES = 16
+#: sub-frames between the host's renewals while it strobes (well inside the lease, which
+#: must also cover the few frames a message takes on the link)
+RENEW_FRAMES = 4
 
 _TEMPLATE = '''\
 # ATRIS strobe timeline: sets the {emitter} emitter for the NEXT sub-frame on each frame event.
 code = {chips!r}
 intensity = {intensity!r}
 enabled = {enabled!r}
+lease = {lease!r}
+since = 0
 
 
 def set_level(level):
@@ -62,10 +77,14 @@ while True:
     message = node.io["{control}"].tryGet()
     while message is not None:
         apply_state(bytes(message.getData()).decode())
+        since = 0
         message = node.io["{control}"].tryGet()
-    if enabled:
+    since += 1
+    if enabled and since <= lease:
         chip = code[(event.getSequenceNum() + 1) % len(code)]
         set_level(intensity if chip else 0.0)
+    elif enabled:
+        set_level(0.0)  # the lease ran out: the host stopped renewing it
 '''
 
 
@@ -99,7 +118,8 @@ def strobe_script(chips: Sequence[int], emitter: str = "dot", intensity: float =
               else "Device.setIrFloodLightIntensity")
     return _TEMPLATE.format(emitter=emitter, chips=check_chips(chips),
                             intensity=check_intensity(intensity), enabled=bool(enabled),
-                            set_emitter=setter, event=EVENT_INPUT, control=CONTROL_INPUT)
+                            set_emitter=setter, event=EVENT_INPUT, control=CONTROL_INPUT,
+                            lease=LEASE_FRAMES)
 
 
 def state_message(enabled: bool, intensity: float, chips: Sequence[int]) -> bytes:

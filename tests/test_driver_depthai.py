@@ -30,7 +30,13 @@ from drivers.depthai_backend import (
     open_backend,
 )
 from drivers.depthai_frames import FrameReader, to_sub_frame
-from drivers.depthai_script import CONTROL_INPUT, EVENT_INPUT, state_message, strobe_script
+from drivers.depthai_script import (
+    CONTROL_INPUT,
+    EVENT_INPUT,
+    LEASE_FRAMES,
+    state_message,
+    strobe_script,
+)
 
 SHAPE = (40, 64)
 LASER_ROW = 17
@@ -83,8 +89,10 @@ class ScriptHost(dai.node.ThreadedHostNode):
 
             def get(self) -> Any:
                 with host.device.changed:
-                    if last:
-                        host.states[last[0]] = (tuple(env["code"]), bool(env["enabled"]))
+                    if last:  # enabled, and inside the lease the host renews
+                        leased = env["since"] <= env["lease"]
+                        host.states[last[0]] = (tuple(env["code"]),
+                                                bool(env["enabled"]) and leased)
                     host.device.changed.notify_all()
                 event = host.event_in.get()
                 last[:] = [event.getSequenceNum()]
@@ -188,11 +196,23 @@ def assert_strobed_by_script(script: ScriptHost, subs: list[SubFrame]) -> None:
         assert laser_lit(sub.pixels) == expected, sub.sequence
 
 
+def read_strobing(camera: DepthaiCamera, projector: DepthaiProjector, count: int,
+                  chips: list[int] = CHIPS) -> list[SubFrame]:
+    """Read ``count`` sub-frames as the node does: after each, strobe the next one's chip
+    (which also renews the Script's lease)."""
+    subs = []
+    for _ in range(count):
+        subs.append(camera.read(timeout_s=2.0))
+        following = subs[-1].sequence + 1
+        projector.strobe(chips[following % len(chips)], following)
+    return subs
+
+
 def test_feature_strobed_sub_frames_through_a_real_pipeline(rig: Any) -> None:
     pipeline, _, script, camera, projector = rig
     projector.set_code(CHIPS)
     pipeline.start()
-    subs = [camera.read(timeout_s=2.0) for _ in range(40 - len(DROPPED))]
+    subs = read_strobing(camera, projector, 40 - len(DROPPED))
     assert [s.sequence for s in subs] == [n for n in range(40) if n not in DROPPED]
     assert camera.dropped_sub_frames == len(DROPPED)
     for sub in subs:
@@ -232,11 +252,36 @@ def test_feature_strobe_per_sub_frame_fills_the_device_timeline(rig: Any) -> Non
         projector.strobe(chip, seq)
     assert projector.code == CHIPS and projector.commanded[3] == CHIPS[3]
     pipeline.start()
-    subs = [camera.read(2.0) for _ in range(40 - len(DROPPED))]
+    subs = read_strobing(camera, projector, 40 - len(DROPPED))
     assert_strobed_by_script(script, subs)
     settled = settled_at(script, CHIPS)
     assert all(laser_lit(s.pixels) == bool(CHIPS[s.sequence % 8]) for s in subs
                if s.sequence > settled)
+
+
+def test_feature_a_host_that_stops_renewing_leaves_the_laser_dark_after_the_lease(
+        rig: Any) -> None:
+    """The host strobes every sub-frame, then stops (it hangs, or was killed: either
+    way no more messages reach the Script) while the device keeps running. The Script
+    keeps the laser lit at most LEASE_FRAMES frame events after the last message, then
+    dark. Measured here: lit for 16 sub-frames after the host's last strobe call.
+
+    Checked by giving the Script a lease of 10**6 frames (no lease, as before): the laser
+    strobed to the last frame and the dark assert failed.
+    """
+    pipeline, mono, _, camera, projector = rig
+    mono.count = 120
+    projector.set_code([1])
+    pipeline.start()
+    subs = read_strobing(camera, projector, 30, chips=[1])
+    assert any(laser_lit(s.pixels) for s in subs[-8:]), "never lit: proves nothing"
+    last = subs[-1].sequence + 1  # the sub-frame of the host's last strobe call
+    rest = [camera.read(2.0) for _ in range(60)]  # the device runs on, the host is silent
+    lit_after = [s.sequence - last for s in rest if laser_lit(s.pixels)]
+    print(f"\nlit for {max(lit_after, default=0)} sub-frames after the last strobe call "
+          f"(lease {LEASE_FRAMES} frame events)")
+    assert max(lit_after, default=0) <= LEASE_FRAMES + 2
+    assert not any(laser_lit(s.pixels) for s in rest[-20:])
 
 
 def test_feature_exposure_control_reaches_the_camera(rig: Any) -> None:
