@@ -7,6 +7,13 @@ or a host node of a ``dai.Pipeline(createImplicitDevice=False)`` produced them.
 Alignment is by sequence number, never by arrival order: ``FrameReader`` counts the
 sequence numbers that never arrived (``dropped``), and asks ``chip_for(sequence)`` which
 chip the projector was commanded for each sub-frame.
+
+Time: a sub-frame's ``host_time_s`` is its exposure mid-time on the host's monotonic
+clock, as depthai maps the device clock to the host (``ImgFrame.getTimestamp``:
+``dai::Clock``, the steady clock ``time.monotonic`` reads on Linux), never the time the
+host happened to read it: a frame that sat in a queue for seconds is seconds old. A
+timestamp ahead of the host clock is a clock error; it is kept (its age is negative, and
+a negative age is never fresh) and logged.
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ from atris_node.types import SubFrame
 
 logger = logging.getLogger(__name__)
 
+#: a timestamp this far ahead of the host clock is reported as a clock error, seconds
+FUTURE_TOLERANCE_S = 0.001
 #: significant bits of the unpacked single-plane frame types this reader accepts
 BITS_BY_TYPE: dict[Any, int] = {
     dai.ImgFrame.Type.GRAY8: 8, dai.ImgFrame.Type.RAW8: 8, dai.ImgFrame.Type.RAW10: 10,
@@ -58,11 +67,17 @@ def frame_pixels(frame: dai.ImgFrame, bits: int) -> np.ndarray[Any, Any]:
     return pixels
 
 
+def exposure_host_time_s(frame: dai.ImgFrame) -> float:
+    """The exposure mid-time of ``frame`` on the host's monotonic clock, seconds."""
+    return float(frame.getTimestamp(dai.CameraExposureOffset.MIDDLE).total_seconds())
+
+
 def to_sub_frame(frame: dai.ImgFrame, host_time_s: float, chip: int | None = None) -> SubFrame:
     """One ``dai.ImgFrame`` as a SubFrame.
 
     ``device_time_s`` is the exposure mid-time on the device clock, ``exposure_us`` comes
-    from ``getExposureTime``; ``host_time_s`` is the arrival time the caller measured.
+    from ``getExposureTime``; ``host_time_s`` is the exposure time on the host clock
+    (:func:`exposure_host_time_s`).
     """
     bits = frame_bits(frame)
     device_time = frame.getTimestampDevice(dai.CameraExposureOffset.MIDDLE)  # type: ignore[call-arg]
@@ -110,7 +125,11 @@ class FrameReader:
     def read(self, timeout_s: float = 1.0) -> SubFrame:
         """The next sub-frame, its chip from ``chip_for`` when given."""
         frame = self._get(timeout_s)
-        host_time_s = self.clock()
+        host_time_s = exposure_host_time_s(frame)
+        if host_time_s > self.clock() + FUTURE_TOLERANCE_S:
+            logger.warning("sub-frame %d is stamped %.3f s in the future: device clock sync "
+                           "is broken; its distances go out invalid", frame.getSequenceNum(),
+                           host_time_s - self.clock())
         sequence = int(frame.getSequenceNum())
         self._track(sequence)
         chip = self.chip_for(sequence) if self.chip_for is not None else None

@@ -17,6 +17,7 @@ import time
 from collections.abc import Iterator
 from typing import Any
 
+import can
 import depthai as dai
 import numpy as np
 import pytest
@@ -106,6 +107,24 @@ class ScriptHost(dai.node.ThreadedHostNode):
             return
 
 
+def mono_frame(seq: int, level: float, exposure_us: int = 500) -> dai.ImgFrame:
+    """A GRAY8 frame of the dark room, its laser row at ``level`` (0..1); its host
+    timestamp is its creation, as depthai stamps a frame on the host clock."""
+    pixels = np.full(SHAPE, 20, np.uint8)
+    pixels[LASER_ROW] += np.uint8(200 * level)
+    frame = dai.ImgFrame()
+    frame.setType(dai.ImgFrame.Type.GRAY8)
+    frame.setWidth(SHAPE[1])
+    frame.setHeight(SHAPE[0])
+    frame.setFrame(pixels)
+    frame.setSequenceNum(seq)
+    frame.setTimestampDevice(datetime.timedelta(seconds=10.0 + seq / 100.0))
+    settings = frame.cam
+    settings.exposureTimeUs = exposure_us
+    frame.cam = settings
+    return frame
+
+
 class SimulatedMono(dai.node.ThreadedHostNode):
     """A mono camera: a dark room with one laser row that is lit by the dot projector."""
 
@@ -120,19 +139,7 @@ class SimulatedMono(dai.node.ThreadedHostNode):
         self.period_s = 0.004
 
     def _frame(self, seq: int, level: float) -> dai.ImgFrame:
-        pixels = np.full(SHAPE, 20, np.uint8)
-        pixels[LASER_ROW] += np.uint8(200 * level)
-        frame = dai.ImgFrame()
-        frame.setType(dai.ImgFrame.Type.GRAY8)
-        frame.setWidth(SHAPE[1])
-        frame.setHeight(SHAPE[0])
-        frame.setFrame(pixels)
-        frame.setSequenceNum(seq)
-        frame.setTimestampDevice(datetime.timedelta(seconds=10.0 + seq / 100.0))
-        settings = frame.cam
-        settings.exposureTimeUs = self.exposure_us
-        frame.cam = settings
-        return frame
+        return mono_frame(seq, level, self.exposure_us)
 
     def _wait_for_script(self, seq: int) -> None:
         """Block until the Script finished frame event ``seq`` (as the sensor's SoF does)."""
@@ -395,3 +402,49 @@ def test_hardware_oak_strobes_the_dot_projector() -> None:
     means = {chip: np.mean([s.pixels.mean() for s in subs if s.chip == chip]) for chip in (0, 1)}
     lit_minus_dark = abs(means[1] - means[0])  # one-frame slips may swap the two
     assert lit_minus_dark > 1.0
+
+
+class ListQueue:
+    """A ``FrameQueue`` over a list of ImgFrames (what the reader sees of a dai queue)."""
+
+    def __init__(self, frames: list[dai.ImgFrame]) -> None:
+        self.frames = frames
+
+    def get(self, timeout: datetime.timedelta) -> Any:
+        return self.frames.pop(0) if self.frames else None
+
+
+def stamped_frame(seq: int, host_time_s: float) -> dai.ImgFrame:
+    frame = mono_frame(seq, 1.0)
+    frame.setTimestamp(datetime.timedelta(seconds=host_time_s))
+    return frame
+
+
+@pytest.mark.parametrize(("offset_s", "valid"), [(-6.0, False), (-0.05, True), (0.5, False)])
+def test_feature_a_frames_age_is_its_exposure_time_not_its_arrival(
+        offset_s: float, valid: bool) -> None:
+    """A frame exposed 6 s ago (it sat in a queue) is read now: its sub-frame keeps the
+    exposure time, and the distances measured from it go out invalid; one stamped in the
+    future (broken clock sync) is invalid too; a fresh one is valid. The publisher and the
+    DBC codec are the real ones.
+
+    Checked by stamping the sub-frame with the read time (as before): the timestamp
+    assert failed, and with it taken out the 6 s old frame's distances went out valid
+    (and the future-stamped frame's too): two of the three cases failed.
+    """
+    from atris_node.bus.can.frames import FrameCodec
+    from atris_node.bus.can.publisher import Publisher
+    from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
+
+    exposed_s = time.monotonic() + offset_s
+    sub = FrameReader(ListQueue([stamped_frame(5, exposed_s)])).read(0.1)
+    assert sub.host_time_s == pytest.approx(exposed_s - 250e-6, abs=1e-5)  # mid-exposure
+    sectors = (SectorDistance(0, 0.0, SectorState.VALID, 2.0, 0.9),)
+    measurement = Measurement(1, sectors, sub.host_time_s, 1)
+    status = UnitStatus(UnitState.RUNNING, 2, 8, 120.0, 1)
+    with can.Bus(interface="virtual", channel=f"age-{offset_s}") as bus:
+        frames = Publisher(bus, 0, max_age_s=0.25).compose(measurement, status,
+                                                           time.monotonic())
+    codec = FrameCodec()
+    sector = next(codec.decode_message(m) for m in frames if m.arbitration_id == 0x503)
+    assert isinstance(sector.signals["Distance0"], float) is valid
