@@ -36,7 +36,7 @@ from listened_bus import listened_bus
 from atris_node import config as cfg
 from atris_node.bus.can import payloads
 from atris_node.bus.canopen.device import CanopenDevice, eds_path
-from atris_node.errors import NodeFaultError
+from atris_node.errors import DriverError, NodeFaultError
 from atris_node.node.unit import Unit
 from atris_node.testing.faultbus import Faults, FaultyBus
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
@@ -335,3 +335,116 @@ def test_the_pipelines_low_signal_verdict_reaches_the_status_frame(
     for (t0, low), (t1, _) in itertools.pairwise(verdicts):
         between = [c for c in running if t0 + margin_s < c.time_s < t1 - margin_s]
         assert all((c.status["Fault_LowSignal"] == 1) == low for c in between)
+
+
+class RefusingProjector(Projector):
+    """Wraps ``inner``; while ``refuse`` is set every strobe raises DriverError (a
+    projector that does not take commands: a broken link to the laser driver)."""
+
+    def __init__(self, inner: Projector) -> None:
+        self.inner = inner
+        self.refuse = False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def _strobe(self, chip: int, sequence: int) -> None:
+        if self.refuse:
+            raise DriverError("injected: the laser driver does not answer")
+        self.inner.strobe(chip, sequence)
+
+    def _off(self) -> None:
+        self.inner.off()
+
+
+def run_listened(request: pytest.FixtureRequest, opener: Any,
+                 fault_on: Callable[[], None], fault_off: Callable[[], None]
+                 ) -> tuple[Unit, list[Cycle], list[Cycle], list[Cycle]]:
+    """Step a unit until it publishes valid distances, then 0.6 s with the fault, then
+    until valid again: the cycles (before, during, after) as the bus saw them."""
+    frames = CycleFrames()
+    with listened_bus(f"reliability-fault-{request.node.name}", frames, 0.01) as bus:
+        unit = Unit(cfg.load(environ={}, overrides=BASE), bus, open_backend=opener)
+        unit.configure()
+        unit.activate(threaded=False)
+        try:
+            step_while(unit, lambda: not any(c.valid for c in frames.cycles))
+            fault_on()
+            start = time.monotonic()
+            step_while(unit, lambda: time.monotonic() < start + 0.6)
+            fault_off()
+            end = time.monotonic()
+            step_while(unit, lambda: not any(c.valid for c in cycles_after(frames, end)))
+            time.sleep(0.05)
+            unit.check()
+        finally:
+            unit.shutdown()
+    during = [c for c in frames.cycles if start + 0.1 < c.time_s < end]
+    return unit, cycles_after(frames, 0.0), during, cycles_after(frames, end)
+
+
+def step_while(unit: Unit, going: Callable[[], bool], timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while going():
+        assert time.monotonic() < deadline, "timed out"
+        unit.step()
+
+
+def test_a_projector_that_refuses_commands_is_laser_fault_and_invalid_not_a_dead_loop(
+        request: pytest.FixtureRequest) -> None:
+    """The projector stops taking commands for 0.6 s: the loop lives on, the laser is
+    switched off, every cycle says FAULT with Fault_LaserFault and invalid distances;
+    when it takes commands again the unit measures again and the bit clears.
+
+    Checked by letting the projector's DriverError through ``Unit._strobe_next`` (as
+    before): the loop died (``step`` raised) and the test failed; and without the
+    LASER_FAULT bit (``_on_laser_fault`` not setting it): the during-fault cycles said
+    RUNNING with the bit 0 and the state assert failed.
+    """
+    projectors: list[RefusingProjector] = []
+
+    def opener(name: str, **settings: Any) -> tuple[Camera, Projector]:
+        camera, projector = open_registry_backend(name, **settings)
+        projectors.append(RefusingProjector(projector))
+        return camera, projectors[-1]
+
+    def refuse(on: bool) -> None:
+        projectors[0].refuse = on
+
+    unit, _, during, after = run_listened(request, opener, lambda: refuse(True),
+                                          lambda: refuse(False))
+    assert len(during) >= 5
+    assert all(c.state == "FAULT" and c.status["Fault_LaserFault"] == 1 for c in during)
+    assert all(d == "invalid" for c in during for d in c.distances)
+    assert unit.stats.laser_faults > 0
+    back = next(c for c in after if c.valid)
+    assert back.state == "RUNNING" and back.status["Fault_LaserFault"] == 0
+
+
+def test_sub_frames_that_do_not_fit_the_calibration_are_a_calibration_fault(
+        request: pytest.FixtureRequest) -> None:
+    """The camera delivers sub-frames of another size than the calibration's for 0.6 s:
+    Fault_Calibration in every cycle meanwhile, distances invalid, cleared after.
+
+    Checked by leaving ``Unit._set_calibration_fault`` out of ``_demodulate``: the bit
+    stayed 0 and the first assert on ``during`` failed.
+    """
+    cameras: list[FaultyCamera] = []
+    faults = CameraFaults()
+
+    def opener(name: str, **settings: Any) -> tuple[Camera, Projector]:
+        camera, projector = open_registry_backend(name, **settings)
+        cameras.append(FaultyCamera(camera, faults))
+        return cameras[-1], projector
+
+    def wrong_size(on: bool) -> None:
+        reads = cameras[0].reads
+        faults.wrong_size_at = set(range(reads, reads + 10**6)) if on else set()
+
+    _, _, during, after = run_listened(request, opener, lambda: wrong_size(True),
+                                       lambda: wrong_size(False))
+    assert len(during) >= 5
+    assert all(c.status["Fault_Calibration"] == 1 for c in during)
+    assert all(d == "invalid" for c in during for d in c.distances)
+    back = next(c for c in after if c.valid)
+    assert back.status["Fault_Calibration"] == 0

@@ -59,6 +59,8 @@ class Measurer:
         #: the pipeline's verdict on the last map (FOREIGN_CODE, LOW_SIGNAL); NONE when
         #: the window restarted since
         self.map_faults = FaultBits.NONE
+        #: False while the sub-frames do not fit the calibrated camera (CALIBRATION)
+        self.fits_calibration = True
 
     # ----------------------------------------------------------------- sub-frames
     def set_code(self, key: tuple[int, int], bits: int) -> None:
@@ -96,10 +98,12 @@ class Measurer:
         return dmap
 
     def _check_sub_frame(self, sub: SubFrame) -> None:
-        """Reject a sub-frame that does not fit the calibrated camera."""
+        """Reject a sub-frame that does not fit the calibrated camera (and say so in
+        ``fits_calibration`` until one fits again)."""
         camera = self.pipeline.calibration.camera
         expected = (camera.height_px, camera.width_px)
-        if sub.pixels.shape != expected:
+        self.fits_calibration = sub.pixels.shape == expected
+        if not self.fits_calibration:
             raise DemodulationError(f"sub-frame {sub.sequence} is {sub.pixels.shape[::-1]} "
                                     f"(w, h) but the calibration is for {expected[::-1]}")
 

@@ -17,6 +17,7 @@ class NodeStats:
     camera_faults: int = 0
     bad_sub_frames: int = 0
     reconnects: int = 0
+    laser_faults: int = 0
     strobe_lit_while_not_allowed: int = 0
     last_lag: int = 0
     history: list[tuple[float, bool, int | None]] = field(default_factory=list)

@@ -35,7 +35,13 @@ from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
-from atris_node.errors import AtrisError, CameraLostError, DemodulationError, NodeFaultError
+from atris_node.errors import (
+    AtrisError,
+    CameraLostError,
+    DemodulationError,
+    DriverError,
+    NodeFaultError,
+)
 from atris_node.node import wiring
 from atris_node.node.measure import Measurer
 from atris_node.node.snapshot import obstacle_map, write_snapshot
@@ -237,11 +243,11 @@ class Unit:
         self._watch_output()
         self._negotiator.tick()
         allowed = bool(self._negotiator.may_strobe)
-        chips = self._chips() if allowed else None
+        chips = self._strobe_next(self._chips() if allowed else None)
         if chips is None:
             self._laser_off()
         try:
-            sub = self._read_with_strobe(chips)
+            sub = self._read()
         except CameraLostError as exc:
             self._on_camera_lost(exc)
             return
@@ -269,12 +275,37 @@ class Unit:
             self._negotiator.report_send_failure()
         self._output_errors = errors
 
-    def _read_with_strobe(self, chips: Any) -> SubFrame:
-        camera, projector = self._camera, self._projector
-        assert camera is not None and projector is not None
-        if chips is not None and self._next_seq is not None:
+    def _strobe_next(self, chips: Any) -> Any:
+        """Command the next sub-frame's chip; the chips, or None (laser off, LASER_FAULT,
+        the window restarted) when the projector refused: a sub-frame whose chip is not
+        known must not be demodulated."""
+        projector = self._projector
+        if chips is None or projector is None or self._next_seq is None:
+            return chips
+        try:
             projector.strobe(int(chips[self._next_seq % len(chips)]), self._next_seq)
-        sub = camera.read(timeout_s=1.0)
+        except DriverError as exc:
+            self._on_laser_fault(exc)
+            return None
+        if self.faults & FaultBits.LASER_FAULT:
+            logger.info("unit %s: the projector takes commands again", self.label)
+            self.faults &= ~FaultBits.LASER_FAULT
+        return chips
+
+    def _on_laser_fault(self, exc: DriverError) -> None:
+        """The projector refused a command: laser off, LASER_FAULT, EMCY, window restarted."""
+        if not self.faults & FaultBits.LASER_FAULT:
+            logger.error("unit %s: projector fault: %s", self.label, exc)
+            self._emcy("emcy_laser_fault")
+        self.faults |= FaultBits.LASER_FAULT
+        self.stats.laser_faults += 1
+        self._laser_off()
+        if self._measure is not None:
+            self._measure.reset()
+
+    def _read(self) -> SubFrame:
+        assert self._camera is not None
+        sub = self._camera.read(timeout_s=1.0)
         self._next_seq = sub.sequence + 1
         return sub
 
@@ -295,25 +326,41 @@ class Unit:
         key = (int(plan.code_length), int(row))
         assert self._measure is not None
         if key != self._measure.key:
-            self._new_code(key)
+            try:
+                self._new_code(key)
+            except DriverError as exc:  # the device did not take the code: tried again
+                self._on_laser_fault(exc)
+                return None
         return walsh_chips(*key)
 
     def _new_code(self, key: tuple[int, int]) -> None:
-        """Demodulate code ``key`` = (N, row) from now on; the device strobes it too."""
+        """Demodulate code ``key`` = (N, row) from now on; the device strobes it too (first:
+        a device that refuses it leaves the demodulator on the old code)."""
         assert self._measure is not None
-        self._measure.set_code(key, int(getattr(self._camera, "bits", 8)))
         set_code = getattr(self._projector, "set_code", None)
         if set_code is not None:  # backends that strobe on the device (depthai Script)
             set_code(walsh_chips(*key))
+        self._measure.set_code(key, int(getattr(self._camera, "bits", 8)))
         logger.info("unit %s: code row %d of N=%d", self.label, key[1], key[0])
 
     def _demodulate(self, sub: SubFrame) -> DistortionMap | None:
         assert self._measure is not None
         try:
-            return self._measure.demodulate(sub)
+            dmap = self._measure.demodulate(sub)
         except DemodulationError as exc:
+            self._set_calibration_fault()
             self._on_bad_sub_frame(exc)
             return None
+        self._set_calibration_fault()
+        return dmap
+
+    def _set_calibration_fault(self) -> None:
+        """CALIBRATION while the camera's sub-frames do not fit its calibration."""
+        assert self._measure is not None
+        if self._measure.fits_calibration:
+            self.faults &= ~FaultBits.CALIBRATION
+        else:
+            self.faults |= FaultBits.CALIBRATION
 
     def _on_map(self, dmap: DistortionMap) -> None:
         assert self._measure is not None
@@ -369,7 +416,10 @@ class Unit:
 
     def _laser_off(self) -> None:
         if self._projector is not None:
-            self._projector.off()
+            try:
+                self._projector.off()
+            except DriverError as exc:  # off() of the shipped backends never raises
+                logger.error("unit %s: projector did not take off(): %s", self.label, exc)
 
     def truth_sector_distances(self) -> tuple[float | None, ...] | None:
         """The simulator's true sector distances for the newest map, or None (hardware)."""
@@ -420,7 +470,8 @@ class Unit:
         return self._measure.map_faults
 
     def _unit_state(self) -> UnitState:
-        if self.faults & FaultBits.CAMERA_LOST or self._fatal is not None:
+        broken = FaultBits.CAMERA_LOST | FaultBits.LASER_FAULT
+        if self.faults & broken or self._fatal is not None:
             return UnitState.FAULT
         name = getattr(self._negotiator.state, "name", str(self._negotiator.state))
         if self._negotiator.may_strobe:
