@@ -201,8 +201,9 @@ def negotiator(channel: str, name: str, unit_id: str, code_length: str,
     With ``stall_s`` its receive thread stalls that long on the first frame it gets."""
     from atris_node.bus.negotiation.machine import Negotiator
     from atris_node.bus.negotiation.plan import Plan
+    from atris_node.errors import BusError
 
-    stop, reported = StdinWatch(), 0
+    stop, reported, bus_errors = StdinWatch(), 0, 0
     with can.Bus(interface="socketcan", channel=channel) as bus:
         notifier = can.Notifier(bus, [Stall(float(stall_s))], timeout=0.1)
         unit = Negotiator(bus, int(name, 0), Plan(int(code_length), 480.0), int(unit_id),
@@ -211,14 +212,18 @@ def negotiator(channel: str, name: str, unit_id: str, code_length: str,
         emit("ready")
         try:
             while not stop.poll(0.02):
-                unit.tick()
+                try:
+                    unit.tick()
+                except BusError as exc:  # laser already off; the negotiation goes on
+                    bus_errors += 1
+                    emit("bus_error", t=time.monotonic(), error=str(exc))
                 reported = _emit_timeline(unit, reported)
         finally:
             unit.stop()
             notifier.stop()
     _emit_timeline(unit, reported)
     emit("done", hops=unit.hop_count, malformed=unit.malformed_frames,
-         deferrals=unit.receive.deferrals)
+         deferrals=unit.receive.deferrals, bus_errors=bus_errors)
 
 
 def _emit_timeline(unit: Any, reported: int) -> int:

@@ -1,0 +1,133 @@
+"""Bus-level faults on real SocketCAN: a link that goes down, and a babbling node.
+
+- A unit's negotiator owns a code on vcan1; the link goes down (``ip link set vcan1
+  down``). Its frames are refused from then on, so it must stop strobing by its next
+  frame at the latest: within one re-announce period (1 s), the bound of its lease.
+- Two whole ``atris run`` units publish on vcan0 while a node floods the bus with
+  high-priority frames. Whatever the load does to them, no unit may report RUNNING on a
+  code another unit reports RUNNING on at the same time, and no distance may go out valid
+  with a data age above the publisher's max age (0.25 s).
+"""
+
+from __future__ import annotations
+
+import itertools
+import shutil
+import subprocess
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import can
+import cantools
+import pytest
+from e2e_reference import P01Receiver
+from test_load import cangen_babblers
+from test_vcan_negotiation import strobe_intervals, wait_owned
+from unit_frames import DBC_PATH, Received, check_and_decode, listen
+
+pytestmark = pytest.mark.vcan
+
+REANNOUNCE_S = 1.0
+MAX_AGE_S = 0.25
+PERIOD_S = 0.05
+UNIT_IDS = (8, 9)
+RUN_S = 30.0
+
+
+@contextmanager
+def link_down(iface: str) -> Iterator[float]:
+    """``iface`` down for the block (the time it went down, CLOCK_MONOTONIC); up after."""
+    ip = shutil.which("ip")
+    if ip is None:
+        pytest.fail("no `ip` command: the link cannot be taken down")
+    subprocess.run([ip, "link", "set", iface, "down"], check=True)
+    try:
+        yield time.monotonic()
+    finally:
+        subprocess.run([ip, "link", "set", iface, "up"], check=True)
+
+
+def test_a_unit_whose_link_goes_down_stops_strobing_within_its_lease(
+        spawn: Any, record_property: Any) -> None:
+    unit = spawn("negotiator", "vcan1", "0x4000", "4", "16")
+    wait_owned(unit)
+    with link_down("vcan1") as down_at:
+        time.sleep(REANNOUNCE_S + 1.0)
+        unit.drain()
+    final = unit.stop()
+    intervals = strobe_intervals(unit.of("state"), time.monotonic())
+    lit_at_down = [i for i in intervals if i[0] <= down_at < i[1]]
+    assert lit_at_down, "the unit was not strobing when the link went down: proves nothing"
+    dark_after_s = lit_at_down[0][1] - down_at
+    record_property("link_down_to_dark_s", round(dark_after_s, 3))
+    assert dark_after_s <= REANNOUNCE_S + 0.25
+    assert not [i for i in intervals if down_at < i[0] < down_at + REANNOUNCE_S + 1.0]
+    record_property("bus_errors_while_down", final.get("bus_errors"))
+
+
+def run_args(unit_id: int) -> list[str]:
+    settings = {"bus.interface": "socketcan", "bus.channel": "vcan0", "unit.unit_id": unit_id,
+                "unit.name": 0x0B80_0000_0000_0000 + unit_id, "unit.label": f"b{unit_id}",
+                "code.length": 8, "driver.seed": unit_id, "publish.max_age_s": MAX_AGE_S,
+                "publish.period_s": PERIOD_S}
+    args = ["run", "--duration", str(RUN_S), "--json"]
+    for key, value in settings.items():
+        args += ["--set", f"{key}={value}"]
+    return args
+
+
+def cycles(received: list[Received], unit_id: int) -> list[tuple[Received, list[Received]]]:
+    """(status frame, the sector frames that followed it) of one unit, in order."""
+    out: list[tuple[Received, list[Received]]] = []
+    for frame in received:
+        if frame.name == f"Atris{unit_id}_Status":
+            out.append((frame, []))
+        elif frame.name.startswith(f"Atris{unit_id}_Sectors") and out:
+            out[-1][1].append(frame)
+    return out
+
+
+def running_spans(received: list[Received], unit_id: int) -> list[tuple[float, float, int]]:
+    """(from, until, code row) in which the unit's status said RUNNING."""
+    statuses = [f for f in received if f.name == f"Atris{unit_id}_Status"]
+    spans = []
+    for here, after in itertools.pairwise(statuses):
+        if str(here.signals["State"]) == "RUNNING":
+            spans.append((here.timestamp, after.timestamp, int(here.signals["CodeRow"])))
+    return spans
+
+
+def test_a_babbling_node_makes_no_unit_share_a_code_or_publish_stale_distances(
+        spawn: Any, record_property: Any) -> None:
+    units = [spawn("atris", *run_args(uid)) for uid in UNIT_IDS]
+    for unit in units:
+        unit.wait_for("ready")
+    ids = [0x500 + 0x10 * uid for uid in UNIT_IDS]
+    with can.Bus(interface="socketcan", channel="vcan0", can_filters=[
+            {"can_id": i, "can_mask": 0x7F0, "extended": False} for i in ids]) as bus, \
+            cangen_babblers():
+        frames = listen(bus, RUN_S - 4.0)
+    results = [unit.wait_for("done", 120.0) for unit in units]
+    received = check_and_decode(cantools.database.load_file(DBC_PATH), frames,
+                                dict[int, P01Receiver]())
+    running = [running_spans(received, uid) for uid in UNIT_IDS]
+    record_property("running_s", [round(sum(b - a for a, b, _ in s), 1) for s in running])
+    assert any(running), "no unit ever ran under the load: the test proves nothing"
+    slack_s = 2 * PERIOD_S
+    for a0, a1, row_a in running[0]:
+        for b0, b1, row_b in running[1]:
+            overlap = min(a1, b1) - max(a0, b0)
+            assert row_a != row_b or overlap <= slack_s, f"both RUNNING on code {row_a}"
+    valid_cycles = 0
+    for uid in UNIT_IDS:
+        for status, sectors in cycles(received, uid):
+            distances = [v for f in sectors for k, v in f.signals.items()
+                         if k.startswith("Distance") and isinstance(v, float)]
+            if distances:
+                valid_cycles += 1
+                assert str(status.signals["State"]) == "RUNNING"
+                assert float(status.signals["DataAge"]) <= MAX_AGE_S + 0.01
+    record_property("valid_cycles", valid_cycles)
+    assert all(r["exit_code"] == 0 for r in results)
