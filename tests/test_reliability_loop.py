@@ -261,12 +261,13 @@ def test_a_distance_is_usable_only_when_fresh_and_not_from_the_future(
 # ----------------------------------------------------------------------------- transmit
 def test_a_unit_whose_distance_frames_are_refused_goes_dark_within_a_publish_period(
         request: pytest.FixtureRequest) -> None:
-    """The bus stops taking the unit's frames (bus-off): the laser goes off as soon as
-    the publisher's first refused frame is seen, not at the negotiation's next
-    re-announcement (0.5 s here), and the unit strobes again only after it re-claimed.
+    """The bus stops taking the unit's frames (bus-off): the laser goes off
+    REFUSED_GRACE_S (0.1 s) after the publisher's first refused frame, not after the
+    negotiation's next re-announcement (0.5 s here), and the unit strobes again only
+    after it re-claimed on the bus.
 
-    Checked by removing ``Unit._watch_output``: dark only 0.3-0.5 s after the bus-off
-    (at the negotiator's own refused re-announcement); the 0.15 s assert failed.
+    Checked by removing ``Unit._watch_output``: dark only 0.45 s after the bus-off (the
+    negotiator's own refused re-announcement plus the grace); the 0.25 s assert failed.
     """
     inner = can.Bus(interface="virtual", channel=f"reliability-tx-{request.node.name}")
     bus = FaultyBus(inner, Faults())
@@ -288,7 +289,7 @@ def test_a_unit_whose_distance_frames_are_refused_goes_dark_within_a_publish_per
                 lit_after.append(time.monotonic() - off_at)
         assert bus.counts.failed_sends > 0
         print(f"\nbus-off -> laser dark after {max(lit_after, default=0.0) * 1e3:.0f} ms")
-        assert max(lit_after, default=0.0) < 0.15
+        assert max(lit_after, default=0.0) < 0.25
         bus.faults.bus_off = False
         while not unit.negotiator.may_strobe:
             assert time.monotonic() < off_at + 10.0, "never strobed again"

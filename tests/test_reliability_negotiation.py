@@ -45,6 +45,7 @@ from atris_node.bus.negotiation.frames import (
     make_id,
     parse_id,
 )
+from atris_node.bus.negotiation.machine import REFUSED_GRACE_S
 from atris_node.bus.negotiation.peers import PeerTable
 from atris_node.bus.negotiation.plan import Plan
 from atris_node.testing.faultbus import Faults, FaultyBus
@@ -221,11 +222,15 @@ def test_a_unit_whose_frames_the_bus_refuses_does_not_strobe_and_an_owner_goes_d
     nowhere. Unit 2 starts on a bus that refuses every frame (bus-off); unit 0, owning its
     row, loses its bus at 2 s; both buses come back at 4 s.
 
-    Checked by removing the protections: with ``Negotiator._bus_refused`` doing nothing,
-    unit 0 strobed through the whole outage (to 4.0 s; the assert on ``last_lit``
-    failed); with that and the claim window counted from when the claim was queued
-    instead of when the bus took it, unit 2 also owned row 5, never claimed on the bus,
-    from 0.36 s on (the first assert failed). Either protection alone keeps unit 2 dark.
+    Unit 0 goes dark REFUSED_GRACE_S after its first refused frame (its retries every
+    50 ms are refused too).
+
+    Checked by removing the protections: with ``Negotiator._check_refusals`` doing
+    nothing, unit 0 strobed through the whole outage (to 4.0 s; the assert on
+    ``last_lit`` failed); with that, the refusal clock not blocking ownership and the
+    claim window counted from when the claim was queued instead of when the bus took
+    it, unit 2 also owned row 5, never claimed on the bus, from 0.36 s on (the first
+    assert failed).
     """
     fleet = lossy_fleet(NAMES[:3], max_code_length=16)
     fleet.faults[2].bus_off = True
@@ -238,7 +243,7 @@ def test_a_unit_whose_frames_the_bus_refuses_does_not_strobe_and_an_owner_goes_d
     refused = [t for t in fleet.buses[0].refused if t >= 2.0]  # type: ignore[attr-defined]
     assert refused, "unit 0 sent nothing during the outage: the test proves nothing"
     last_lit = max(end for _, end, _ in strobe_intervals(fleet.units[0], 4.0))
-    assert last_lit <= refused[0] + 1e-9
+    assert last_lit <= refused[0] + REFUSED_GRACE_S + TICK_S + 1e-9
     assert strobe_intervals(fleet.units[2], 4.0) == []
     fleet.faults[0].bus_off = fleet.faults[2].bus_off = False
     fleet.run_until(7.0)

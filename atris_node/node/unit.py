@@ -109,6 +109,7 @@ class Unit:
         self._next_seq: int | None = None
         self._counter = 0
         self._output_errors = 0  # the output's refused frames, as last seen
+        self._output_sent = 0  # and its frames taken
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
 
@@ -271,9 +272,12 @@ class Unit:
         """The bus refused one of our distance frames: nobody may hear our claim either,
         so the negotiator takes the strobe permission back until it is heard again."""
         errors = int(getattr(self._publisher, "send_errors", 0))
+        sent = int(getattr(self._publisher, "frames_sent", 0))
         if errors > self._output_errors:
             self._negotiator.report_send_failure()
-        self._output_errors = errors
+        elif sent > self._output_sent:
+            self._negotiator.report_send_ok()
+        self._output_errors, self._output_sent = errors, sent
 
     def _strobe_next(self, chips: Any) -> Any:
         """Command the next sub-frame's chip; the chips, or None (laser off, LASER_FAULT,

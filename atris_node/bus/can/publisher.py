@@ -175,6 +175,11 @@ class Publisher:
         return self.stats.send_errors
 
     @property
+    def frames_sent(self) -> int:
+        """Frames the bus took so far."""
+        return self.stats.frames_sent
+
+    @property
     def alive(self) -> bool:
         """True while the scheduler thread runs."""
         return self._thread is not None and self._thread.is_alive()

@@ -117,6 +117,7 @@ class CanopenDevice:
         self._fatal: BaseException | None = None
         self._last_event_s: dict[int, float] = {}
         self.send_errors = 0  # TPDOs and heartbeats the bus refused
+        self.frames_sent = 0  # and those it took
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
         self._progress_s: float | None = None  # the owner's loop last made progress
@@ -325,6 +326,7 @@ class CanopenDevice:
             self.send_errors += 1
             self._bus_trouble = True
             return
+        self.frames_sent += 1
         if self._bus_trouble:
             self._bus_trouble = False
             self.emcy_bus_off_recovered()

@@ -52,6 +52,9 @@ Clock = Callable[[], float]
 ChangeCallback = Callable[["NegotiationState", int | None, Plan], None]
 #: shortest gap between two re-announcements (answers to request-for-claims), seconds
 MIN_ANNOUNCE_GAP_S = 0.05
+#: how long the bus may refuse our frames with none taken before the laser goes off, s
+#: (a momentary full queue is retried after MIN_ANNOUNCE_GAP_S; bus-off is not)
+REFUSED_GRACE_S = 0.1
 
 
 class NegotiationState(enum.Enum):
@@ -142,6 +145,7 @@ class Negotiator:
         self._code_row: int | None = None
         self._may_strobe = False
         self._claim_sent_s: float | None = None  # our CLAIM of the row first went out
+        self._refused_since_s: float | None = None  # the bus refuses our frames since
         self._started_s = 0.0
         self._listening = False
         self._last_announce_s = -1e9
@@ -377,10 +381,11 @@ class Negotiator:
         if self._state is NegotiationState.CONFLICT:
             return
         self._maybe_grow(now)
+        self._check_refusals(now)
         if self._state is NegotiationState.CLAIMING and self._code_row is not None:
             sent_s = self._claim_sent_s
             if (sent_s is not None and now - sent_s >= self.window_s
-                    and self.receive.caught_up()):
+                    and self._refused_since_s is None and self.receive.caught_up()):
                 self._set_state(NegotiationState.OWNED, self._code_row, now)
                 logger.info("row %d of N=%d owned", self._code_row, self._plan.code_length)
         elif self._code_row is None and (self._state is NegotiationState.CLAIMING
@@ -409,12 +414,14 @@ class Negotiator:
 
     # ------------------------------------------------------------------ sending
     def _flush(self, now: float) -> None:
-        """Send the queued frames. The claim window runs from the moment our CLAIM of the
-        row went out; a frame the bus refuses revokes the strobe permission."""
+        """Send the queued frames. The claim window runs from the moment the bus took our
+        CLAIM of the row; a refused frame starts the refusal clock, a taken one ends it."""
         taken, refused = self.link.flush(now)
         if refused:
             self._bus_refused(now)
-        elif self._claim_sent_s is None and any(self._is_our_claim(f) for f in taken):
+        elif taken:
+            self._refused_since_s = None
+        if self._claim_sent_s is None and any(self._is_our_claim(f) for f in taken):
             self._claim_sent_s = now
 
     def _is_our_claim(self, frame: nf.RawFrame) -> bool:
@@ -423,23 +430,39 @@ class Negotiator:
                 and header.identity == self.identity and header.field == self._code_row)
 
     def report_send_failure(self, now: float | None = None) -> None:
-        """Another of this unit's frames (its distances) could not be sent: the bus does
-        not take our frames, so nobody may have heard our claim either."""
+        """Another of this unit's frames (its distances) could not be sent."""
         with self._lock:
-            self._bus_refused(self.clock() if now is None else now)
+            now = self.clock() if now is None else now
+            self._bus_refused(now)
+            self._check_refusals(now)
         self._notify()
 
+    def report_send_ok(self) -> None:
+        """Another of this unit's frames (its distances) was taken by the bus."""
+        self._refused_since_s = None
+
     def _bus_refused(self, now: float) -> None:
-        """Laser off and claim again once the bus takes our frames: a claim that was not
-        sent, or a unit whose frames go nowhere, protects nobody."""
-        if self._state not in (NegotiationState.CLAIMING, NegotiationState.OWNED):
+        """Start the refusal clock (kept while nothing is taken) and send our claim again
+        soon: a momentary full queue takes the retry."""
+        if self._refused_since_s is None:
+            self._refused_since_s = now
+        self._announce_due = True
+
+    def _check_refusals(self, now: float) -> None:
+        """Laser off and claim again when the bus refused our frames for REFUSED_GRACE_S
+        with none taken (bus-off, a stuck queue, a dead link): a unit whose frames go
+        nowhere protects nobody, and nobody may hear its claim. OWNED again only after
+        the bus took the new claim and the window passed."""
+        since = self._refused_since_s
+        if since is None or now - since < REFUSED_GRACE_S:
+            return
+        if self._state is not NegotiationState.OWNED and self._claim_sent_s is None:
             return
         if self._state is NegotiationState.OWNED:
-            logger.warning("row %s: our frames are refused by the bus: laser off, claiming "
-                           "again", self._code_row)
+            logger.warning("row %s: the bus takes none of our frames since %.2f s: laser "
+                           "off, claiming again", self._code_row, now - since)
         self._claim_sent_s = None
-        self._announce_due = True
-        if self._code_row is not None:
+        if self._state in (NegotiationState.CLAIMING, NegotiationState.OWNED):
             self._set_state(NegotiationState.CLAIMING, self._code_row, now)
 
     # ------------------------------------------------------------------ codes
