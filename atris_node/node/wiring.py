@@ -13,10 +13,12 @@ from typing import Any
 
 import can
 import canopen
+from can.typechecking import CanFilter
 
 from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
 from atris_node.bus.negotiation import name as negotiation_name
+from atris_node.bus.negotiation.frames import PREFIX_BITS, PREFIX_MASK
 from atris_node.bus.negotiation.machine import Negotiator
 from atris_node.bus.negotiation.plan import Plan
 from atris_node.calibration import Calibration
@@ -120,8 +122,23 @@ class BusServices:
         self.notifier.stop()
 
 
+def receive_filters(config: Config) -> list[CanFilter]:
+    """The frames a unit reads: the negotiation frames (29-bit, their prefix), and in
+    CANopen mode NMT, SYNC and the SDO requests to its node ID. Everything else (other
+    units' distances, a babbling node) is dropped by the interface (in the kernel on
+    SocketCAN) and cannot crowd the negotiation frames out of the receive queue."""
+    filters: list[CanFilter] = [
+        {"can_id": PREFIX_BITS, "can_mask": PREFIX_MASK, "extended": True}]
+    if config["bus.protocol"] == "canopen":
+        filters += [{"can_id": can_id, "can_mask": 0x7FF, "extended": False}
+                    for can_id in (0x000, 0x080, 0x600 + int(config["bus.node_id"]))]
+    return filters
+
+
 def make_bus_services(config: Config, bus: can.BusABC) -> BusServices:
-    """One Notifier per bus: canopen's own in CANopen mode, else a plain one."""
+    """One Notifier per bus: canopen's own in CANopen mode, else a plain one; the bus
+    reads only what the unit needs (:func:`receive_filters`)."""
+    bus.set_filters(receive_filters(config))
     if config["bus.protocol"] == "canopen":
         network = canopen.Network(bus)
         network.connect()
