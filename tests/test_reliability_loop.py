@@ -449,3 +449,29 @@ def test_sub_frames_that_do_not_fit_the_calibration_are_a_calibration_fault(
     assert all(d == "invalid" for c in during for d in c.distances)
     back = next(c for c in after if c.valid)
     assert back.status["Fault_Calibration"] == 0
+
+
+def test_a_receive_error_turns_the_laser_off_and_the_unit_claims_again(
+        request: pytest.FixtureRequest) -> None:
+    """The negotiation's receive thread reports an error (a link that flapped): the laser
+    goes off at once (the negotiator is CLAIMING), the loop goes on, and the unit owns its
+    code again after the window.
+
+    Checked by letting the BusError through ``Unit._tick_negotiation`` (as before): the
+    step raised and the loop would have died.
+    """
+    with can.Bus(interface="virtual", channel=f"reliability-rx-{request.node.name}") as bus:
+        unit = Unit(cfg.load(environ={}, overrides=BASE), bus)
+        unit.configure()
+        unit.activate(threaded=False)
+        try:
+            step_while(unit, lambda: not unit.negotiator.may_strobe)
+            unit.negotiator.store_error(OSError("injected: receive failed"))
+            unit.step()
+            assert not unit.negotiator.may_strobe
+            assert unit.projector is not None and not unit.projector.is_lit
+            assert unit.stats.bus_errors == 1
+            step_while(unit, lambda: not unit.negotiator.may_strobe)
+            unit.check()
+        finally:
+            unit.shutdown()

@@ -18,6 +18,7 @@ class NodeStats:
     bad_sub_frames: int = 0
     reconnects: int = 0
     laser_faults: int = 0
+    bus_errors: int = 0
     strobe_lit_while_not_allowed: int = 0
     last_lag: int = 0
     history: list[tuple[float, bool, int | None]] = field(default_factory=list)

@@ -37,6 +37,7 @@ from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
 from atris_node.errors import (
     AtrisError,
+    BusError,
     CameraLostError,
     DemodulationError,
     DriverError,
@@ -242,7 +243,7 @@ class Unit:
     def step(self) -> None:
         """One sub-frame: negotiate, strobe, read, demodulate, measure, publish."""
         self._watch_output()
-        self._negotiator.tick()
+        self._tick_negotiation()
         allowed = bool(self._negotiator.may_strobe)
         chips = self._strobe_next(self._chips() if allowed else None)
         if chips is None:
@@ -267,6 +268,16 @@ class Unit:
         else:
             assert self._publisher is not None
             self._publisher.heartbeat()  # progress: the loop is alive between maps
+
+    def _tick_negotiation(self) -> None:
+        """Advance the negotiation; a receive error it reports (the laser is already off:
+        the negotiator went back to CLAIMING) is logged and counted, and the loop goes on:
+        a link that flaps must not end the unit."""
+        try:
+            self._negotiator.tick()
+        except BusError as exc:
+            self.stats.bus_errors += 1
+            logger.error("unit %s: %s", self.label, exc)
 
     def _watch_output(self) -> None:
         """The bus refused one of our distance frames: nobody may hear our claim either,
