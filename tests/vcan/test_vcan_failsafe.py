@@ -9,7 +9,9 @@
   at the same time, and no distance may go out valid with a data age above the
   publisher's max age (0.25 s).
 
-The link test fails without the refusal lease (the unit stays lit while it cannot send).
+In the link test the kernel's receive error (ENETDOWN) darkens the unit first, 4-27 ms
+after the link went down; the refusal lease (0.1 s of refused frames) is the second line,
+shown to be needed by the host tests (tests/test_reliability_negotiation.py -k refuses).
 The babble test is not shown to fail reliably without its protection (the units' receive
 filters): in control runs without them, once both units owned code 2 for 1.35 s (unit
 logs), once they only ran far less (2.9 s and 1.4 s RUNNING instead of 17 s).
