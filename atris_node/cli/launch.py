@@ -96,6 +96,9 @@ def _watch(runner: FleetRun | ProcessRun, monitor: BusMonitor, duration_s: float
     while not stop.is_set() and time.monotonic() < end:
         stop.wait(min(0.1, max(0.0, end - time.monotonic())))
         runner.check()
+        if len(getattr(runner, "failed", [])) == len(runner.spec.units):
+            logger.error("every unit stopped and stays down: the launch ends")
+            return
         if refresh_s is not None and time.monotonic() >= next_table:
             next_table += refresh_s
             _show(runner, monitor, live)
