@@ -149,8 +149,7 @@ class CanopenDevice:
             self._measurement, self._progress_s = None, None
             self._status = replace(self._status, state=UnitState.STOPPED)
         if self.node.nmt.state == "OPERATIONAL":
-            for pdo in self._tpdos():
-                self._transmit(pdo)
+            self._transmit(self._tpdos())
         self.network.unsubscribe(SYNC_COB_ID, self._on_sync)
         self.node.remove_network()
         self.network.nodes.pop(self.node_id, None)
@@ -298,10 +297,9 @@ class CanopenDevice:
             self._sync_count += 1
             if self.node.nmt.state != "OPERATIONAL":
                 return
-            for pdo in self._tpdos():
-                if pdo.trans_type and pdo.trans_type <= 240 and (
-                        self._sync_count % pdo.trans_type == 0):
-                    self._transmit(pdo)
+            self._transmit([pdo for pdo in self._tpdos()
+                            if pdo.trans_type and pdo.trans_type <= 240
+                            and self._sync_count % pdo.trans_type == 0])
         except Exception:
             logger.exception("CANopen SYNC handling failed")
 
@@ -313,16 +311,25 @@ class CanopenDevice:
             maps: Any = self.node.tpdo.map
             return [pdo for pdo in maps.values() if pdo.enabled]
 
-    def _transmit(self, pdo: Any) -> None:
+    def _transmit(self, pdos: list[Any]) -> None:
+        """Send ``pdos`` in order, their values composed once, now (aged, see update)."""
+        if not pdos:
+            return
         with self._lock:
             self._write_values(self.clock())
-            for variable in pdo.map:
-                variable.set_data(self.node.get_data(variable.index, variable.subindex))
-            data = bytes(pdo.data)
+            frames = []
+            for pdo in pdos:
+                for variable in pdo.map:
+                    variable.set_data(self.node.get_data(variable.index, variable.subindex))
+                frames.append((pdo.cob_id, bytes(pdo.data)))
+        for cob_id, data in frames:
+            self._send_tpdo(cob_id, data)
+
+    def _send_tpdo(self, cob_id: int, data: bytes) -> None:
         try:
-            self.network.send_message(pdo.cob_id, data)
+            self.network.send_message(cob_id, data)
         except can.CanError as exc:
-            logger.error("TPDO 0x%X not sent: %s", pdo.cob_id, exc)
+            logger.error("TPDO 0x%X not sent: %s", cob_id, exc)
             self.send_errors += 1
             self._bus_trouble = True
             return
@@ -356,13 +363,15 @@ class CanopenDevice:
     def _event_tick(self, now: float) -> None:
         if self.node.nmt.state != "OPERATIONAL":
             return
+        due = []
         for pdo in self._tpdos():
             if pdo.trans_type is None or pdo.trans_type < 254 or not pdo.event_timer:
                 continue
             last = self._last_event_s.get(pdo.cob_id, -math.inf)
             if now - last >= pdo.event_timer / 1000.0:
                 self._last_event_s[pdo.cob_id] = now
-                self._transmit(pdo)
+                due.append(pdo)
+        self._transmit(due)
 
 
 def _optional(value: float | None, scale: float, lo: int, hi: int, missing: int) -> int:
