@@ -311,8 +311,9 @@ def test_the_pipelines_low_signal_verdict_reaches_the_status_frame(
     that follow such a map carry Fault_LowSignal, those after a map with lines (when
     there is one) do not.
 
-    Checked by leaving ``Unit._map_faults`` out of ``Unit.status`` (as before): no status
-    frame ever carried the bit and the first assert failed.
+    Checked by leaving the pipeline's verdict (``Measurer.map_faults``) out of
+    ``Unit._measure_faults`` (as before): no status frame ever carried the bit and the
+    first assert failed.
     """
     frames = CycleFrames()
     verdicts: list[tuple[float, bool]] = []
@@ -432,8 +433,8 @@ def test_sub_frames_that_do_not_fit_the_calibration_are_a_calibration_fault(
     """The camera delivers sub-frames of another size than the calibration's for 0.6 s:
     Fault_Calibration in every cycle meanwhile, distances invalid, cleared after.
 
-    Checked by leaving ``Unit._set_calibration_fault`` out of ``_demodulate``: the bit
-    stayed 0 and the first assert on ``during`` failed.
+    Checked by leaving CALIBRATION out of ``Unit._measure_faults``: the bit stayed 0 and
+    the first assert on ``during`` failed.
     """
     cameras: list[FaultyCamera] = []
     faults = CameraFaults()

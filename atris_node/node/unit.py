@@ -361,29 +361,14 @@ class Unit:
     def _demodulate(self, sub: SubFrame) -> DistortionMap | None:
         assert self._measure is not None
         try:
-            dmap = self._measure.demodulate(sub)
+            return self._measure.demodulate(sub)
         except DemodulationError as exc:
-            self._set_calibration_fault()
             self._on_bad_sub_frame(exc)
             return None
-        self._set_calibration_fault()
-        return dmap
-
-    def _set_calibration_fault(self) -> None:
-        """CALIBRATION while the camera's sub-frames do not fit its calibration."""
-        assert self._measure is not None
-        if self._measure.fits_calibration:
-            self.faults &= ~FaultBits.CALIBRATION
-        else:
-            self.faults |= FaultBits.CALIBRATION
 
     def _on_map(self, dmap: DistortionMap) -> None:
         assert self._measure is not None
-        measurement = self._measure.measure(dmap, self._camera)
-        if self._measure.low_signal is not None:
-            self.faults = (self.faults | FaultBits.LOW_SIGNAL if self._measure.low_signal
-                           else self.faults & ~FaultBits.LOW_SIGNAL)
-        self._publish(measurement)
+        self._publish(self._measure.measure(dmap, self._camera))
 
     def _on_bad_sub_frame(self, exc: DemodulationError) -> None:
         """A sub-frame that cannot be demodulated: drop it, restart the window, go invalid."""
@@ -470,7 +455,7 @@ class Unit:
             code_length=int(plan.code_length),
             chip_rate_hz=float(getattr(self._camera, "rate_hz", 0.0)),
             measurement_counter=self._counter,
-            faults=self.faults | self._negotiator.faults | self._map_faults(),
+            faults=self.faults | self._negotiator.faults | self._measure_faults(),
             ambient_level=float(extra.get("ambient_level", 0.0)),
             saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
             foreign_code_energy=(0.0 if self._measure is None
@@ -478,11 +463,18 @@ class Unit:
             dropped_sub_frames=self.stats.dropped_sub_frames,
         )
 
-    def _map_faults(self) -> FaultBits:
-        """The pipeline's verdict on the newest map, while the unit measures."""
-        if self._measure is None or not self._negotiator.may_strobe:
+    def _measure_faults(self) -> FaultBits:
+        """CALIBRATION while the sub-frames do not fit the calibration, the adaptation's
+        LOW_SIGNAL, and the pipeline's verdict on the newest map while the unit measures."""
+        work = self._measure
+        if work is None:
             return FaultBits.NONE
-        return self._measure.map_faults
+        bits = FaultBits.NONE if work.fits_calibration else FaultBits.CALIBRATION
+        if work.low_signal:
+            bits |= FaultBits.LOW_SIGNAL
+        if self._negotiator.may_strobe:
+            bits |= work.map_faults
+        return bits
 
     def _unit_state(self) -> UnitState:
         broken = FaultBits.CAMERA_LOST | FaultBits.LASER_FAULT
