@@ -86,8 +86,8 @@ class SectorState(enum.IntEnum):
 class SectorDistance:
     """The obstacle distance of one angular sector, in the vehicle frame.
 
-    ``distance_m`` is meaningful only when ``state`` is VALID; it is 0.0 otherwise (never
-    NaN or inf). ``confidence`` is 0..1.
+    ``distance_m`` and ``sigma_m`` (its 1-σ uncertainty) are meaningful only when
+    ``state`` is VALID; they are 0.0 otherwise (never NaN or inf). ``confidence`` is 0..1.
     """
 
     index: int
@@ -96,6 +96,7 @@ class SectorDistance:
     distance_m: float = 0.0
     confidence: float = 0.0
     point_count: int = 0
+    sigma_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -155,9 +155,12 @@ def test_overlapping_bands_are_resolved_by_order_and_continuity() -> None:
         truth = rows[s.line, s.col_px.astype(int)]
         assert np.isfinite(truth).all(), "a sample was given to a line that is absent there"
         assert np.abs(s.row_px - truth).max() < 0.5
-        assert (s.line == 1).sum() >= WIDTH - 5
         assert (s.line == 0).sum() >= WIDTH - 40 - 5
-        assert ex.ambiguous == 0
+        # where line 0 is absent, line 1's lone stripe (17 rows from its level, 23 from
+        # line 0's) has a rival within the margin: kept as line 1 or dropped, never line 0
+        assert (s.line == 1).sum() >= WIDTH - 40 - 5
+        assert ex.ambiguous <= 40 + 5
+        assert (s.line[(s.col_px >= 500) & (s.col_px < 540)] == 1).all()
         assert len(ex.line_snr) == 2 and min(ex.line_snr) > 20.0
 
 

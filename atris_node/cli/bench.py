@@ -13,6 +13,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "accuracy": ("atris_node.bench.accuracy", "range error against run time per configuration"),
     "latency": ("atris_node.bench.latency", "data age from sub-frame to frame on the bus"),
     "adaptive": ("atris_node.bench.adaptive", "adaptive N against fixed N = 32"),
+    "safety": ("atris_node.bench.safety", "sector verdicts scored against the truth per scene"),
     "bus": ("atris_node.bench.bus", "publish cycle cost and publisher period on a virtual bus"),
 }
 

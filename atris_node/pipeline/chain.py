@@ -35,7 +35,6 @@ from atris_node.pipeline.obstacles import (
     SectorSettings,
     estimate_ground,
     nearest_obstacle,
-    sector_distances,
 )
 from atris_node.pipeline.peaks import (
     IDENTITY_MODES,
@@ -50,6 +49,7 @@ from atris_node.pipeline.peaks import (
 )
 from atris_node.pipeline.roi import RoiSettings, RoiTracker
 from atris_node.pipeline.sectors import SectorLayout
+from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import (
     DistortionMap,
     FaultBits,
@@ -95,7 +95,7 @@ class PipelineConfig:
     #: foreign light is flagged when the negative/positive map energy or the fraction of
     #: peaks that belong to no line (per line and column) exceeds this
     foreign_limit: float = 0.02
-    invalid_on_interference: bool = True  # flagged foreign light: every sector INVALID
+    invalid_on_interference: bool = False  # True: flagged foreign light blanks every sector
     smooth_columns: int = 5  # median of this many columns along each line (1 = off)
     drop_lone_samples: bool = True  # a sample needs a neighbour on its line (±2 columns)
     roi_narrowing: bool = False  # search lines near their recent rows (atris_node.pipeline.roi)
@@ -255,6 +255,9 @@ class Pipeline:
         self._ground = GroundPlane()
         self._prior = visibility_prior(calibration, mounting, self._ground, config)
         self._counter = 0
+        self._width = cam.width_px
+        self._column_sector = self._sectors_by_column()
+        self._expected = self._expected_on_ground()
         self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
@@ -270,12 +273,15 @@ class Pipeline:
         extraction, whole = self._extract(dmap)
         timings["lines"] = _lap(start)
         samples = self._clean_samples(extraction.samples)
+        removed = _per_column(extraction.samples, self._width) - _per_column(samples,
+                                                                             self._width)
+        extraction = replace(extraction, doubtful_columns=(
+            _sized(extraction.doubtful_columns, self._width) + removed))
         points, vehicle = self._triangulate(samples)
         timings["triangulate"] = _lap(start)
         self._update_ground(vehicle[points.valid])
-        lone = len(extraction.samples) - len(samples)
         result = self._assemble(dmap, replace(extraction, samples=samples,
-                                              dropped=extraction.dropped + lone),
+                                              dropped=extraction.dropped + int(removed.sum())),
                                 points, vehicle, timings)
         timings["sectors"] = _lap(start)
         if self.roi is not None:
@@ -346,7 +352,7 @@ class Pipeline:
         obstacle = valid & (self._ground.height(vehicle) > self.config.ground_clearance_m)
         data = (SectorInput(vehicle, obstacle, samples.snr) if clean.all() else
                 SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean]))
-        sectors = _blank(sector_distances(data, self.layout, self._sectors), blanked)
+        sectors = _blank(self._verdicts(extraction, points, data, clean, foreign), blanked)
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(
             None if nearest is None else nearest.distance_m, dmap.last_time_s)
@@ -357,6 +363,48 @@ class Pipeline:
                                         timings)
         return PipelineResult(measurement, samples, valid, points.xyz_m[valid], vehicle[valid],
                               points.sigma_z_m[valid], diagnostics, found)
+
+    def _verdicts(self, extraction: Extraction, points: Points, data: SectorInput,
+                  clean: BoolArray, foreign: BoolArray) -> tuple[SectorDistance, ...]:
+        """The sector verdicts of :mod:`atris_node.pipeline.verdicts` for the ``clean``
+        samples (``data`` holds them) and the evidence of every column."""
+        samples = extraction.samples
+        sector, range_m = data.placed(self.layout)
+        found = ObstaclePoints(range_m, sector, data.obstacle, samples.line[clean],
+                               samples.col_px[clean].astype(np.int64),
+                               points.sigma_z_m[clean], data.snr)
+        seen = np.zeros(self._expected.shape, dtype=np.bool_)
+        seen[samples.line, samples.col_px.astype(np.int64)] = True
+        saturated = np.bincount(samples.col_px[samples.saturated].astype(np.int64),
+                                minlength=self._width)[:self._width]
+        w = self._width
+        evidence = ColumnEvidence(
+            self._column_sector,
+            doubtful=(_sized(extraction.doubtful_columns, w) + saturated
+                      + foreign.astype(np.int64)),
+            ambiguous=_sized(extraction.ambiguous_columns, w),
+            missing=(self._expected & ~seen).sum(axis=0).astype(np.int64))
+        return sector_verdicts(found, evidence, self.layout, self._sectors)
+
+    def _sectors_by_column(self) -> npt.NDArray[np.int64]:
+        """(W,) the sector each image column looks into (its horizontal ray), -1 outside."""
+        cam = self.calibration.camera
+        v = np.arange(cam.width_px, dtype=np.float64) - cam.cx_px
+        rays = np.stack([v, np.zeros_like(v), np.full_like(v, cam.focal_px)], axis=1)
+        directions = rays @ self.mounting.rotation.T
+        return np.asarray(self.layout.index_of(directions[:, 0], directions[:, 1]),
+                          dtype=np.int64)
+
+    def _expected_on_ground(self) -> BoolArray:
+        """(K, W) True where line k meets the ground within z_max in column c on a row of
+        the image: with nothing standing there, the line is seen there."""
+        prior, cam = self._prior, self.calibration.camera
+        z = prior.ground_range_m
+        cot = np.asarray(prior.cot_alpha)[:, None]
+        with np.errstate(divide="ignore"):
+            row = cam.cy_px + cam.focal_px * cot - cam.focal_px * prior.baseline_m / z
+        return np.asarray((z <= self.config.z_max_m) & (z >= self.config.z_min_m)
+                          & (row >= 0) & (row < cam.height_px))
 
     def _sectors_of_columns(self, columns: npt.NDArray[np.bool_]) -> set[int]:
         """Sectors that image columns look into (their horizontal rays, vehicle frame)."""
@@ -412,6 +460,16 @@ def visibility_prior(calibration: Calibration, mounting: Mounting, ground: Groun
     z = np.where(ok, rise / np.where(ok, slope, -1.0), np.inf)
     return VisibilityPrior(cot, cam.focal_px, cam.cy_px, cam.height_px, laser.baseline_m,
                            config.z_max_m, np.where(z > 0, z, np.inf))
+
+
+def _per_column(samples: LineSamples, width: int) -> npt.NDArray[np.int64]:
+    """(W,) samples per image column."""
+    return np.bincount(samples.col_px.astype(np.int64), minlength=width)[:width]
+
+
+def _sized(counts: npt.NDArray[np.int64], width: int) -> npt.NDArray[np.int64]:
+    """``counts`` (W,) int64, or zeros when an extraction did not fill them."""
+    return counts.astype(np.int64) if counts.size == width else np.zeros(width, np.int64)
 
 
 def _blank(sectors: tuple[SectorDistance, ...], indices: set[int]

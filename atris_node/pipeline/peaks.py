@@ -22,7 +22,7 @@ Peak methods (``PEAK_METHODS``), all on the column profile around the integer ma
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,7 @@ from atris_node.pipeline import peaks_kernels as kernels
 from atris_node.pipeline.bands import Band, count_in_bands, read_rows
 from atris_node.pipeline.identity import VisibilityPrior, identify_lines
 from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap, noise_floor, noise_map
+from atris_node.pipeline.rivals import stripe_peaks, unique_identity
 
 logger = logging.getLogger(__name__)
 
@@ -61,6 +62,7 @@ class ExtractorSettings:
     stripe_sigma_px: float = 1.5
     min_separation_px: int = 3
     identity: str = "aligned"
+    unique: bool = True  # drop samples whose line has a rival (atris_node.pipeline.rivals)
 
     def __post_init__(self) -> None:
         if self.peak_method not in PEAK_METHODS:
@@ -114,6 +116,11 @@ class Extraction:
     foreign_columns: BoolArray  # (W,) columns holding such peaks
     line_snr: tuple[float, ...]  # median SNR of the accepted samples per line, 0 if none
     narrowed: bool = False  # peaks were looked for on the ``search`` rows only
+    #: (W,) ambiguous peaks per column (no order/continuity choice, or a rival identity)
+    ambiguous_columns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: (W,) peaks per column left out before the samples: isolated peaks (no stripe) and
+    #: identified peaks that gave no sample (weak or failed fit)
+    doubtful_columns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 # --------------------------------------------------------------------------- rows read
@@ -267,8 +274,14 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         where = _Search(spans)  # something outside the recent rows: search them all
     peaks = strong_maxima(values, where.scan, local, settings.snr_min, settings.min_separation_px,
                           len(bands) + EXTRA_PEAKS, where.inside)
+    lone = np.zeros(peaks.shape[1], dtype=np.int64)
+    if settings.unique:
+        peaks, lone = stripe_peaks(peaks)
     rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
                                   aligned=settings.identity == "aligned")
+    if settings.unique:
+        rows, rivalled = unique_identity(peaks, bands, rows, prior)
+        unsure = unsure + rivalled.sum(axis=0)
     ambiguous = int(unsure.sum())
     unassigned = np.maximum(count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
     samples, strong, dropped = _samples(values, saturated, rows, local, settings, noise)
@@ -279,7 +292,15 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       rows_read=sum(hi - lo for lo, hi in spans),
                       unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
-                      narrowed=where.inside is not None)
+                      narrowed=where.inside is not None, ambiguous_columns=unsure,
+                      doubtful_columns=lone + _unsampled(rows, samples))
+
+
+def _unsampled(rows: IntArray, samples: LineSamples) -> IntArray:
+    """(W,) identified peaks per column that gave no sample."""
+    width = rows.shape[1]
+    got = np.bincount(samples.col_px.astype(np.int64), minlength=width)[:width]
+    return np.maximum((rows >= 0).sum(axis=0) - got, 0).astype(np.int64)
 
 
 def smooth_along_lines(samples: LineSamples, lines: int, width: int,

@@ -1,0 +1,189 @@
+"""``atris bench safety [--scenes NAME ...] [--stress] [--maps N] [--json]``: every
+sector-frame scored against the simulator's truth.
+
+A sector-frame is the verdict of one sector in one map. With ``t`` the true distance of
+the nearest obstacle the lines reach in that sector (None when there is none within
+z_max) and ``d`` the reported distance:
+
+- ``near_phantom``: VALID with ``t`` None, or ``d < t - max(10 %, 20 cm)``;
+- ``far``: VALID with ``d > t + max(10 %, 20 cm)`` and no neighbouring sector VALID at
+  ``t`` plus that tolerance or nearer (a farther-than-truth distance not covered);
+- ``false_free``: NO_RETURN while ``t`` is not None;
+- ``accurate``: VALID within ``max(3 %, 5 cm)`` of ``t``;
+- ``invalid``: INVALID.
+
+Rows (one per scene; JSON keys relied on by the tests and docs/benchmarks.md):
+``scene``, ``maps``, ``sector_frames``, ``valid``, ``no_return``, ``invalid``,
+``near_phantom``, ``far``, ``false_free``, ``accurate``, ``invalid_fraction``,
+``accurate_fraction`` (of VALID; null without VALID), ``ambiguous_samples`` (per map),
+``pipeline_ms`` (median).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from atris_node.codes import walsh_chips
+from atris_node.demod import BlockDemodulator
+from atris_node.pipeline.sectors import SectorLayout
+from atris_node.sim import Simulator, load_scene, shipped_scenes
+from atris_node.types import Measurement, SectorDistance, SectorState
+
+logger = logging.getLogger(__name__)
+
+#: maps per scene by default (after the first full code period)
+MAPS = 6
+#: the layout every scene is scored in: 8 sectors over 70°
+LAYOUT = SectorLayout(8, math.radians(70.0))
+COUNTS = ("valid", "no_return", "invalid", "near_phantom", "far", "false_free", "accurate")
+
+
+def phantom_tolerance_m(true_m: float) -> float:
+    """How far a distance may lie from the truth before it is wrong: max(10 %, 20 cm)."""
+    return max(0.10 * true_m, 0.20)
+
+
+def accuracy_tolerance_m(true_m: float) -> float:
+    """How close an accurate distance lies to the truth: max(3 %, 5 cm)."""
+    return max(0.03 * true_m, 0.05)
+
+
+def score_sector(sectors: tuple[SectorDistance, ...], truth: tuple[float | None, ...],
+                 index: int) -> list[str]:
+    """The counts one sector-frame adds to (names of :data:`COUNTS`)."""
+    sector, t = sectors[index], truth[index]
+    if sector.state is SectorState.INVALID:
+        return ["invalid"]
+    if sector.state is SectorState.NO_RETURN:
+        return ["no_return"] + (["false_free"] if t is not None else [])
+    d, out = sector.distance_m, ["valid"]
+    if t is None or d < t - phantom_tolerance_m(t):
+        return [*out, "near_phantom"]
+    if d > t + phantom_tolerance_m(t) and not _covered(sectors, t, index):
+        out.append("far")
+    if abs(d - t) <= accuracy_tolerance_m(t):
+        out.append("accurate")
+    return out
+
+
+def _covered(sectors: tuple[SectorDistance, ...], true_m: float, index: int) -> bool:
+    """True when a neighbouring sector reports the obstacle (VALID, not farther)."""
+    limit = true_m + phantom_tolerance_m(true_m)
+    return any(0 <= j < len(sectors) and sectors[j].state is SectorState.VALID
+               and sectors[j].distance_m <= limit for j in (index - 1, index + 1))
+
+
+@dataclass
+class SceneScore:
+    """The counts of one scene (see the module docstring)."""
+
+    scene: str
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(COUNTS, 0))
+    maps: int = 0
+    ambiguous: list[int] = field(default_factory=list)
+    pipeline_ms: list[float] = field(default_factory=list)
+
+    def add(self, measurement: Measurement, truth: tuple[float | None, ...]) -> None:
+        self.maps += 1
+        for i in range(len(measurement.sectors)):
+            for name in score_sector(measurement.sectors, truth, i):
+                self.counts[name] += 1
+
+    def row(self) -> dict[str, Any]:
+        c = self.counts
+        frames = c["valid"] + c["no_return"] + c["invalid"]
+        return {"scene": self.scene, "maps": self.maps, "sector_frames": frames, **c,
+                "invalid_fraction": round(c["invalid"] / frames, 4) if frames else None,
+                "accurate_fraction": (round(c["accurate"] / c["valid"], 4) if c["valid"]
+                                      else None),
+                "ambiguous_samples": (round(float(np.mean(self.ambiguous)), 1)
+                                      if self.ambiguous else 0.0),
+                "pipeline_ms": (round(float(np.median(self.pipeline_ms)), 2)
+                                if self.pipeline_ms else None)}
+
+
+def within_range(truth: tuple[float | None, ...], z_max_m: float) -> tuple[float | None, ...]:
+    """The true distances with those beyond ``z_max_m`` as None (nothing to report)."""
+    return tuple(None if t is None or t > z_max_m else t for t in truth)
+
+
+def score_scene(name: str, maps: int = MAPS) -> SceneScore:
+    """Render ``maps`` maps of scene ``name`` (unit 0, its own code), run the pipeline the
+    node would run on them, and score every sector-frame."""
+    from atris_node.pipeline.chain import Pipeline, PipelineConfig
+
+    scene = load_scene(name)
+    chips = walsh_chips(scene.code_length, scene.code_row)
+    sim = Simulator(scene, chips=chips, seed=1)
+    config = _config_of(scene, PipelineConfig)
+    pipe = Pipeline(config, sim.calibration(), _mounting(sim), LAYOUT)
+    demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
+    score = SceneScore(name)
+    sequence = 0
+    while score.maps < maps:
+        dmap = demod.push(sim.render(sequence))
+        sequence += 1
+        if dmap is None:
+            continue
+        result = pipe.process(dmap)
+        truth = sim.truth((dmap.first_sequence + dmap.last_sequence) // 2, LAYOUT)
+        score.add(result.measurement, within_range(truth.sector_distance_m, config.z_max_m))
+        score.ambiguous.append(result.diagnostics.ambiguous)
+        score.pipeline_ms.append(result.diagnostics.timings_ms.get("total", 0.0))
+    return score
+
+
+def _config_of(scene: Any, kind: Any) -> Any:
+    """The pipeline configuration for ``scene``: its own operating range where it states
+    one (``[pipeline]`` of the scene format), the defaults otherwise."""
+    ranges = {key: getattr(scene, key) for key in ("z_min_m", "z_max_m")
+              if getattr(scene, key, None) is not None}
+    return kind(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad), **ranges)
+
+
+def _mounting(sim: Simulator) -> Any:
+    """The mounting handed to the pipeline (with the scene's stated error, if any)."""
+    return getattr(sim, "pipeline_mounting", sim.mounting)
+
+
+def stress_names() -> list[str]:
+    """The stress scenes, when the simulator ships them."""
+    from atris_node import sim
+
+    return list(getattr(sim, "stress_scenes", lambda: [])())
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--json", action="store_true", help="print the rows as a JSON list")
+    parser.add_argument("--scenes", nargs="+", default=None, metavar="NAME",
+                        help="scene names (default: every shipped scene)")
+    parser.add_argument("--stress", action="store_true", help="also every stress scene")
+    parser.add_argument("--maps", type=int, default=MAPS, help=f"maps per scene ({MAPS})")
+
+
+def _text(row: dict[str, Any]) -> str:
+    return (f"{row['scene']:28s} frames {row['sector_frames']:4d}  invalid "
+            f"{row['invalid_fraction']:.2f}  phantom {row['near_phantom']:3d}  far "
+            f"{row['far']:3d}  false-free {row['false_free']:3d}  accurate "
+            f"{row['accurate_fraction'] if row['accurate_fraction'] is not None else '-'}")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.maps < 1:
+        raise ValueError(f"--maps must be >= 1, got {args.maps}")
+    names = list(args.scenes or shipped_scenes()) + (stress_names() if args.stress else [])
+    rows = []
+    for name in names:
+        rows.append(score_scene(name, args.maps).row())
+        if not args.json:
+            print(_text(rows[-1]), flush=True)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    return 0

@@ -1,0 +1,274 @@
+"""Compiled per-column rival test of line identity (numba, ``nopython``).
+
+For one column, the lines (bands ``[lo, hi)`` in image order) and the sorted peaks are
+aligned as in :mod:`atris_node.pipeline.identity` (match: distance to the continuity
+reference plus BEYOND past z_max; skip; spare), by a forward table ``F[j, i]`` (the first
+j lines against the first i peaks) and a backward table ``G[j, i]`` (lines j.. against
+peaks i..). The cheapest assignment in which peak i is taken by line j then costs
+``F[j, i] + match(j, i) + G[j + 1, i + 1]`` (a max-marginal), and the assignment itself
+is read back from both tables. :func:`rivals` adds the visibility prior's cost of lines
+missing without a reason to each, and reports every assigned peak for which an assignment
+giving it another line costs less than the chosen one plus a margin.
+
+Types: rows and lines int64 (-1 = none), costs float64 px. Costs are sums of whole and
+half pixels, exact in float64, so equal sums compare equal when the tables are read back.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.jit import kernel
+from atris_node.pipeline.identity_kernels import _in_any, _sorted_peaks, _unexplained_column
+
+IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+@kernel()
+def _match(j: int, p: int, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: FloatArray,
+           beyond_px: float) -> float:
+    """Cost (px) of line j (image order) taking the peak on row p; inf outside its band."""
+    if not lo[j] <= p < hi[j]:
+        return np.inf
+    cost = abs(p - ref[j]) if np.isfinite(ref[j]) else 0.0
+    return cost + (beyond_px if p >= beyond[j] else 0.0)
+
+
+@kernel()
+def _tables(column: IntArray, m: int, lo: IntArray, hi: IntArray, ref: FloatArray,
+            beyond: FloatArray, costs: FloatArray, spare: FloatArray, f: FloatArray,
+            g: FloatArray) -> None:
+    """Fill the forward ``f`` and backward ``g`` tables (K + 1, M + 1) of one column."""
+    skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
+    k_count = lo.size
+    for i in range(m):
+        spare[i] = spare_px if _in_any(column[i], lo, hi) else 0.0
+    f[0, 0] = 0.0
+    for i in range(1, m + 1):
+        f[0, i] = f[0, i - 1] + spare[i - 1]
+    for j in range(1, k_count + 1):
+        f[j, 0] = f[j - 1, 0] + skip_px
+        for i in range(1, m + 1):
+            take = f[j - 1, i - 1] + _match(j - 1, column[i - 1], lo, hi, ref, beyond,
+                                            beyond_px)
+            f[j, i] = min(take, f[j - 1, i] + skip_px, f[j, i - 1] + spare[i - 1])
+    g[k_count, m] = 0.0
+    for i in range(m - 1, -1, -1):
+        g[k_count, i] = g[k_count, i + 1] + spare[i]
+    for j in range(k_count - 1, -1, -1):
+        g[j, m] = g[j + 1, m] + skip_px
+        for i in range(m - 1, -1, -1):
+            take = _match(j, column[i], lo, hi, ref, beyond, beyond_px) + g[j + 1, i + 1]
+            g[j, i] = min(take, g[j + 1, i] + skip_px, g[j, i + 1] + spare[i])
+
+
+@kernel()
+def _read_forward(j: int, i: int, column: IntArray, lo: IntArray, hi: IntArray,
+                  ref: FloatArray, beyond: FloatArray, costs: FloatArray, spare: FloatArray,
+                  f: FloatArray, out: IntArray) -> None:
+    """Rows (``out``, image order) the first j lines take on a cheapest path to F[j, i]."""
+    skip_px, beyond_px = costs[0], costs[2]
+    while j > 0:
+        here = f[j, i]
+        if i > 0 and here == f[j - 1, i - 1] + _match(j - 1, column[i - 1], lo, hi, ref,
+                                                      beyond, beyond_px):
+            out[j - 1] = column[i - 1]
+            j -= 1
+            i -= 1
+        elif here == f[j - 1, i] + skip_px:
+            out[j - 1] = -1
+            j -= 1
+        else:
+            i -= 1
+
+
+@kernel()
+def _read_backward(j: int, i: int, m: int, column: IntArray, lo: IntArray, hi: IntArray,
+                   ref: FloatArray, beyond: FloatArray, costs: FloatArray,
+                   spare: FloatArray, g: FloatArray, out: IntArray) -> None:
+    """Rows (``out``, image order) lines j.. take on a cheapest path from G[j, i]."""
+    skip_px, beyond_px = costs[0], costs[2]
+    k_count = lo.size
+    while j < k_count:
+        here = g[j, i]
+        if i < m and here == _match(j, column[i], lo, hi, ref, beyond, beyond_px) + (
+                g[j + 1, i + 1]):
+            out[j] = column[i]
+            j += 1
+            i += 1
+        elif here == g[j + 1, i] + skip_px:
+            out[j] = -1
+            j += 1
+        else:
+            i += 1
+
+
+@kernel()
+def _chosen_cost(rows: IntArray, column: IntArray, m: int, lo: IntArray, hi: IntArray,
+                 ref: FloatArray, beyond: FloatArray, costs: FloatArray,
+                 spare: FloatArray) -> float:
+    """Cost (px) of the assignment ``rows`` (K, image order) in the alignment's terms."""
+    skip_px, beyond_px = costs[0], costs[2]
+    total = 0.0
+    taken = 0.0
+    for j in range(lo.size):
+        if rows[j] < 0:
+            total += skip_px
+        else:
+            total += _match(j, rows[j], lo, hi, ref, beyond, beyond_px)
+            taken += costs[1] if _in_any(rows[j], lo, hi) else 0.0
+    for i in range(m):
+        total += spare[i]
+    return total - taken
+
+
+@kernel()
+def _by_line(rows_image: IntArray, order: IntArray, out: IntArray) -> IntArray:
+    """Rows in image order -> rows by line (``out``)."""
+    for k in range(order.size):
+        out[order[k]] = rows_image[k]
+    return out
+
+
+@kernel()
+def _peak_index(column: IntArray, m: int, row: int) -> int:
+    """Index of ``row`` among the sorted peaks (-1 when absent)."""
+    for i in range(m):
+        if column[i] == row:
+            return i
+    return -1
+
+
+@kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], boolean[:, :], "
+        "int64[:], float64[:, :], float64[:], float64, float64[:], boolean, boolean, "
+        "float64[:], "
+        "float64[:], float64[:, :], int64[:])")
+def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
+           ambiguous: BoolArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
+           margin: float, costs: FloatArray, adopt: bool, has_prior: bool,
+           cot_alpha: FloatArray,
+           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+    """:func:`atris_node.pipeline.rivals.unique_identity` on the given ``columns``.
+
+    With ``adopt``, ``rows`` (K, W) by line is replaced, in place, by the cheapest
+    assignment where that beats it by ``margin``; ``ambiguous`` (K, W) by line is set
+    where the line's peak has a rival assignment (another line for it) within ``margin``
+    of the chosen total.
+    ``peaks`` (M, W) -1 padded; ``lo``, ``hi``, ``beyond`` (K,) and ``ref`` (K, W) in
+    image order, ``order`` the line of each; ``costs`` (skip, spare, beyond, unexplained)
+    px; the prior as :func:`atris_node.pipeline.identity_kernels.unexplained` takes it.
+    """
+    k_count, m_count = lo.size, peaks.shape[0]
+    column = np.empty(m_count, dtype=np.int64)
+    spare = np.zeros(m_count)
+    f = np.zeros((k_count + 1, m_count + 1))
+    g = np.zeros((k_count + 1, m_count + 1))
+    image = np.empty(k_count, dtype=np.int64)
+    other = np.empty(k_count, dtype=np.int64)
+    line_rows = np.empty(k_count, dtype=np.int64)
+    z = np.empty(k_count)
+    owner = np.empty(m_count, dtype=np.int64)
+    for c in columns:
+        m = _sorted_peaks(peaks[:, c], column)
+        _tables(column, m, lo, hi, ref[:, c], beyond, costs, spare, f, g)
+        for k in range(k_count):
+            image[k] = rows[order[k], c]
+        best = _chosen_cost(image, column, m, lo, hi, ref[:, c], beyond, costs, spare)
+        if has_prior:
+            best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
+                                                   ground_range_m, image_order, z)
+        _read_forward(k_count, m, column, lo, hi, ref[:, c], beyond, costs, spare, f, other)
+        cheapest = f[k_count, m]
+        if has_prior:
+            cheapest += costs[3] * _unexplained_column(_by_line(other, order, line_rows), c,
+                                                       cot_alpha, geometry, ground_range_m,
+                                                       image_order, z)
+        if adopt and cheapest + margin <= best:
+            best = cheapest
+            for k in range(k_count):
+                image[k] = other[k]
+                rows[order[k], c] = other[k]
+        owner[:] = -1
+        for k in range(k_count):
+            if image[k] >= 0:
+                owner[_peak_index(column, m, image[k])] = k
+        for i in range(m):
+            if owner[i] < 0:
+                continue
+            for j in range(k_count):
+                if j == owner[i] or not lo[j] <= column[i] < hi[j]:
+                    continue
+                through = f[j, i] + _match(j, column[i], lo, hi, ref[:, c], beyond,
+                                           costs[2]) + g[j + 1, i + 1]
+                if through >= best + margin:
+                    continue  # no assignment giving peak i to line j comes close
+                if has_prior:
+                    other[:] = -1
+                    _read_forward(j, i, column, lo, hi, ref[:, c], beyond, costs, spare, f,
+                                  other)
+                    other[j] = column[i]
+                    _read_backward(j + 1, i + 1, m, column, lo, hi, ref[:, c], beyond, costs,
+                                   spare, g, other)
+                    through += costs[3] * _unexplained_column(
+                        _by_line(other, order, line_rows), c, cot_alpha, geometry,
+                        ground_range_m, image_order, z)
+                if through < best + margin:
+                    ambiguous[order[owner[i]], c] = True
+                    break
+
+
+@kernel("boolean[:, :](int64[:, :], int64, int64)")
+def isolated(peaks: IntArray, reach: int, max_step: int) -> BoolArray:
+    """(M, W) True for peaks with no peak within ``max_step`` rows in any of the ``reach``
+    columns on either side: a stripe continues across columns, a noise maximum does not."""
+    m_count, width = peaks.shape
+    out = np.zeros((m_count, width), dtype=np.bool_)
+    for c in range(width):
+        for i in range(m_count):
+            p = peaks[i, c]
+            if p < 0:
+                continue
+            alone = True
+            for d in range(-reach, reach + 1):
+                n = c + d
+                if d == 0 or n < 0 or n >= width:
+                    continue
+                for q in peaks[:, n]:
+                    if q >= 0 and abs(q - p) <= max_step:
+                        alone = False
+                        break
+                if not alone:
+                    break
+            out[i, c] = alone
+    return out
+
+
+@kernel("float64[:, :](int64[:, :], boolean[:], int64)")
+def local_reference(rows: IntArray, anchored: BoolArray, reach: int) -> FloatArray:
+    """(K, W) per line the row of that line in the nearest anchored column within
+    ``reach`` columns that holds it (the left one on a tie), inf where there is none:
+    continuity from neighbouring columns whose identity is certain."""
+    k_count, width = rows.shape
+    out = np.full((k_count, width), np.inf)
+    for k in range(k_count):
+        last, at = -1, -1
+        left_row = np.full(width, -1, dtype=np.int64)
+        left_gap = np.full(width, reach + 1, dtype=np.int64)
+        for c in range(width):
+            if at >= 0:
+                left_row[c], left_gap[c] = last, c - at
+            if anchored[c] and rows[k, c] >= 0:
+                last, at = rows[k, c], c
+        last, at = -1, -1
+        for c in range(width - 1, -1, -1):
+            right_gap = at - c if at >= 0 else reach + 1
+            if left_gap[c] <= reach and left_gap[c] <= right_gap:
+                out[k, c] = left_row[c]
+            elif right_gap <= reach:
+                out[k, c] = last
+            if anchored[c] and rows[k, c] >= 0:
+                last, at = rows[k, c], c
+    return out
