@@ -22,7 +22,10 @@ from atris_node.types import SectorState
 CONFIG = PipelineConfig(peak_method="steger", stripe_sigma_px=1.0)
 CURVED_TOLERANCE_M = 0.02
 #: scenes without sunlight, flicker or interference: most obstacle sectors must be VALID
-CLEAR_SCENES = ("indoor_lab", "two_units_orthogonal", "window_sun")
+#: (window_sun is not among them: in its sunlit patch the stripes are weak and the lines'
+#: identity depends on noise maxima, so most of its sectors are INVALID, never guessed;
+#: tests/test_safety_scenes.py scores it)
+CLEAR_SCENES = ("indoor_lab", "two_units_orthogonal")
 
 
 @cache
@@ -86,14 +89,7 @@ def _sector_sigma_z(result: PipelineResult, index: int) -> float:
     return float(np.sqrt(np.mean(result.sigma_z_m[here] ** 2))) if here.any() else 0.0
 
 
-#: the known near phantom (tests/test_safety_scenes.py KNOWN_WRONG): strict, so it fails
-#: here once fixed and must be taken off
-_PHANTOM = pytest.mark.xfail(reason="window_sun sector 5 reads 1.00 m for 1.58 m when a noise "
-                             "maximum in the sunlit patch completes a shifted comb", strict=True)
-
-
-@pytest.mark.parametrize("name", [pytest.param(n, marks=_PHANTOM) if n == "window_sun" else n
-                                  for n in shipped_scenes()])
+@pytest.mark.parametrize("name", shipped_scenes())
 def test_planar_sector_distances_within_3_percent_or_2_sigma(name: str) -> None:
     result, truth, sim = _run(name)
     planar = _planar_truth(sim, truth)

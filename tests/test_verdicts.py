@@ -54,23 +54,50 @@ def test_feature_thin_pole_in_front_of_a_wall_is_the_distance() -> None:
     cluster is the pole."""
     pole = _points([1.66, 1.67, 1.67, 1.68, 1.67, 1.66], [2, 2, 2, 3, 3, 3], [10, 11, 12] * 2)
     found = nearest_credible(_join(pole, _wall()), np.ones(306, bool), 5)
-    assert found is not None and found[0] == pytest.approx(1.67, abs=0.02)
-    assert found[2] == 6
+    assert found is not None and found.distance_m == pytest.approx(1.67, abs=0.02)
+    assert found.support == 6 and found.nearer == 0
 
 
-def test_feature_one_lone_line_segment_is_not_credible() -> None:
-    """Five near samples on one line in two columns (a wrong identity looks like this):
-    not independent evidence, so the wall behind them is the distance."""
-    sliver = _points([0.9] * 5, [4] * 5, [5, 5, 6, 6, 6])
-    found = nearest_credible(_join(sliver, _wall()), np.ones(305, bool), 5)
-    assert found is not None and found[0] > 2.9
+def test_feature_short_run_of_one_line_blocks_the_wall_behind() -> None:
+    """Six near samples of one line over six columns (a wrong identity looks like this,
+    and so does a sliver): not credible, so no distance at 0.9 m; nor is the wall behind
+    them the distance: the sector is INVALID. (With the nearer count ignored in _verdict
+    this test failed: VALID at the wall, 3.0 m, farther than what stands there.)"""
+    run = _points([0.9] * 6, [4] * 6, [5, 6, 7, 8, 9, 10])
+    found = nearest_credible(_join(run, _wall()), np.ones(306, bool), 5)
+    assert found is not None and found.distance_m > 2.9 and found.nearer == 6
+    out = sector_verdicts(_join(run, _wall()), _evidence(), LAYOUT, SETTINGS)
+    assert out[0].state is SectorState.INVALID and out[0].distance_m == 0.0
+
+
+def test_feature_long_run_of_one_line_is_credible() -> None:
+    """A sliver hit by one line over 15 columns is an obstacle in its own right."""
+    run = _points([0.9] * 15, [4] * 15, np.arange(15))
+    out = sector_verdicts(_join(run, _wall()), _evidence(), LAYOUT, SETTINGS)
+    assert out[0].state is SectorState.VALID
+    assert out[0].distance_m == pytest.approx(0.9, abs=0.01)
+
+
+def test_feature_noisy_far_surface_is_its_centre() -> None:
+    """A wall at 9 m whose points scatter by σ = 0.5 m: the window spans the noise and
+    the distance is its centre, not its nearest noise."""
+    rng = np.random.default_rng(2)
+    n = 40
+    wall = ObstaclePoints(9.0 + rng.normal(0, 0.5, n), np.zeros(n, np.int64),
+                          np.ones(n, bool), rng.integers(0, 3, n), rng.integers(0, 32, n),
+                          np.full(n, 0.5), np.full(n, 20.0))
+    found = nearest_credible(wall, np.ones(n, bool), 5)
+    assert found is not None and abs(found.distance_m - 9.0) < 0.27
+    assert 0.0 < found.sigma_m < 0.5
 
 
 def test_feature_noise_outliers_make_no_phantom() -> None:
     """Four scattered near outliers (fewer than min_points in any window) move nothing."""
     noise = _points([0.5, 0.9, 1.3, 1.7], [0, 1, 2, 3], [1, 9, 17, 25])
     found = nearest_credible(_join(noise, _wall()), np.ones(304, bool), 5)
-    assert found is not None and found[0] == pytest.approx(3.0, abs=0.05)
+    assert found is not None and found.distance_m == pytest.approx(3.0, abs=0.08)
+    out = sector_verdicts(_join(noise, _wall()), _evidence(), LAYOUT, SETTINGS)
+    assert out[0].state is SectorState.VALID
 
 
 def _ground(sector=0, n=60):

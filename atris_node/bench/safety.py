@@ -3,7 +3,10 @@ sector-frame scored against the simulator's truth.
 
 A sector-frame is the verdict of one sector in one map. With ``t`` the true distance of
 the nearest obstacle the lines reach in that sector (None when there is none within
-z_max) and ``d`` the reported distance:
+z_max) and ``d`` the reported distance (a map integrates its sub-frames, so where the
+scene moves ``t`` is the interval of the truths at the map's first, middle and last
+sub-frame, and ``d`` is compared with the nearer end when below it, the farther when
+above):
 
 - ``near_phantom``: VALID with ``t`` None, or ``d < t - max(10 %, 20 cm)``;
 - ``far``: VALID with ``d > t + max(10 %, 20 cm)`` and no neighbouring sector VALID at
@@ -55,20 +58,31 @@ def accuracy_tolerance_m(true_m: float) -> float:
     return max(0.03 * true_m, 0.05)
 
 
-def score_sector(sectors: tuple[SectorDistance, ...], truth: tuple[float | None, ...],
+#: the true distance of a sector over a map: None, one value, or (nearest, farthest)
+Truth = float | tuple[float, float] | None
+
+
+def _span(t: Truth) -> tuple[float, float] | None:
+    if t is None:
+        return None
+    return (t, t) if isinstance(t, float | int) else (float(t[0]), float(t[1]))
+
+
+def score_sector(sectors: tuple[SectorDistance, ...], truth: tuple[Truth, ...],
                  index: int) -> list[str]:
     """The counts one sector-frame adds to (names of :data:`COUNTS`)."""
-    sector, t = sectors[index], truth[index]
+    sector, span = sectors[index], _span(truth[index])
     if sector.state is SectorState.INVALID:
         return ["invalid"]
     if sector.state is SectorState.NO_RETURN:
-        return ["no_return"] + (["false_free"] if t is not None else [])
+        return ["no_return"] + (["false_free"] if span is not None else [])
     d, out = sector.distance_m, ["valid"]
-    if t is None or d < t - phantom_tolerance_m(t):
+    if span is None or d < span[0] - phantom_tolerance_m(span[0]):
         return [*out, "near_phantom"]
-    if d > t + phantom_tolerance_m(t) and not _covered(sectors, t, index):
+    near, far = span
+    if d > far + phantom_tolerance_m(far) and not _covered(sectors, far, index):
         out.append("far")
-    if abs(d - t) <= accuracy_tolerance_m(t):
+    if near - accuracy_tolerance_m(near) <= d <= far + accuracy_tolerance_m(far):
         out.append("accurate")
     return out
 
@@ -90,7 +104,7 @@ class SceneScore:
     ambiguous: list[int] = field(default_factory=list)
     pipeline_ms: list[float] = field(default_factory=list)
 
-    def add(self, measurement: Measurement, truth: tuple[float | None, ...]) -> None:
+    def add(self, measurement: Measurement, truth: tuple[Truth, ...]) -> None:
         self.maps += 1
         for i in range(len(measurement.sectors)):
             for name in score_sector(measurement.sectors, truth, i):
@@ -114,6 +128,16 @@ def within_range(truth: tuple[float | None, ...], z_max_m: float) -> tuple[float
     return tuple(None if t is None or t > z_max_m else t for t in truth)
 
 
+def over_window(truths: list[tuple[float | None, ...]]) -> tuple[Truth, ...]:
+    """Per sector the (nearest, farthest) of the truths at several instants, None when
+    none of them has an obstacle there."""
+    out: list[Truth] = []
+    for values in zip(*truths, strict=True):
+        known = [v for v in values if v is not None]
+        out.append((min(known), max(known)) if known else None)
+    return tuple(out)
+
+
 def score_scene(name: str, maps: int = MAPS) -> SceneScore:
     """Render ``maps`` maps of scene ``name`` (unit 0, its own code), run the pipeline the
     node would run on them, and score every sector-frame."""
@@ -133,11 +157,19 @@ def score_scene(name: str, maps: int = MAPS) -> SceneScore:
         if dmap is None:
             continue
         result = pipe.process(dmap)
-        truth = sim.truth((dmap.first_sequence + dmap.last_sequence) // 2, LAYOUT)
-        score.add(result.measurement, within_range(truth.sector_distance_m, config.z_max_m))
+        score.add(result.measurement, _truth(sim, dmap, config.z_max_m))
         score.ambiguous.append(result.diagnostics.ambiguous)
         score.pipeline_ms.append(result.diagnostics.timings_ms.get("total", 0.0))
     return score
+
+
+def _truth(sim: Simulator, dmap: Any, z_max_m: float) -> tuple[Truth, ...]:
+    """The truth of a map: at its middle sub-frame, or over its first, middle and last
+    when the scene moves."""
+    first, last = dmap.first_sequence, dmap.last_sequence
+    instants = [first, (first + last) // 2, last] if sim.dynamic else [(first + last) // 2]
+    return over_window([within_range(sim.truth(i, LAYOUT).sector_distance_m, z_max_m)
+                        for i in instants])
 
 
 def _config_of(scene: Any, kind: Any) -> Any:

@@ -100,6 +100,9 @@ class PipelineConfig:
     drop_lone_samples: bool = True  # a sample needs a neighbour on its line (±2 columns)
     roi_narrowing: bool = False  # search lines near their recent rows (atris_node.pipeline.roi)
     identity: str = "aligned"  # or "greedy": the greedy matchings only (~0.3 ms less)
+    #: drop samples whose line has a rival (atris_node.pipeline.rivals); off only to
+    #: measure what it does
+    unique_identity: bool = True
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
 
     def __post_init__(self) -> None:
@@ -129,7 +132,7 @@ class PipelineConfig:
     def extractor(self) -> ExtractorSettings:
         """The line-extraction part of the configuration."""
         return ExtractorSettings(self.peak_method, self.snr_min, self.stripe_sigma_px,
-                                 identity=self.identity)
+                                 identity=self.identity, unique=self.unique_identity)
 
     def sectors(self) -> SectorSettings:
         """The sector part of the configuration."""
@@ -384,7 +387,26 @@ class Pipeline:
                       + foreign.astype(np.int64)),
             ambiguous=_sized(extraction.ambiguous_columns, w),
             missing=(self._expected & ~seen).sum(axis=0).astype(np.int64))
-        return sector_verdicts(found, evidence, self.layout, self._sectors)
+        return sector_verdicts(found, evidence, self.layout, self._sectors,
+                               self._doubt_ranges(extraction.doubts))
+
+    def _doubt_ranges(self, doubts: tuple[npt.NDArray[np.int64], ...]) -> FloatArray:
+        """(S,) per sector the nearest horizontal range (m) an ambiguous peak may stand
+        for (its nearest hypothesis triangulated), inf where none."""
+        row, col, line = doubts
+        out = np.full(self.layout.count, np.inf)
+        if row.size == 0:
+            return out
+        cam = self.calibration.camera
+        u, v = undistort_pixels(row.astype(np.float64), col.astype(np.float64), cam)
+        points = triangulate(u, v, line, cam, self.calibration.laser,
+                             z_max_m=self.config.z_max_m, sigma_u_px=np.zeros(row.size))
+        vehicle = self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))
+        x, y = vehicle[points.valid, 0], vehicle[points.valid, 1]
+        sector = self.layout.index_of(x, y)
+        inside = sector >= 0
+        np.minimum.at(out, sector[inside], self.layout.horizontal_range(x, y)[inside])
+        return out
 
     def _sectors_by_column(self) -> npt.NDArray[np.int64]:
         """(W,) the sector each image column looks into (its horizontal ray), -1 outside."""

@@ -33,7 +33,7 @@ from atris_node.pipeline import peaks_kernels as kernels
 from atris_node.pipeline.bands import Band, count_in_bands, read_rows
 from atris_node.pipeline.identity import VisibilityPrior, identify_lines
 from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap, noise_floor, noise_map
-from atris_node.pipeline.rivals import stripe_peaks, unique_identity
+from atris_node.pipeline.rivals import robust_identity, stripe_peaks
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +49,8 @@ IDENTITY_MODES = ("greedy", "aligned")
 SATURATED_SIGMA_PX = 0.5
 #: half window (px) searched for the saturated run of a flat-topped stripe
 SATURATION_WINDOW_PX = 8
+#: a peak below WEAK_SNR·snr_min is weak: identity must also stand without it
+WEAK_SNR = 1.5
 #: peaks kept per column beyond one per line (reflections, foreign light)
 EXTRA_PEAKS = 4
 
@@ -121,6 +123,10 @@ class Extraction:
     #: (W,) peaks per column left out before the samples: isolated peaks (no stripe) and
     #: identified peaks that gave no sample (weak or failed fit)
     doubtful_columns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: the ambiguous peaks as (row, column, line) (n,) int64 each, the line being the one
+    #: among their hypotheses that puts them nearest (atris_node.pipeline.rivals.Identity)
+    doubts: tuple[IntArray, IntArray, IntArray] = field(
+        default_factory=lambda: (np.zeros(0, np.int64),) * 3)
 
 
 # --------------------------------------------------------------------------- rows read
@@ -187,6 +193,8 @@ def _samples(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArr
     return LineSamples(line, row, col, snr, sigma, flat), int(strong), int(dropped)
 
 
+#: no ambiguous peaks (identity without the rival test)
+_NO_DOUBTS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
 #: the saturation mask passed to the kernel when nothing is saturated (never read)
 _NO_MASK = np.zeros((1, 1), dtype=np.bool_)
 
@@ -275,13 +283,18 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     peaks = strong_maxima(values, where.scan, local, settings.snr_min, settings.min_separation_px,
                           len(bands) + EXTRA_PEAKS, where.inside)
     lone = np.zeros(peaks.shape[1], dtype=np.int64)
+    aligned = settings.identity == "aligned"
+    doubts = _NO_DOUBTS
     if settings.unique:
         peaks, lone = stripe_peaks(peaks)
-    rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
-                                  aligned=settings.identity == "aligned")
-    if settings.unique:
-        rows, rivalled = unique_identity(peaks, bands, rows, prior)
-        unsure = unsure + rivalled.sum(axis=0)
+        identity = robust_identity(
+            peaks, lambda r: _peak_snr(values, local, r) < WEAK_SNR * settings.snr_min,
+            bands, settings.min_separation_px, prior, aligned=aligned)
+        rows, unsure = identity.rows, identity.unsure
+        doubts = (identity.doubt_row, identity.doubt_col, identity.doubt_line)
+    else:
+        rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
+                                      aligned=aligned)
     ambiguous = int(unsure.sum())
     unassigned = np.maximum(count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
     samples, strong, dropped = _samples(values, saturated, rows, local, settings, noise)
@@ -293,7 +306,21 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
                       narrowed=where.inside is not None, ambiguous_columns=unsure,
-                      doubtful_columns=lone + _unsampled(rows, samples))
+                      doubtful_columns=lone + _unsampled(rows, samples), doubts=doubts)
+
+
+def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> FloatArray:
+    """(., W) SNR of the map at the given rows of each column (0 where a row is -1): the
+    value over its tile's background, in its tile's σ."""
+    width = rows.shape[1]
+    cols = np.broadcast_to(np.arange(width), rows.shape)
+    at = np.maximum(rows, 0)
+    tile_row = local.tile_row[at]
+    tile_col = cols // NOISE_TILE_PX
+    value = values[at, cols].astype(np.float64)
+    snr = (value - local.background_tiles[tile_row, tile_col]) / local.sigma_tiles[
+        tile_row, tile_col]
+    return np.where(rows >= 0, snr, 0.0)
 
 
 def _unsampled(rows: IntArray, samples: LineSamples) -> IntArray:

@@ -22,11 +22,17 @@ It runs in rounds. First without continuity, so that only the physics anchors a 
 columns left without a rival are *anchored*. Then every other column again, with each
 line's row in the nearest anchored column within CONTINUITY_REACH columns as its
 continuity reference (a stripe on one surface moves little from column to column); a
-column resolved in one round anchors the next. A peak that still has a rival is dropped and
-counted ambiguous: the sectors it falls in cannot be VALID or NO_RETURN.
+column resolved in one round anchors the next. The continuity never changes an identity,
+it only settles a tie: replacing the chosen assignment by a cheaper one let a comb that
+a noise maximum had anchored one line off spread along its row. A peak that still has a
+rival is dropped and counted ambiguous, with its nearest hypothesis: a sector cannot be
+NO_RETURN with it, nor VALID at a distance it may stand as near as.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -41,6 +47,7 @@ from atris_node.pipeline.identity import (
     SWITCH_PX,
     VisibilityPrior,
     beyond_rows,
+    identify_lines,
     prior_arrays,
 )
 
@@ -60,9 +67,10 @@ CONTINUITY_ROUNDS = 8
 
 
 def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
-                    prior: VisibilityPrior | None) -> tuple[IntArray, BoolArray]:
+                    prior: VisibilityPrior | None) -> tuple[IntArray, IntArray]:
     """The identity ``rows`` (K, W) by line (-1 = none) with every sample that has a rival
-    removed, and the (K, W) mask of those samples (by line, at their chosen line).
+    removed, and (K, W) by line at the removed samples' chosen line: the line, among the
+    chosen and its rivals, that puts the peak nearest (-1 where nothing was removed).
 
     Args:
         peaks: (M, W) int64 peak rows per column, -1 = none, any order.
@@ -74,24 +82,140 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     rows = np.array(rows, dtype=np.int64, order="C")
     shape = rows.shape
-    ambiguous = np.zeros(shape, dtype=np.bool_)
+    ambiguous = np.full(shape, -1, dtype=np.int64)
     beyond = beyond_rows(prior, order)
-    loose = np.full(shape, np.inf)  # pass 1: no continuity, never adopts
-    _test(peaks, (lo, hi, order), rows, ambiguous, _has_peaks(rows), loose, beyond, prior,
-          adopt=False)
+    loose = np.full(shape, np.inf)  # pass 1: no continuity
+    _test(peaks, (lo, hi, order), rows, ambiguous, _has_peaks(rows), loose, beyond, prior)
     left = -1
     for _ in range(CONTINUITY_ROUNDS):
-        anchored = np.asarray(~ambiguous.any(axis=0), dtype=np.bool_)
+        anchored = np.asarray(~(ambiguous >= 0).any(axis=0), dtype=np.bool_)
         again = np.flatnonzero(~anchored)
         if again.size in (0, left):
             break  # all anchored, or the last round anchored nothing new
         left = again.size
         ref = _reference(rows, anchored)
-        ambiguous[:, again] = False
-        _test(peaks, (lo, hi, order), rows, ambiguous, again, ref[order], beyond, prior,
-              adopt=True)
-    rows[ambiguous] = -1
+        ambiguous[:, again] = -1
+        _test(peaks, (lo, hi, order), rows, ambiguous, again, ref[order], beyond, prior)
+    rows[ambiguous >= 0] = -1
     return rows, ambiguous
+
+
+@dataclass(frozen=True)
+class Identity:
+    """The identity of one map: ``rows`` (K, W) by line (-1 = none), ``unsure`` (W,)
+    ambiguous peaks per column, and every ambiguous peak as (n,) ``doubt_row``,
+    ``doubt_col`` and ``doubt_line``: the line among its hypotheses that puts it nearest
+    (lowest in the image), so that a sector can tell whether the doubt reaches nearer than
+    the distance it reports."""
+
+    rows: IntArray
+    unsure: IntArray
+    doubt_row: IntArray
+    doubt_col: IntArray
+    doubt_line: IntArray
+
+    def with_doubts(self, row: IntArray, col: IntArray, line: IntArray) -> Identity:
+        return Identity(self.rows, self.unsure, np.concatenate([self.doubt_row, row]),
+                        np.concatenate([self.doubt_col, col]),
+                        np.concatenate([self.doubt_line, line]))
+
+
+def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
+                    bands: tuple[Band, ...], sep: int, prior: VisibilityPrior | None, *,
+                    aligned: bool) -> Identity:
+    """Unique identity that also stands without the weak peaks.
+
+    A noise maximum just above the threshold (in a tile whose σ comes from its quiet part)
+    can complete a comb shifted by one line, and a complete comb has no rival. So the
+    identity is made twice: with every peak, and without the ``weak`` ones
+    (``weak(rows)`` says which of the given (., W) rows are weak). A column where a strong
+    peak gets another line (or none) without the weak peaks depends on them: there only the
+    samples both identities agree on are kept, the others count as ambiguous, with the
+    nearer of their two lines as their doubt.
+    """
+    full = _unique(peaks, bands, sep, prior, aligned)
+    weak_peaks = weak(peaks) & (peaks >= 0)
+    if not weak_peaks.any():
+        return full
+    strong, _ = _compact(peaks, weak_peaks)
+    alone = _unique(strong, bands, sep, prior, aligned)
+    rows, rows_b = full.rows, alone.rows
+    held = (rows >= 0) & ~weak(rows)
+    unstable = ((rows != rows_b) & ((rows_b >= 0) | held)).any(axis=0)
+    dropped = unstable[None, :] & (rows != rows_b) & (rows >= 0)
+    kept = np.where(dropped, -1, rows)
+    lost = (rows >= 0).sum(axis=0) - (kept >= 0).sum(axis=0)
+    k, c = np.nonzero(dropped)
+    other = _line_of(rows_b, rows[k, c], c)
+    position = _positions(bands)
+    nearer = np.where((other >= 0) & (position[np.maximum(other, 0)] > position[k]), other, k)
+    out = Identity(kept, full.unsure + lost, full.doubt_row, full.doubt_col, full.doubt_line)
+    out = out.with_doubts(rows[k, c], c.astype(np.int64), nearer.astype(np.int64))
+    return out.with_doubts(alone.doubt_row, alone.doubt_col, alone.doubt_line)
+
+
+def _line_of(rows: IntArray, row: IntArray, col: IntArray) -> IntArray:
+    """(n,) the line holding ``row`` in column ``col`` of ``rows`` (K, W), -1 if none."""
+    match = rows[:, col] == row[None, :]
+    return np.where(match.any(axis=0), match.argmax(axis=0), -1).astype(np.int64)
+
+
+def _positions(bands: tuple[Band, ...]) -> IntArray:
+    """(K,) each line's position from the top of the image (0 = top)."""
+    _, _, order = in_image_order(bands)
+    position = np.empty(order.size, dtype=np.int64)
+    position[order] = np.arange(order.size)
+    return position
+
+
+def _lowest_band(rows: IntArray, bands: tuple[Band, ...]) -> IntArray:
+    """(n,) the line lowest in the image whose band holds each row (-1 if none): the
+    nearest range a peak of unknown line may stand for."""
+    lo, hi, order = in_image_order(bands)
+    inside = (rows[:, None] >= lo[None, :]) & (rows[:, None] < hi[None, :])
+    last = inside.shape[1] - 1 - inside[:, ::-1].argmax(axis=1)
+    return np.where(inside.any(axis=1), order[last], -1).astype(np.int64)
+
+
+def _unique(peaks: IntArray, bands: tuple[Band, ...], sep: int,
+            prior: VisibilityPrior | None, aligned: bool) -> Identity:
+    """:func:`identify_lines` then :func:`unique_identity`. Peaks the rival test removed
+    keep their nearest rival as doubt; peaks the greedy matchings could not place, the
+    lowest band that holds them."""
+    first, unsure = identify_lines(peaks, bands, sep, prior, aligned=aligned)
+    before = (first >= 0).sum(axis=0)
+    rows, nearest = unique_identity(peaks, bands, first, prior)
+    k, c = np.nonzero(nearest >= 0)
+    rivalled = (first[k, c], c.astype(np.int64), nearest[k, c])
+    placed = np.zeros(peaks.shape, dtype=np.bool_)
+    for line_rows in rows:
+        placed |= (peaks == line_rows[None, :]) & (line_rows[None, :] >= 0)
+    unplaced = (peaks >= 0) & ~placed & (unsure > 0)[None, :]
+    unplaced &= ~_is_rivalled(peaks, rivalled)
+    i, j = np.nonzero(unplaced)
+    lowest = _lowest_band(peaks[i, j], bands)
+    known = lowest >= 0
+    out = Identity(rows, unsure + np.maximum(before - (rows >= 0).sum(axis=0), 0),
+                   *rivalled)
+    return out.with_doubts(peaks[i, j][known], j[known].astype(np.int64), lowest[known])
+
+
+def _is_rivalled(peaks: IntArray, rivalled: tuple[IntArray, IntArray, IntArray]
+                 ) -> BoolArray:
+    """(M, W) True at the peaks listed in ``rivalled`` (rows, columns, lines)."""
+    out = np.zeros(peaks.shape, dtype=np.bool_)
+    row, col, _ = rivalled
+    for r, c in zip(row.tolist(), col.tolist(), strict=True):
+        out[:, c] |= peaks[:, c] == r
+    return out
+
+
+def _compact(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
+    """``peaks`` without the ``drop`` ones, each column sorted down with the -1 padding
+    last (as the greedy matchings expect), and the (W,) count dropped."""
+    big = np.iinfo(np.int64).max
+    kept = np.sort(np.where(drop | (peaks < 0), big, peaks), axis=0)
+    return np.where(kept == big, -1, kept), drop.sum(axis=0).astype(np.int64)
 
 
 def stripe_peaks(peaks: IntArray, reach: int = LONE_REACH, max_step: int = LONE_STEP_PX
@@ -102,7 +226,9 @@ def stripe_peaks(peaks: IntArray, reach: int = LONE_REACH, max_step: int = LONE_
     anchor a comb. The count stays evidence: such a column is not free."""
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     lone = rivals_kernels.isolated(peaks, reach, max_step)
-    return np.where(lone, -1, peaks), lone.sum(axis=0).astype(np.int64)
+    if not lone.any():
+        return peaks, np.zeros(peaks.shape[1], dtype=np.int64)
+    return _compact(peaks, lone)
 
 
 def _has_peaks(rows: IntArray) -> IntArray:
@@ -123,15 +249,14 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
 
 
 def _test(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray], rows: IntArray,
-          ambiguous: BoolArray, columns: IntArray, ref: npt.NDArray[np.float64],
-          beyond: npt.NDArray[np.float64], prior: VisibilityPrior | None, *,
-          adopt: bool) -> None:
+          ambiguous: IntArray, columns: IntArray, ref: npt.NDArray[np.float64],
+          beyond: npt.NDArray[np.float64], prior: VisibilityPrior | None) -> None:
     """One pass of the compiled rival test over ``columns`` (in place)."""
     lo, hi, order = edges
     rivals_kernels.rivals(peaks, lo, hi, order.astype(np.int64), rows, ambiguous,
                           np.ascontiguousarray(columns, dtype=np.int64),
                           np.ascontiguousarray(ref, dtype=np.float64), beyond,
-                          RIVAL_MARGIN_PX, _COSTS, adopt, *prior_arrays(prior, rows.shape))
+                          RIVAL_MARGIN_PX, _COSTS, *prior_arrays(prior, rows.shape))
 
 
 def warm_up() -> None:

@@ -142,25 +142,23 @@ def _peak_index(column: IntArray, m: int, row: int) -> int:
     return -1
 
 
-@kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], boolean[:, :], "
-        "int64[:], float64[:, :], float64[:], float64, float64[:], boolean, boolean, "
-        "float64[:], "
-        "float64[:], float64[:, :], int64[:])")
+@kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
+        "int64[:], float64[:, :], float64[:], float64, float64[:], boolean, "
+        "float64[:], float64[:], float64[:, :], int64[:])")
 def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
-           ambiguous: BoolArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
-           margin: float, costs: FloatArray, adopt: bool, has_prior: bool,
-           cot_alpha: FloatArray,
+           ambiguous: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
+           margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
            geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
     """:func:`atris_node.pipeline.rivals.unique_identity` on the given ``columns``.
 
-    With ``adopt``, ``rows`` (K, W) by line is replaced, in place, by the cheapest
-    assignment where that beats it by ``margin``; ``ambiguous`` (K, W) by line is set
-    where the line's peak has a rival assignment (another line for it) within ``margin``
-    of the chosen total.
-    ``peaks`` (M, W) -1 padded; ``lo``, ``hi``, ``beyond`` (K,) and ``ref`` (K, W) in
-    image order, ``order`` the line of each; ``costs`` (skip, spare, beyond, unexplained)
-    px; the prior as :func:`atris_node.pipeline.identity_kernels.unexplained` takes it.
-    """
+    ``rows`` (K, W) by line is the chosen identity (never changed: a cheaper assignment is a
+    rival like any other); ``ambiguous`` (K, W) by line (-1 where not) is set where the
+    line's peak has a rival assignment (another line for it) within ``margin`` of the chosen
+    total, to the line among the chosen and the rivals that is lowest in the image: the
+    nearest range the peak may stand for. ``peaks`` (M, W) -1 padded; ``lo``, ``hi``,
+    ``beyond`` (K,) and ``ref`` (K, W) in image order, ``order`` the line of each; ``costs``
+    (skip, spare, beyond, unexplained) px; the prior as
+    :func:`atris_node.pipeline.identity_kernels.unexplained` takes it."""
     k_count, m_count = lo.size, peaks.shape[0]
     column = np.empty(m_count, dtype=np.int64)
     spare = np.zeros(m_count)
@@ -180,17 +178,6 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         if has_prior:
             best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
                                                    ground_range_m, image_order, z)
-        _read_forward(k_count, m, column, lo, hi, ref[:, c], beyond, costs, spare, f, other)
-        cheapest = f[k_count, m]
-        if has_prior:
-            cheapest += costs[3] * _unexplained_column(_by_line(other, order, line_rows), c,
-                                                       cot_alpha, geometry, ground_range_m,
-                                                       image_order, z)
-        if adopt and cheapest + margin <= best:
-            best = cheapest
-            for k in range(k_count):
-                image[k] = other[k]
-                rows[order[k], c] = other[k]
         owner[:] = -1
         for k in range(k_count):
             if image[k] >= 0:
@@ -198,7 +185,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         for i in range(m):
             if owner[i] < 0:
                 continue
-            for j in range(k_count):
+            for j in range(k_count - 1, -1, -1):  # the lowest line first: the nearest
                 if j == owner[i] or not lo[j] <= column[i] < hi[j]:
                     continue
                 through = f[j, i] + _match(j, column[i], lo, hi, ref[:, c], beyond,
@@ -216,7 +203,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         _by_line(other, order, line_rows), c, cot_alpha, geometry,
                         ground_range_m, image_order, z)
                 if through < best + margin:
-                    ambiguous[order[owner[i]], c] = True
+                    ambiguous[order[owner[i]], c] = order[max(j, owner[i])]
                     break
 
 

@@ -3,21 +3,30 @@
 A sector is one of three things (:class:`atris_node.types.SectorState`):
 
 - VALID, at the *nearest credible* distance: walking its obstacle points from the nearest
-  outwards, the first range r whose window ``[r, r + max(CLUSTER_REL·r, CLUSTER_ABS_M)]``
-  holds at least ``min_points`` points from more than one line or from at least
-  MIN_COLUMNS columns (independent evidence: one lone stripe segment can be a wrong
-  identity, a lone noise peak never gets that far). The distance is the median of the
-  first ``min_points`` points of that window, its σ the larger of their spread and their
-  median triangulation σ. A thin pole or a sliver at a sector edge is reported by the
-  sector its points fall in; nothing nearer is outvoted by a wall behind it.
+  outwards, the first range r whose window ``[r, r + max(CLUSTER_REL·r, CLUSTER_ABS_M,
+  SPREAD_SIGMAS·σ)]`` holds at least ``min_points`` points from more than one line, or
+  from one line over SLIVER_COLUMNS·min_points columns (independent evidence: a short run
+  of one line is what a wrong identity looks like). The distance is the lower quartile
+  of the window (its front, on a slanted surface), or, when the window is no wider than
+  its triangulation noise, the median of the points within that noise of the window's
+  median (moved twice: the window opened on the surface's near tail); its σ the standard
+  error (spread or triangulation
+  σ over √n).
+  A thin pole at a sector edge is reported by the sector its points fall in; nothing
+  nearer is outvoted by a wall behind it. When ``min_points`` or more obstacle points lie
+  nearer than the credible cluster without being credible themselves (a sliver, a short
+  run of a doubtful identity), the sector is INVALID: they may be the nearest obstacle.
 - NO_RETURN (free up to z_max) only when it is earned: no obstacle point, no ambiguous,
   lone, dropped or saturated sample in its columns, no foreign light, and every line that
   meets the ground within z_max was seen in every one of its columns (on the ground,
   where the obstacle-free scene puts it). A line that would be missing where it is
   expected means something may stand there unseen (too dark, too thin, an ambiguous
   stripe): the sector is INVALID.
-- INVALID otherwise, and always when the sector holds an ambiguous sample: a sample
-  whose line could not be told may be the nearest obstacle.
+- INVALID otherwise, and whenever a peak whose line could not be told may stand as near
+  as the distance found: its nearest hypothesis, triangulated, is not farther than
+  d + max(DOUBT_REL·d, DOUBT_ABS_M). It may be the nearest obstacle, and the cluster
+  found may be the same kind of guess (a comb taken one line off next to columns where
+  the two identities tie). Ambiguity farther away leaves the distance standing.
 """
 
 from __future__ import annotations
@@ -40,8 +49,17 @@ CLUSTER_REL = 0.03
 CLUSTER_ABS_M = 0.05
 #: the median SNR, in units of snr_min, at which the SNR no longer lowers the confidence
 SNR_FULL = 1.5
-#: columns a single line must cover to count as independent evidence
-MIN_COLUMNS = 3
+#: the distance is this quantile of the ranges in the credible window (the window spans a
+#: slanted surface's depth as well as its noise: its near part is the obstacle's front)
+WINDOW_QUANTILE = 0.25
+#: an ambiguous peak whose nearest hypothesis lies within max(DOUBT_REL·d, DOUBT_ABS_M)
+#: beyond the distance d found (or nearer) makes the sector INVALID
+DOUBT_REL = 0.10
+DOUBT_ABS_M = 0.20
+#: a cluster window is at least this many triangulation σ of its first point wide
+SPREAD_SIGMAS = 2.0
+#: a cluster from one line must cover SLIVER_COLUMNS·min_points columns
+SLIVER_COLUMNS = 3
 
 
 @dataclass(frozen=True)
@@ -80,65 +98,138 @@ class ColumnEvidence:
                            minlength=sectors).astype(np.int64)
 
 
+@dataclass(frozen=True)
+class Credible:
+    """The nearest credible cluster of a sector: ``distance_m`` (lower quartile of its
+    points' ranges), ``sigma_m`` (standard error, m), ``support`` (its points) and
+    ``nearer`` (obstacle points nearer than it that are not credible themselves)."""
+
+    distance_m: float
+    sigma_m: float
+    support: int
+    nearer: int
+
+
 def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
-                     ) -> tuple[float, float, int] | None:
-    """(distance m, σ m, supporting points) of the nearest credible cluster among the
-    obstacle points selected by ``mine`` (see the module docstring), None when none."""
+                     ) -> Credible | None:
+    """The nearest credible cluster among the obstacle points selected by ``mine`` (see the
+    module docstring), None when there is none.
+
+    The window from a point spans max(CLUSTER_REL·r, CLUSTER_ABS_M, SPREAD_SIGMAS·σ) in
+    range, σ the point's triangulation σ (a far, noisy surface is one cluster, not its
+    nearest noise)."""
     idx = np.flatnonzero(mine)
     if idx.size < min_points:
         return None
     idx = idx[np.argsort(points.range_m[idx], kind="stable")]
     r = points.range_m[idx]
-    ends = np.searchsorted(r, r + np.maximum(CLUSTER_REL * r, CLUSTER_ABS_M), side="right")
+    width = np.maximum(np.maximum(CLUSTER_REL * r, CLUSTER_ABS_M),
+                       SPREAD_SIGMAS * points.sigma_m[idx])
+    ends = np.searchsorted(r, r + width, side="right")
     for i in np.flatnonzero(ends - np.arange(r.size) >= min_points):
         window = idx[i:ends[i]]
-        if _independent(points, window):
-            first = window[np.argsort(points.range_m[window], kind="stable")[:min_points]]
-            distance = float(np.median(points.range_m[first]))
-            sigma = max(float(np.std(points.range_m[first])),
-                        float(np.median(points.sigma_m[first])))
-            return distance, sigma, int(window.size)
+        if _independent(points, window, min_points):
+            ranges = points.range_m[window]
+            noise = float(np.median(points.sigma_m[window]))
+            if SPREAD_SIGMAS * noise >= width[i]:  # the window opened on a noise tail
+                window = idx[_centred(r, float(np.median(ranges)), SPREAD_SIGMAS * noise)]
+                ranges = points.range_m[window]
+            distance = max(_front(points, window, min_points), float(r[i]))
+            spread = max(float(np.std(ranges)), noise)
+            return Credible(distance, spread / np.sqrt(ranges.size), int(ranges.size),
+                            int(i))
     return None
 
 
-def _independent(points: ObstaclePoints, window: IntArray) -> bool:
-    """True when the points come from more than one line, or from MIN_COLUMNS columns."""
+def _centred(r: FloatArray, centre: float, half_width: float) -> BoolArray:
+    """Mask of the ranges ``r`` within ``half_width`` of a centre moved twice to their
+    median: the whole noisy surface, where a window opened at its nearest point sits on
+    its near tail."""
+    for _ in range(2):
+        centre = float(np.median(r[np.abs(r - centre) <= half_width]))
+    return np.asarray(np.abs(r - centre) <= half_width)
+
+
+def _front(points: ObstaclePoints, window: IntArray, min_points: int) -> float:
+    """The nearest range (m) of the surface the ``window`` points lie on: per line with at
+    least ``min_points`` of them, the least of a straight fit of range against column at
+    the line's first and last column (a slanted surface keeps its slant, the noise is
+    averaged out; a slope within twice its standard error counts as flat, and the mean
+    is taken); the window's lower quartile when no line has that many."""
+    best = np.inf
+    for line in np.unique(points.line[window]):
+        mine = window[points.line[window] == line]
+        cols = points.column[mine].astype(np.float64)
+        if mine.size < min_points or np.ptp(cols) == 0:
+            continue
+        best = min(best, _line_front(cols, points.range_m[mine]))
+    if np.isfinite(best):
+        return best
+    return float(np.quantile(points.range_m[window], WINDOW_QUANTILE))
+
+
+def _line_front(cols: FloatArray, ranges: FloatArray) -> float:
+    """Least range (m) of a straight fit of ``ranges`` against ``cols`` over their span,
+    or their mean when the slope is not significant (within 2 standard errors)."""
+    dc = cols - cols.mean()
+    slope = float(dc @ (ranges - ranges.mean()) / (dc @ dc))
+    residual = ranges - ranges.mean() - slope * dc
+    error = float(np.sqrt((residual @ residual) / max(ranges.size - 2, 1) / (dc @ dc)))
+    if abs(slope) <= 2.0 * error:
+        return float(ranges.mean())
+    return float(ranges.mean() + slope * (dc.min() if slope > 0 else dc.max()))
+
+
+def _independent(points: ObstaclePoints, window: IntArray, min_points: int) -> bool:
+    """True when the points come from more than one line, or from one line over at least
+    SLIVER_COLUMNS·min_points columns: a short run of one line is what a wrong identity
+    looks like."""
     return bool(np.unique(points.line[window]).size > 1
-                or np.unique(points.column[window]).size >= MIN_COLUMNS)
+                or np.unique(points.column[window]).size >= SLIVER_COLUMNS * min_points)
 
 
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
-                    settings: SectorSettings) -> tuple[SectorDistance, ...]:
-    """One :class:`SectorDistance` per sector of ``layout`` (index 0 at the right edge)."""
+                    settings: SectorSettings, doubt_m: FloatArray | None = None
+                    ) -> tuple[SectorDistance, ...]:
+    """One :class:`SectorDistance` per sector of ``layout`` (index 0 at the right edge).
+    ``doubt_m`` (S,) is the nearest range (m) an ambiguous peak may stand for in each
+    sector (inf: none; None: every ambiguous peak may stand for anything)."""
     count = layout.count
     ambiguous = evidence.per_sector(evidence.ambiguous, count)
     doubtful = evidence.per_sector(evidence.doubtful + evidence.missing, count)
+    if doubt_m is None:
+        doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
     return tuple(_verdict(s, points, layout, settings, ambiguous=int(ambiguous[s]),
-                          doubtful=int(doubtful[s])) for s in range(count))
+                          doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]))
+                 for s in range(count))
 
 
 def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: SectorSettings,
-             *, ambiguous: int, doubtful: int) -> SectorDistance:
+             *, ambiguous: int, doubtful: int, doubt_m: float) -> SectorDistance:
     bearing = layout.bearing_of(s)
     in_sector = points.sector == s
     samples = int(in_sector.sum())
-    if ambiguous or samples < settings.min_points:
+    if samples < settings.min_points:
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=samples)
     hits = in_sector & points.obstacle
     snr = float(np.median(points.snr[hits if hits.any() else in_sector]))
     if not hits.any():
         conf = _confidence(samples, snr, settings)
-        free = doubtful == 0 and conf >= settings.min_confidence
+        free = ambiguous == 0 and doubtful == 0 and conf >= settings.min_confidence
         return SectorDistance(s, bearing, SectorState.NO_RETURN if free else
                               SectorState.INVALID, 0.0, conf, samples)
     found = nearest_credible(points, hits, settings.min_points)
-    if found is None:
+    if found is None or found.nearer >= settings.min_points or doubt_m < (
+            found.distance_m + max(DOUBT_REL * found.distance_m, DOUBT_ABS_M)):
+        # nothing credible, or something nearer that is not credible, or a peak whose
+        # line could not be told may stand as near (the cluster found may be one such
+        # guess itself): no distance
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=int(hits.sum()))
-    distance, sigma, support = found
     conf = _confidence(int(hits.sum()), snr, settings)
     if conf < settings.min_confidence:
-        return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, support)
-    return SectorDistance(s, bearing, SectorState.VALID, distance, conf, support, sigma)
+        return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
+    return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,
+                          found.support, found.sigma_m)
 
 
 def _confidence(count: int, median_snr: float, settings: SectorSettings) -> float:
