@@ -11,7 +11,10 @@ quantile sectors, no rival test), scored by the same bench, gave indoor_lab 75 %
 and window_sun 2 near phantoms in 4 maps; with the rival test but without the identity
 made again without the weak peaks (rivals.robust_identity) window_sun had 4 near
 phantoms (0.99 m for 1.58 m); with the single-line credibility and the nearer-points rule
-of verdicts.py taken out, fleet had one (1.22 m for 2.81 m).
+of verdicts.py taken out, fleet had one (1.22 m for 2.81 m). On the 17 stress scenes
+(launch/scenes/stress) the code of 974fd91 gave 29 near phantoms, 4 far and 4 false free
+sector-frames in 4 maps each (dark_box_before_wall 20 phantoms, pole_16cm_far 4 far,
+approach_6mps 3 false free); this code none.
 """
 
 from __future__ import annotations
@@ -48,7 +51,10 @@ def _assert_never_wrong(row: dict) -> None:
 
 #: scenes the pipeline does not yet get right, and what they still do (strict expected
 #: failures: a scene that starts passing fails here until it is taken off)
-KNOWN_WRONG: dict[str, str] = {}
+KNOWN_WRONG: dict[str, str] = {
+    "pole_16cm_far": "94.7 % accurate: the building at the left edge reads 8.64 m for 8.92 m "
+                     "(3.2 %, 3.3 standard errors) in one map of four",
+}
 
 
 def _scenes(names: list[str]) -> list:

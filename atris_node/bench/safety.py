@@ -36,7 +36,7 @@ import numpy as np
 from atris_node.codes import walsh_chips
 from atris_node.demod import BlockDemodulator
 from atris_node.pipeline.sectors import SectorLayout
-from atris_node.sim import Simulator, load_scene, shipped_scenes
+from atris_node.sim import Simulator, load_scene, shipped_scenes, stress_scenes
 from atris_node.types import Measurement, SectorDistance, SectorState
 
 logger = logging.getLogger(__name__)
@@ -186,10 +186,8 @@ def _mounting(sim: Simulator) -> Any:
 
 
 def stress_names() -> list[str]:
-    """The stress scenes, when the simulator ships them."""
-    from atris_node import sim
-
-    return list(getattr(sim, "stress_scenes", lambda: [])())
+    """The stress scenes (launch/scenes/stress)."""
+    return stress_scenes()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

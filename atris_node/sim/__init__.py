@@ -12,8 +12,8 @@ Modules: ``scene`` (TOML loading and validation), ``raycast`` (shapes), ``optics
 from __future__ import annotations
 
 from atris_node.sim.render import Simulator, Source
-from atris_node.sim.scene import LinePattern, Scene, load_scene, shipped_scenes
+from atris_node.sim.scene import LinePattern, Scene, load_scene, shipped_scenes, stress_scenes
 from atris_node.sim.truth import Truth
 
 __all__ = ["LinePattern", "Scene", "Simulator", "Source", "Truth", "load_scene",
-           "shipped_scenes"]
+           "shipped_scenes", "stress_scenes"]

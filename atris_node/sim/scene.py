@@ -321,6 +321,10 @@ def parse_scene(data: dict[str, Any], name: str = "scene", path: Path | None = N
                  code_row=code["row"], path=path)
 
 
+#: sub-folder of a scene folder holding the stress scenes
+STRESS = "stress"
+
+
 def scene_dirs() -> list[Path]:
     """Folders searched for shipped scene names, in order."""
     package_parent = Path(__file__).resolve().parents[2]
@@ -335,6 +339,13 @@ def shipped_scenes() -> list[str]:
     return sorted({p.stem for d in scene_dirs() if d.is_dir() for p in d.glob("*.toml")})
 
 
+def stress_scenes() -> list[str]:
+    """Names of the stress scenes (the ``stress`` folder of :func:`scene_dirs`): hard cases
+    stated from the physics (docs/scenes.md), loadable by name like the shipped ones."""
+    return sorted({p.stem for d in scene_dirs() if (d / STRESS).is_dir()
+                   for p in (d / STRESS).glob("*.toml")})
+
+
 def resolve_scene(path_or_name: str | Path) -> Path:
     """The file of a scene given as a path or a shipped name; raises ConfigError."""
     text = str(path_or_name)
@@ -344,8 +355,9 @@ def resolve_scene(path_or_name: str | Path) -> Path:
             raise ConfigError(f"scene file {path} does not exist")
         return path
     for folder in scene_dirs():
-        if (folder / f"{text}.toml").is_file():
-            return folder / f"{text}.toml"
+        for where in (folder, folder / STRESS):
+            if (where / f"{text}.toml").is_file():
+                return where / f"{text}.toml"
     raise ConfigError(f"no scene named {text!r}; shipped: {', '.join(shipped_scenes())}")
 
 
