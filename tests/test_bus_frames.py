@@ -224,3 +224,24 @@ def test_fuzz_monitor_never_crashes(frames: list[tuple[int, bytes, bool]]) -> No
         monitor.feed(can.Message(arbitration_id=arbitration_id, data=data, timestamp=0.01 * i,
                                  is_extended_id=arbitration_id > 0x7FF, is_error_frame=error))
     assert isinstance(render_table(monitor.snapshot()), str)
+
+
+def test_dbc_documents_free_and_unknown_sector_states() -> None:
+    """A plain cantools user tells free (NO_RETURN) from unknown (INVALID) in a Sectors
+    frame from the DBC's value table alone, for every unit and every sector slot."""
+    db = cantools.database.load_string(dbc_text(), database_format="dbc")
+    sectors = (SectorDistance(0, 0.0, SectorState.NO_RETURN, 0.0, 0.5),
+               SectorDistance(1, 0.0, SectorState.INVALID),
+               SectorDistance(2, 0.0, SectorState.VALID, 1.5, 0.9))
+    frames = payloads.sectors_signals(sectors, 3, usable=True)
+    decoded = [db.decode_message(m.arbitration_id, bytes(m.data)) for m in (
+        FrameCodec().encode("Atris4_Sectors", signals, i, scaling=False)
+        for i, signals in enumerate(frames))]
+    assert str(decoded[0]["Distance0"]) == "no_return"  # sector 0
+    assert str(decoded[0]["Distance1"]) == "invalid"  # sector 1
+    assert decoded[1]["SectorIndex"] == 2 and decoded[1]["Distance0"] == pytest.approx(1.5)
+    for message in db.messages:
+        for signal in message.signals:
+            if signal.name.startswith("Distance"):
+                names = {str(v) for v in (signal.choices or {}).values()}
+                assert {"no_return", "invalid"} <= names, (message.name, signal.name)

@@ -20,7 +20,15 @@ def test_feature_sim_json_has_measured_and_true_sectors(
     record = records[0]
     assert (record["first_sequence"], record["last_sequence"]) == (0, 15)
     assert len(record["sectors"]) == 8
-    assert all({"distance_m", "truth_m"} <= set(s) for s in record["sectors"])
+    keys = {"state", "distance_m", "sigma_m", "confidence", "truth_m"}
+    assert all(keys <= set(s) for s in record["sectors"])
+    for s in record["sectors"]:
+        assert s["state"] in ("VALID", "NO_RETURN", "INVALID")
+        assert (s["distance_m"] is None) == (s["state"] != "VALID")  # null unless VALID
+        assert (s["sigma_m"] is None) == (s["state"] != "VALID")
+    assert {"nearest_m", "closing_speed_mps", "ttc_s", "interference", "ambiguous_samples",
+            "pipeline_ms"} <= set(record)
+    assert record["interference"] is False and record["pipeline_ms"] > 0
     assert record["sectors"][3]["truth_m"] == pytest.approx(3.0, abs=0.01)
     assert record["truth_line_samples"] > 1000 and record["line_samples"] > 0
     plain = cv2.imread(str(tmp_path / "0000_plain.png"), cv2.IMREAD_UNCHANGED)
@@ -34,6 +42,18 @@ def test_feature_sim_text_output_and_scene_path(capsys: pytest.CaptureFixture[st
     assert main(["sim", str(scene), "--frames", "1", "--sectors", "4"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("frame 0:") and out.count("/") >= 4
+
+
+def test_feature_sim_text_tells_free_from_unknown() -> None:
+    """NO_RETURN prints "free", INVALID "?", never a number or a dash for either."""
+    from atris_node.cli.sim import _text
+
+    sectors = [{"state": "NO_RETURN", "distance_m": None, "truth_m": None},
+               {"state": "INVALID", "distance_m": None, "truth_m": 2.0},
+               {"state": "VALID", "distance_m": 1.5, "truth_m": 1.5}]
+    line = _text({"frame": 0, "line_samples": 1, "line_row_error_px": 0.0,
+                  "sectors": sectors})
+    assert " free/  -  " in line and "  ?  / 2.00" in line and " 1.50/ 1.50" in line
 
 
 def test_exception_sim_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:

@@ -76,9 +76,29 @@ def _sectors(result: Any, truth: Any, layout: SectorLayout) -> list[dict[str, An
         valid = sector is not None and sector.state == SectorState.VALID
         rows.append({"index": index,
                      "bearing_deg": round(math.degrees(layout.bearing_of(index)), 3),
+                     "state": sector.state.name if sector is not None else None,
                      "distance_m": round(sector.distance_m, 4) if valid and sector else None,
+                     "sigma_m": round(sector.sigma_m, 4) if valid and sector else None,
+                     "confidence": round(sector.confidence, 3) if sector else None,
                      "truth_m": None if true_m is None else round(true_m, 4)})
     return rows
+
+
+def _map_fields(result: Any) -> dict[str, Any]:
+    """The per-map keys of the JSON record (None where the chain did not run)."""
+    if result is None:
+        return dict.fromkeys(("nearest_m", "closing_speed_mps", "ttc_s", "interference",
+                              "ambiguous_samples", "pipeline_ms"))
+    m, d = result.measurement, result.diagnostics
+    return {"nearest_m": None if m.nearest is None else round(m.nearest.distance_m, 4),
+            "closing_speed_mps": _rounded(m.closing_speed_mps, 3),
+            "ttc_s": _rounded(m.time_to_collision_s, 3),
+            "interference": bool(d.interference), "ambiguous_samples": int(d.ambiguous),
+            "pipeline_ms": round(d.timings_ms.get("total", 0.0), 3)}
+
+
+def _rounded(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(value, digits)
 
 
 def _row_error(result: Any, truth: Any) -> float | None:
@@ -104,6 +124,7 @@ def frame_record(frame: int, scene: str, dmap: DistortionMap, result: Any, truth
             "line_samples": 0 if result is None else len(result.samples),
             "truth_line_samples": int(truth.line_visible.sum()),
             "line_row_error_px": _row_error(result, truth),
+            **_map_fields(result),
             "sectors": _sectors(result, truth, layout)}
 
 
@@ -149,8 +170,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _text(record: dict[str, Any]) -> str:
+    """One line per map: each sector as measured/true metres, ``free`` for NO_RETURN and
+    ``  ?  `` for INVALID (unknown: never free)."""
     def fmt(v: float | None) -> str:
         return "  -  " if v is None else f"{v:5.2f}"
-    sectors = " ".join(f"{fmt(s['distance_m'])}/{fmt(s['truth_m'])}" for s in record["sectors"])
+
+    def measured(s: dict[str, Any]) -> str:
+        return {"NO_RETURN": " free", "INVALID": "  ?  "}.get(s["state"] or "",
+                                                                fmt(s["distance_m"]))
+    sectors = " ".join(f"{measured(s)}/{fmt(s['truth_m'])}" for s in record["sectors"])
     return (f"frame {record['frame']}: {record['line_samples']} samples, "
-            f"row error {record['line_row_error_px']} px; measured/true m: {sectors}")
+            f"row error {record['line_row_error_px']} px; measured/true m "
+            f"(? unknown): {sectors}")
