@@ -23,7 +23,13 @@ import numpy.typing as npt
 from atris_node.calibration import Calibration
 from atris_node.errors import ConfigError, check_setting
 from atris_node.mounting import Mounting
-from atris_node.pipeline import identity_kernels, obstacles_kernels, peaks_kernels
+from atris_node.pipeline import (
+    identity_kernels,
+    obstacles_kernels,
+    peaks_kernels,
+    rivals,
+    verdicts_kernels,
+)
 from atris_node.pipeline import objects as objects_mod
 from atris_node.pipeline.bands import Band, line_bands
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
@@ -264,7 +270,8 @@ class Pipeline:
         self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
-        for kernels in (peaks_kernels, identity_kernels, obstacles_kernels):
+        for kernels in (peaks_kernels, identity_kernels, obstacles_kernels, rivals,
+                        verdicts_kernels):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
 

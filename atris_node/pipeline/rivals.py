@@ -63,7 +63,7 @@ LONE_STEP_PX = 6
 #: continuity comes from anchored columns at most this many columns away
 CONTINUITY_REACH = 16
 #: rounds of the continuity pass (a resolved column anchors the next round)
-CONTINUITY_ROUNDS = 8
+CONTINUITY_ROUNDS = 3
 
 
 def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
@@ -187,9 +187,7 @@ def _unique(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     rows, nearest = unique_identity(peaks, bands, first, prior)
     k, c = np.nonzero(nearest >= 0)
     rivalled = (first[k, c], c.astype(np.int64), nearest[k, c])
-    placed = np.zeros(peaks.shape, dtype=np.bool_)
-    for line_rows in rows:
-        placed |= (peaks == line_rows[None, :]) & (line_rows[None, :] >= 0)
+    placed = ((peaks[None, :, :] == rows[:, None, :]) & (rows[:, None, :] >= 0)).any(axis=0)
     unplaced = (peaks >= 0) & ~placed & (unsure > 0)[None, :]
     unplaced &= ~_is_rivalled(peaks, rivalled)
     i, j = np.nonzero(unplaced)
@@ -205,8 +203,8 @@ def _is_rivalled(peaks: IntArray, rivalled: tuple[IntArray, IntArray, IntArray]
     """(M, W) True at the peaks listed in ``rivalled`` (rows, columns, lines)."""
     out = np.zeros(peaks.shape, dtype=np.bool_)
     row, col, _ = rivalled
-    for r, c in zip(row.tolist(), col.tolist(), strict=True):
-        out[:, c] |= peaks[:, c] == r
+    m, n = np.nonzero(peaks[:, col] == row[None, :])
+    out[m, col[n]] = True
     return out
 
 

@@ -171,13 +171,20 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     owner = np.empty(m_count, dtype=np.int64)
     for c in columns:
         m = _sorted_peaks(peaks[:, c], column)
-        _tables(column, m, lo, hi, ref[:, c], beyond, costs, spare, f, g)
+        for i in range(m):
+            spare[i] = costs[1] if _in_any(column[i], lo, hi) else 0.0
         for k in range(k_count):
             image[k] = rows[order[k], c]
         best = _chosen_cost(image, column, m, lo, hi, ref[:, c], beyond, costs, spare)
+        if best == 0.0 and costs[0] + costs[1] >= margin:
+            # every line holds a peak in its band, no peak in a band is left over, nothing
+            # past z_max, no continuity cost: another order-preserving assignment must skip
+            # a line and leave a peak over, which costs more than the margin
+            continue
         if has_prior:
             best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
                                                    ground_range_m, image_order, z)
+        _tables(column, m, lo, hi, ref[:, c], beyond, costs, spare, f, g)
         owner[:] = -1
         for k in range(k_count):
             if image[k] >= 0:

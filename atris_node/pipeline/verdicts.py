@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from atris_node.pipeline import verdicts_kernels
 from atris_node.pipeline.obstacles import SectorSettings
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import SectorDistance, SectorState
@@ -60,6 +61,9 @@ DOUBT_ABS_M = 0.20
 SPREAD_SIGMAS = 2.0
 #: a cluster from one line must cover SLIVER_COLUMNS·min_points columns
 SLIVER_COLUMNS = 3
+#: the constants as the kernel takes them
+_PARAMS = np.array([CLUSTER_REL, CLUSTER_ABS_M, SPREAD_SIGMAS, SLIVER_COLUMNS,
+                    WINDOW_QUANTILE])
 
 
 @dataclass(frozen=True)
@@ -116,76 +120,26 @@ def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
     module docstring), None when there is none.
 
     The window from a point spans max(CLUSTER_REL·r, CLUSTER_ABS_M, SPREAD_SIGMAS·σ) in
-    range, σ the point's triangulation σ (a far, noisy surface is one cluster, not its
-    nearest noise)."""
+    range, σ the point's triangulation σ. When the window is no wider than its noise, it
+    opened on a noisy surface's near tail: the points within that noise of the window's
+    median (moved twice to the median) are the surface. Its front is the least, over the
+    lines with ``min_points`` points, of a straight fit of range against column at the
+    line's first or last column (a slope within two standard errors counts as flat: the
+    mean), or its lower quartile when no line has that many; never nearer than the
+    window's first point. The loop is compiled
+    (:func:`atris_node.pipeline.verdicts_kernels.credible`)."""
     idx = np.flatnonzero(mine)
     if idx.size < min_points:
         return None
     idx = idx[np.argsort(points.range_m[idx], kind="stable")]
-    r = points.range_m[idx]
-    width = np.maximum(np.maximum(CLUSTER_REL * r, CLUSTER_ABS_M),
-                       SPREAD_SIGMAS * points.sigma_m[idx])
-    ends = np.searchsorted(r, r + width, side="right")
-    for i in np.flatnonzero(ends - np.arange(r.size) >= min_points):
-        window = idx[i:ends[i]]
-        if _independent(points, window, min_points):
-            ranges = points.range_m[window]
-            noise = float(np.median(points.sigma_m[window]))
-            if SPREAD_SIGMAS * noise >= width[i]:  # the window opened on a noise tail
-                window = idx[_centred(r, float(np.median(ranges)), SPREAD_SIGMAS * noise)]
-                ranges = points.range_m[window]
-            distance = max(_front(points, window, min_points), float(r[i]))
-            spread = max(float(np.std(ranges)), noise)
-            return Credible(distance, spread / np.sqrt(ranges.size), int(ranges.size),
-                            int(i))
-    return None
-
-
-def _centred(r: FloatArray, centre: float, half_width: float) -> BoolArray:
-    """Mask of the ranges ``r`` within ``half_width`` of a centre moved twice to their
-    median: the whole noisy surface, where a window opened at its nearest point sits on
-    its near tail."""
-    for _ in range(2):
-        centre = float(np.median(r[np.abs(r - centre) <= half_width]))
-    return np.asarray(np.abs(r - centre) <= half_width)
-
-
-def _front(points: ObstaclePoints, window: IntArray, min_points: int) -> float:
-    """The nearest range (m) of the surface the ``window`` points lie on: per line with at
-    least ``min_points`` of them, the least of a straight fit of range against column at
-    the line's first and last column (a slanted surface keeps its slant, the noise is
-    averaged out; a slope within twice its standard error counts as flat, and the mean
-    is taken); the window's lower quartile when no line has that many."""
-    best = np.inf
-    for line in np.unique(points.line[window]):
-        mine = window[points.line[window] == line]
-        cols = points.column[mine].astype(np.float64)
-        if mine.size < min_points or np.ptp(cols) == 0:
-            continue
-        best = min(best, _line_front(cols, points.range_m[mine]))
-    if np.isfinite(best):
-        return best
-    return float(np.quantile(points.range_m[window], WINDOW_QUANTILE))
-
-
-def _line_front(cols: FloatArray, ranges: FloatArray) -> float:
-    """Least range (m) of a straight fit of ``ranges`` against ``cols`` over their span,
-    or their mean when the slope is not significant (within 2 standard errors)."""
-    dc = cols - cols.mean()
-    slope = float(dc @ (ranges - ranges.mean()) / (dc @ dc))
-    residual = ranges - ranges.mean() - slope * dc
-    error = float(np.sqrt((residual @ residual) / max(ranges.size - 2, 1) / (dc @ dc)))
-    if abs(slope) <= 2.0 * error:
-        return float(ranges.mean())
-    return float(ranges.mean() + slope * (dc.min() if slope > 0 else dc.max()))
-
-
-def _independent(points: ObstaclePoints, window: IntArray, min_points: int) -> bool:
-    """True when the points come from more than one line, or from one line over at least
-    SLIVER_COLUMNS·min_points columns: a short run of one line is what a wrong identity
-    looks like."""
-    return bool(np.unique(points.line[window]).size > 1
-                or np.unique(points.column[window]).size >= SLIVER_COLUMNS * min_points)
+    width = int(points.column.max()) + 1
+    distance, sigma, support, nearer = verdicts_kernels.credible(
+        np.ascontiguousarray(points.range_m[idx]), np.ascontiguousarray(points.sigma_m[idx]),
+        np.ascontiguousarray(points.line[idx], dtype=np.int64),
+        np.ascontiguousarray(points.column[idx], dtype=np.int64), min_points, width, _PARAMS)
+    if support < 0:
+        return None
+    return Credible(float(distance), float(sigma), int(support), int(nearer))
 
 
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
