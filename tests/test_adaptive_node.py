@@ -72,14 +72,22 @@ def steps(unit: Unit, count: int) -> None:
         unit.check()
 
 
+#: wall-clock floor of steps_until, s: the negotiation windows are wall time
+WALL_FLOOR_S = 20.0
+
+
 def steps_until(unit: Unit, done: Any, most: int) -> None:
-    """Step until ``done()`` (sub-frame budget ``most``; dark negotiation windows are wall
-    time, so the sub-frames a change takes vary with the machine's load)."""
-    for _ in range(most):
+    """Step until ``done()``: at least ``most`` sub-frames and at least WALL_FLOOR_S of
+    wall clock (dark negotiation windows are wall time, so the sub-frames a change takes
+    vary with the machine's load and with the cost of a map: a fixed sub-frame budget
+    failed once when the sub-frames ran faster than the contest window)."""
+    start, steps = time.monotonic(), 0
+    while steps < most or time.monotonic() - start < WALL_FLOOR_S:
         if done():
             return
         unit.step()
         unit.check()
+        steps += 1
     assert done(), unit.status()
 
 
