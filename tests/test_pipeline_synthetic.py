@@ -151,7 +151,7 @@ def test_objects_and_export_run_only_when_enabled(tmp_path: Path,
 
 
 @pytest.mark.parametrize(("field", "value"), [
-    ("peak_method", "centroid"), ("z_min_m", 20.0), ("quantile", 0.9), ("min_points", 0),
+    ("peak_method", "centroid"), ("z_min_m", 20.0), ("min_confidence", 1.5), ("min_points", 0),
     ("ground_plane", "magic"), ("snr_min", 0.0), ("sigma_u_px", -1.0)])
 def test_bad_settings_are_config_errors_naming_the_field(field: str, value: object) -> None:
     with pytest.raises(ConfigError, match=field):

@@ -19,7 +19,7 @@ from atris_node.pipeline.verdicts import (
 from atris_node.types import SectorState
 
 LAYOUT = SectorLayout(2, math.radians(70.0))
-SETTINGS = SectorSettings(min_points=5, quantile=0.1, min_confidence=0.6, snr_min=6.0)
+SETTINGS = SectorSettings(min_points=5, min_confidence=0.6, snr_min=6.0)
 WIDTH = 64
 
 
@@ -138,3 +138,18 @@ def test_feature_valid_distance_carries_sigma() -> None:
     assert out[0].state is SectorState.VALID
     assert 0.0 < out[0].sigma_m < 0.2 and math.isfinite(out[0].sigma_m)
     assert out[1].state is SectorState.INVALID and out[1].sigma_m == 0.0
+
+
+def test_feature_few_or_weak_points_lower_confidence_to_invalid() -> None:
+    """Six wall points (a credible cluster, but 6 of the 15 that give full confidence)
+    are not trusted with a distance; 300 are. Peaks below snr_min (which the extraction
+    never lets through) would lower it too."""
+    few = _wall(n=6)
+    assert sector_verdicts(few, _evidence(), LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    faint = _wall()
+    faint = ObstaclePoints(faint.range_m, faint.sector, faint.obstacle, faint.line,
+                           faint.column, faint.sigma_m, np.full(faint.snr.size, 4.0))
+    assert sector_verdicts(faint, _evidence(), LAYOUT, SETTINGS)[0].state is (
+        SectorState.INVALID)
+    assert sector_verdicts(_wall(), _evidence(), LAYOUT, SETTINGS)[0].state is (
+        SectorState.VALID)

@@ -25,13 +25,13 @@ from atris_node.errors import ConfigError, check_setting
 from atris_node.mounting import Mounting
 from atris_node.pipeline import (
     identity_kernels,
-    obstacles_kernels,
     peaks_kernels,
     rivals,
     verdicts_kernels,
 )
 from atris_node.pipeline import objects as objects_mod
 from atris_node.pipeline.bands import Band, line_bands
+from atris_node.pipeline.evidence import SectorJudge, samples_per_column, sized
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import (
@@ -55,7 +55,6 @@ from atris_node.pipeline.peaks import (
 )
 from atris_node.pipeline.roi import RoiSettings, RoiTracker
 from atris_node.pipeline.sectors import SectorLayout
-from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import (
     DistortionMap,
     FaultBits,
@@ -87,7 +86,6 @@ class PipelineConfig:
     sector_count: int = 8
     fov_deg: float = 70.0
     min_points: int = 5
-    quantile: float = 0.1
     min_confidence: float = 0.6  # below: INVALID (e.g. only peaks barely above snr_min)
     ground_clearance_m: float = 0.1
     ground_plane: str = "calibrated"
@@ -127,7 +125,6 @@ class PipelineConfig:
         for name in ("sector_count", "min_points", "ground_estimate_every",
                      "object_min_points", "export_every", "smooth_columns", "roi_full_every"):
             _check(getattr(self, name) >= 1, name, getattr(self, name), "an integer >= 1")
-        _check(0.0 <= self.quantile <= 0.5, "quantile", self.quantile, "in [0, 0.5]")
         _check(0.0 <= self.min_confidence <= 1.0, "min_confidence", self.min_confidence,
                "in [0, 1]")
 
@@ -142,7 +139,7 @@ class PipelineConfig:
 
     def sectors(self) -> SectorSettings:
         """The sector part of the configuration."""
-        return SectorSettings(self.min_points, self.quantile, self.min_confidence,
+        return SectorSettings(self.min_points, self.min_confidence,
                               self.snr_min)
 
 
@@ -265,13 +262,12 @@ class Pipeline:
         self._prior = visibility_prior(calibration, mounting, self._ground, config)
         self._counter = 0
         self._width = cam.width_px
-        self._column_sector = self._sectors_by_column()
-        self._expected = self._expected_on_ground()
+        self._judge = SectorJudge(calibration, mounting, layout, self._sectors,
+                                  (config.z_min_m, config.z_max_m))
         self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
-        for kernels in (peaks_kernels, identity_kernels, obstacles_kernels, rivals,
-                        verdicts_kernels):
+        for kernels in (peaks_kernels, identity_kernels, rivals, verdicts_kernels):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
 
@@ -283,10 +279,10 @@ class Pipeline:
         extraction, whole = self._extract(dmap)
         timings["lines"] = _lap(start)
         samples = self._clean_samples(extraction.samples)
-        removed = _per_column(extraction.samples, self._width) - _per_column(samples,
-                                                                             self._width)
+        removed = (samples_per_column(extraction.samples, self._width)
+                   - samples_per_column(samples, self._width))
         extraction = replace(extraction, doubtful_columns=(
-            _sized(extraction.doubtful_columns, self._width) + removed))
+            sized(extraction.doubtful_columns, self._width) + removed))
         points, vehicle = self._triangulate(samples)
         timings["triangulate"] = _lap(start)
         self._update_ground(vehicle[points.valid])
@@ -358,11 +354,12 @@ class Pipeline:
             clean[:] = False
         elif flagged:
             clean = ~foreign[samples.col_px.astype(np.int64)]
-            blanked = self._sectors_of_columns(foreign)
+            blanked = self._judge.sectors_of(foreign)
         obstacle = valid & (self._ground.height(vehicle) > self.config.ground_clearance_m)
         data = (SectorInput(vehicle, obstacle, samples.snr) if clean.all() else
                 SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean]))
-        sectors = _blank(self._verdicts(extraction, points, data, clean, foreign), blanked)
+        sectors = _blank(self._judge.judge(extraction, points, data, clean, foreign,
+                                           self._prior), blanked)
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(
             None if nearest is None else nearest.distance_m, dmap.last_time_s)
@@ -373,76 +370,6 @@ class Pipeline:
                                         timings)
         return PipelineResult(measurement, samples, valid, points.xyz_m[valid], vehicle[valid],
                               points.sigma_z_m[valid], diagnostics, found)
-
-    def _verdicts(self, extraction: Extraction, points: Points, data: SectorInput,
-                  clean: BoolArray, foreign: BoolArray) -> tuple[SectorDistance, ...]:
-        """The sector verdicts of :mod:`atris_node.pipeline.verdicts` for the ``clean``
-        samples (``data`` holds them) and the evidence of every column."""
-        samples = extraction.samples
-        sector, range_m = data.placed(self.layout)
-        found = ObstaclePoints(range_m, sector, data.obstacle, samples.line[clean],
-                               samples.col_px[clean].astype(np.int64),
-                               points.sigma_z_m[clean], data.snr)
-        seen = np.zeros(self._expected.shape, dtype=np.bool_)
-        seen[samples.line, samples.col_px.astype(np.int64)] = True
-        saturated = np.bincount(samples.col_px[samples.saturated].astype(np.int64),
-                                minlength=self._width)[:self._width]
-        w = self._width
-        evidence = ColumnEvidence(
-            self._column_sector,
-            doubtful=(_sized(extraction.doubtful_columns, w) + saturated
-                      + foreign.astype(np.int64)),
-            ambiguous=_sized(extraction.ambiguous_columns, w),
-            missing=(self._expected & ~seen).sum(axis=0).astype(np.int64))
-        return sector_verdicts(found, evidence, self.layout, self._sectors,
-                               self._doubt_ranges(extraction.doubts))
-
-    def _doubt_ranges(self, doubts: tuple[npt.NDArray[np.int64], ...]) -> FloatArray:
-        """(S,) per sector the nearest horizontal range (m) an ambiguous peak may stand
-        for (its nearest hypothesis triangulated), inf where none."""
-        row, col, line = doubts
-        out = np.full(self.layout.count, np.inf)
-        if row.size == 0:
-            return out
-        cam = self.calibration.camera
-        u, v = undistort_pixels(row.astype(np.float64), col.astype(np.float64), cam)
-        points = triangulate(u, v, line, cam, self.calibration.laser,
-                             z_max_m=self.config.z_max_m, sigma_u_px=np.zeros(row.size))
-        vehicle = self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))
-        x, y = vehicle[points.valid, 0], vehicle[points.valid, 1]
-        sector = self.layout.index_of(x, y)
-        inside = sector >= 0
-        np.minimum.at(out, sector[inside], self.layout.horizontal_range(x, y)[inside])
-        return out
-
-    def _sectors_by_column(self) -> npt.NDArray[np.int64]:
-        """(W,) the sector each image column looks into (its horizontal ray), -1 outside."""
-        cam = self.calibration.camera
-        v = np.arange(cam.width_px, dtype=np.float64) - cam.cx_px
-        rays = np.stack([v, np.zeros_like(v), np.full_like(v, cam.focal_px)], axis=1)
-        directions = rays @ self.mounting.rotation.T
-        return np.asarray(self.layout.index_of(directions[:, 0], directions[:, 1]),
-                          dtype=np.int64)
-
-    def _expected_on_ground(self) -> BoolArray:
-        """(K, W) True where line k meets the ground within z_max in column c on a row of
-        the image: with nothing standing there, the line is seen there."""
-        prior, cam = self._prior, self.calibration.camera
-        z = prior.ground_range_m
-        cot = np.asarray(prior.cot_alpha)[:, None]
-        with np.errstate(divide="ignore"):
-            row = cam.cy_px + cam.focal_px * cot - cam.focal_px * prior.baseline_m / z
-        return np.asarray((z <= self.config.z_max_m) & (z >= self.config.z_min_m)
-                          & (row >= 0) & (row < cam.height_px))
-
-    def _sectors_of_columns(self, columns: npt.NDArray[np.bool_]) -> set[int]:
-        """Sectors that image columns look into (their horizontal rays, vehicle frame)."""
-        cam = self.calibration.camera
-        v = np.flatnonzero(columns).astype(np.float64) - cam.cx_px
-        rays = np.stack([v, np.zeros_like(v), np.full_like(v, cam.focal_px)], axis=1)
-        directions = rays @ self.mounting.rotation.T
-        index = self.layout.index_of(directions[:, 0], directions[:, 1])
-        return {int(i) for i in index if i >= 0}
 
     def _diagnostics(self, extraction: Extraction, valid: npt.NDArray[np.bool_],
                      foreign: tuple[float, int], timings: dict[str, float]) -> Diagnostics:
@@ -489,16 +416,6 @@ def visibility_prior(calibration: Calibration, mounting: Mounting, ground: Groun
     z = np.where(ok, rise / np.where(ok, slope, -1.0), np.inf)
     return VisibilityPrior(cot, cam.focal_px, cam.cy_px, cam.height_px, laser.baseline_m,
                            config.z_max_m, np.where(z > 0, z, np.inf))
-
-
-def _per_column(samples: LineSamples, width: int) -> npt.NDArray[np.int64]:
-    """(W,) samples per image column."""
-    return np.bincount(samples.col_px.astype(np.int64), minlength=width)[:width]
-
-
-def _sized(counts: npt.NDArray[np.int64], width: int) -> npt.NDArray[np.int64]:
-    """``counts`` (W,) int64, or zeros when an extraction did not fill them."""
-    return counts.astype(np.int64) if counts.size == width else np.zeros(width, np.int64)
 
 
 def _blank(sectors: tuple[SectorDistance, ...], indices: set[int]

@@ -1,16 +1,11 @@
-"""From vehicle-frame points to obstacle distances: ground, sectors, nearest, closing speed.
+"""From vehicle-frame points to what the sectors need: ground, nearest obstacle, closing.
 
 Points are (n, 3) float64 in the vehicle frame (ISO 8855: x forward, y left, z up,
 metres). A point is an *obstacle* when it is a valid return and higher than the ground
-clearance above the ground plane. Per sector (see :mod:`atris_node.pipeline.sectors`):
-
-- VALID: at least ``min_points`` obstacle points and enough confidence; the distance is
-  a low quantile of their horizontal ranges, and never nearer than the ``min_points``-th
-  nearest point (a distance always has ``min_points`` points behind it);
-- NO_RETURN: at least ``min_points`` samples (ground hits or rays with no return within
-  range) and no obstacle point at all: free up to the range limit;
-- INVALID: everything else (too few samples, too few obstacle points to trust, or low
-  confidence). An INVALID sector never carries a distance.
+clearance above the ground plane. The sector verdicts themselves (VALID at the nearest
+credible distance, NO_RETURN only when earned, INVALID otherwise) are made by
+:mod:`atris_node.pipeline.verdicts` from a :class:`SectorInput` and the columns'
+evidence (:mod:`atris_node.pipeline.evidence`).
 """
 
 from __future__ import annotations
@@ -23,7 +18,6 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.errors import ConfigError
-from atris_node.pipeline import obstacles_kernels
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import SectorDistance, SectorState
 
@@ -74,25 +68,23 @@ def estimate_ground(points: FloatArray, previous: GroundPlane, threshold_m: floa
 
 @dataclass(frozen=True)
 class SectorSettings:
-    """How sector distances are made: counts, quantile (0..1), confidence (0..1)."""
+    """How sector verdicts are made (atris_node.pipeline.verdicts): the points a distance
+    needs, the confidence (0..1) it needs, and the peak SNR threshold."""
 
     min_points: int = 5
-    quantile: float = 0.1
     min_confidence: float = 0.2
     snr_min: float = 6.0
 
     def __post_init__(self) -> None:
         if self.min_points < 1:
             raise ConfigError(f"min_points must be >= 1, got {self.min_points}")
-        if not 0.0 <= self.quantile <= 0.5:
-            raise ConfigError(f"quantile must be in [0, 0.5], got {self.quantile}")
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ConfigError(f"min_confidence must be in [0, 1], got {self.min_confidence}")
 
 
 @dataclass(frozen=True)
 class SectorInput:
-    """Per-sample arrays (n,) for :func:`sector_distances`.
+    """Per-sample arrays (n,) for the sector verdicts and :func:`nearest_obstacle`.
 
     ``points`` (n, 3) vehicle frame (for a no-return sample: a point on its ray, used
     for the bearing only); ``obstacle`` True for valid returns above the ground clearance;
@@ -113,52 +105,6 @@ class SectorInput:
             x, y = self.points[:, 0], self.points[:, 1]
             self._placed[layout] = (layout.index_of(x, y), layout.horizontal_range(x, y))
         return self._placed[layout]
-
-
-def _confidence(count: int, median_snr: float, settings: SectorSettings) -> float:
-    """0..1: grows with the point count (full at 3·min_points) and the median SNR (full
-    at 2·snr_min)."""
-    if count == 0:
-        return 0.0
-    by_count = min(1.0, count / (3.0 * settings.min_points))
-    by_snr = min(1.0, median_snr / (2.0 * settings.snr_min))
-    return by_count * by_snr
-
-
-def _sector(index: int, layout: SectorLayout, settings: SectorSettings, *, samples: int,
-            hits: int, median_snr: float, distance_m: float) -> SectorDistance:
-    """One sector from the counts of its samples and obstacle points, the median SNR (of
-    the obstacle points, else of every sample) and its distance (see
-    :func:`atris_node.pipeline.obstacles_kernels.sector_statistics`)."""
-    bearing = layout.bearing_of(index)
-    if samples < settings.min_points:
-        return SectorDistance(index, bearing, SectorState.INVALID, point_count=samples)
-    if hits == 0:
-        conf = _confidence(samples, median_snr, settings)
-        state = SectorState.NO_RETURN if conf >= settings.min_confidence else (
-            SectorState.INVALID)
-        return SectorDistance(index, bearing, state, 0.0, conf, samples)
-    conf = _confidence(hits, median_snr, settings)
-    if hits < settings.min_points or conf < settings.min_confidence:
-        return SectorDistance(index, bearing, SectorState.INVALID, 0.0, conf, hits)
-    return SectorDistance(index, bearing, SectorState.VALID, distance_m, conf, hits)
-
-
-def sector_distances(data: SectorInput, layout: SectorLayout,
-                     settings: SectorSettings) -> tuple[SectorDistance, ...]:
-    """One :class:`SectorDistance` per sector of ``layout``, index 0 at the right edge.
-    The samples are grouped by sector in one compiled pass and each order statistic is
-    read by selection (:func:`atris_node.pipeline.obstacles_kernels.sector_statistics`)."""
-    idx, rng = data.placed(layout)
-    samples, hits, median, distance = obstacles_kernels.sector_statistics(
-        np.ascontiguousarray(idx, dtype=np.int64), np.ascontiguousarray(data.obstacle,
-                                                                        dtype=np.bool_),
-        np.ascontiguousarray(rng, dtype=np.float64),
-        np.ascontiguousarray(data.snr, dtype=np.float64), layout.count, settings.min_points,
-        float(settings.quantile))
-    return tuple(_sector(s, layout, settings, samples=int(samples[s]), hits=int(hits[s]),
-                         median_snr=float(median[s]), distance_m=float(distance[s]))
-                 for s in range(layout.count))
 
 
 def nearest_obstacle(sectors: tuple[SectorDistance, ...], data: SectorInput,

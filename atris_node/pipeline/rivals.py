@@ -258,7 +258,8 @@ def _test(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray], rows: Int
 
 
 def warm_up() -> None:
-    """Type the kernel's arguments once (the first map does not wait for it)."""
+    """Type the kernels' arguments once (the first map does not wait for it)."""
+    rivals_kernels.warm_up()
     band = Band(0, 0, 4)
     unique_identity(np.array([[1], [-1]], dtype=np.int64), (band,),
                     np.array([[1]], dtype=np.int64), None)

@@ -1,9 +1,9 @@
 """Order statistics by selection, for compiled code (numba, ``nopython``).
 
-numpy's quantile and median sort; inside a compiled loop a selection (``np.partition``,
-O(n)) of the one or two order statistics needed is several times faster than numba's
-sort. The interpolation is numpy's own arithmetic, so the results are the same to the bit
-(tests/test_obstacles.py, tests/test_lines_reference.py).
+numpy's median sorts; inside a compiled loop a selection (``np.partition``, O(n)) of the
+one or two order statistics needed is several times faster than numba's sort. The mean of
+the middle two is numpy's own arithmetic, so the results are the same to the bit
+(tests/test_lines_reference.py).
 """
 
 from __future__ import annotations
@@ -29,16 +29,3 @@ def median(values: FloatArray) -> float:
     if n % 2:
         return kth(values, n // 2)
     return float((kth(values, n // 2 - 1) + kth(values, n // 2)) / 2)
-
-
-@kernel()
-def quantile(values: FloatArray, q: float) -> float:
-    """``np.quantile(values, q)`` (linear method) of a non-empty array."""
-    n = values.size
-    position = (n - 1) * q
-    low = int(np.floor(position))
-    if position >= n - 1:
-        return float(values.max())
-    a, b = kth(values, low), kth(values, low + 1)
-    t = position - low
-    return float(b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t)

@@ -1,0 +1,134 @@
+"""What each image column holds, gathered for the sector verdicts of
+:mod:`atris_node.pipeline.verdicts`: per column its sector, its doubtful and ambiguous
+peaks and the lines missing where the ground should show them; per sector the nearest
+range an ambiguous peak may stand for.
+
+Columns are placed in sectors by their horizontal ray (vehicle frame), once per
+calibration and mounting. Counts are int64 (W,), ranges float64 m, inf where none.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from atris_node.calibration import Calibration
+from atris_node.mounting import Mounting
+from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
+from atris_node.pipeline.identity import VisibilityPrior
+from atris_node.pipeline.obstacles import SectorInput, SectorSettings
+from atris_node.pipeline.peaks import Extraction, LineSamples
+from atris_node.pipeline.sectors import SectorLayout
+from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
+from atris_node.types import SectorDistance
+
+IntArray = npt.NDArray[np.int64]
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+class SectorJudge:
+    """Sector verdicts of one calibrated, mounted unit from a map's samples and evidence.
+
+    Args:
+        calibration, mounting, layout: the unit's.
+        settings: the sector part of the pipeline configuration.
+        z_range_m: (z_min, z_max) of the operating range, m.
+    """
+
+    def __init__(self, calibration: Calibration, mounting: Mounting, layout: SectorLayout,
+                 settings: SectorSettings, z_range_m: tuple[float, float]) -> None:
+        self.calibration = calibration
+        self.mounting = mounting
+        self.layout = layout
+        self.settings = settings
+        self.z_range_m = z_range_m
+        self.column_sector = sectors_by_column(calibration, mounting, layout)
+
+    def sectors_of(self, columns: BoolArray) -> set[int]:
+        """The sectors the given (W,) columns look into."""
+        return {int(i) for i in np.unique(self.column_sector[columns]) if i >= 0}
+
+    def judge(self, extraction: Extraction, points: Points, data: SectorInput,
+              clean: BoolArray, foreign: BoolArray, prior: VisibilityPrior
+              ) -> tuple[SectorDistance, ...]:
+        """The verdicts for the ``clean`` samples (``data`` holds them, ``points`` has
+        every sample), with the evidence of every column (``foreign`` (W,) columns with
+        foreign light) under the visibility ``prior``."""
+        samples = extraction.samples
+        sector, range_m = data.placed(self.layout)
+        found = ObstaclePoints(range_m, sector, data.obstacle, samples.line[clean],
+                               samples.col_px[clean].astype(np.int64),
+                               points.sigma_z_m[clean], data.snr)
+        return sector_verdicts(found, self._evidence(extraction, foreign, prior),
+                               self.layout, self.settings, self._doubt_ranges(extraction))
+
+    def _evidence(self, extraction: Extraction, foreign: BoolArray,
+                  prior: VisibilityPrior) -> ColumnEvidence:
+        samples, width = extraction.samples, self.column_sector.size
+        expected = expected_on_ground(prior, self.calibration, self.z_range_m)
+        seen = np.zeros(expected.shape, dtype=np.bool_)
+        seen[samples.line, samples.col_px.astype(np.int64)] = True
+        saturated = per_column(samples.col_px[samples.saturated], width)
+        return ColumnEvidence(
+            self.column_sector,
+            doubtful=(sized(extraction.doubtful_columns, width) + saturated
+                      + foreign.astype(np.int64)),
+            ambiguous=sized(extraction.ambiguous_columns, width),
+            missing=(expected & ~seen).sum(axis=0).astype(np.int64))
+
+    def _doubt_ranges(self, extraction: Extraction) -> FloatArray:
+        """(S,) per sector the nearest horizontal range (m) an ambiguous peak may stand
+        for (its nearest hypothesis triangulated), inf where none."""
+        row, col, line = extraction.doubts
+        out = np.full(self.layout.count, np.inf)
+        if row.size == 0:
+            return out
+        cam = self.calibration.camera
+        u, v = undistort_pixels(row.astype(np.float64), col.astype(np.float64), cam)
+        points = triangulate(u, v, line, cam, self.calibration.laser,
+                             z_max_m=self.z_range_m[1], sigma_u_px=np.zeros(row.size))
+        vehicle = self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))
+        x, y = vehicle[points.valid, 0], vehicle[points.valid, 1]
+        sector = self.layout.index_of(x, y)
+        inside = sector >= 0
+        np.minimum.at(out, sector[inside], self.layout.horizontal_range(x, y)[inside])
+        return out
+
+
+def sectors_by_column(calibration: Calibration, mounting: Mounting, layout: SectorLayout
+                      ) -> IntArray:
+    """(W,) the sector each image column looks into (its horizontal ray), -1 outside."""
+    cam = calibration.camera
+    v = np.arange(cam.width_px, dtype=np.float64) - cam.cx_px
+    rays = np.stack([v, np.zeros_like(v), np.full_like(v, cam.focal_px)], axis=1)
+    directions = rays @ mounting.rotation.T
+    return np.asarray(layout.index_of(directions[:, 0], directions[:, 1]), dtype=np.int64)
+
+
+def expected_on_ground(prior: VisibilityPrior, calibration: Calibration,
+                       z_range_m: tuple[float, float]) -> BoolArray:
+    """(K, W) True where line k meets the ground within the operating range in column c on
+    a row of the image: with nothing standing there, the line is seen there."""
+    cam = calibration.camera
+    z = prior.ground_range_m
+    cot = np.asarray(prior.cot_alpha)[:, None]
+    with np.errstate(divide="ignore"):
+        row = cam.cy_px + cam.focal_px * cot - cam.focal_px * prior.baseline_m / z
+    z_min, z_max = z_range_m
+    return np.asarray((z <= z_max) & (z >= z_min) & (row >= 0) & (row < cam.height_px))
+
+
+def per_column(col_px: FloatArray, width: int) -> IntArray:
+    """(W,) count of the given column positions per image column."""
+    return np.bincount(col_px.astype(np.int64), minlength=width)[:width].astype(np.int64)
+
+
+def samples_per_column(samples: LineSamples, width: int) -> IntArray:
+    """(W,) samples per image column."""
+    return per_column(samples.col_px, width)
+
+
+def sized(counts: IntArray, width: int) -> IntArray:
+    """``counts`` (W,) int64, or zeros when an extraction did not fill them."""
+    return counts.astype(np.int64) if counts.size == width else np.zeros(width, np.int64)
