@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import pytest
 
-from atris_node.bench.safety import score_scene, stress_names
-from atris_node.sim import shipped_scenes
+from atris_node.bench.safety import score_scene
+from atris_node.sim import shipped_scenes, stress_scenes
 
 MAPS = 4
 #: INVALID fraction of each shipped scene before the never-wrong rules (commit 974fd91,
@@ -76,6 +76,6 @@ def test_feature_invalid_fraction_rises_at_most_five_points() -> None:
     assert now <= before + 0.05, (now, before)
 
 
-@pytest.mark.parametrize("name", _scenes(stress_names()))
+@pytest.mark.parametrize("name", _scenes(stress_scenes()))
 def test_feature_stress_scene_never_wrong(name: str) -> None:
     _assert_never_wrong(_row(name))

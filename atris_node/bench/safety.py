@@ -35,6 +35,7 @@ import numpy as np
 
 from atris_node.codes import walsh_chips
 from atris_node.demod import BlockDemodulator
+from atris_node.errors import ConfigError
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator, load_scene, shipped_scenes, stress_scenes
 from atris_node.types import Measurement, SectorDistance, SectorState
@@ -146,8 +147,8 @@ def score_scene(name: str, maps: int = MAPS) -> SceneScore:
     scene = load_scene(name)
     chips = walsh_chips(scene.code_length, scene.code_row)
     sim = Simulator(scene, chips=chips, seed=1)
-    config = _config_of(scene, PipelineConfig)
-    pipe = Pipeline(config, sim.calibration(), _mounting(sim), LAYOUT)
+    config = PipelineConfig(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad))
+    pipe = Pipeline(config, sim.calibration(), sim.mounting, LAYOUT)
     demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
     score = SceneScore(name)
     sequence = 0
@@ -172,24 +173,6 @@ def _truth(sim: Simulator, dmap: Any, z_max_m: float) -> tuple[Truth, ...]:
                         for i in instants])
 
 
-def _config_of(scene: Any, kind: Any) -> Any:
-    """The pipeline configuration for ``scene``: its own operating range where it states
-    one (``[pipeline]`` of the scene format), the defaults otherwise."""
-    ranges = {key: getattr(scene, key) for key in ("z_min_m", "z_max_m")
-              if getattr(scene, key, None) is not None}
-    return kind(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad), **ranges)
-
-
-def _mounting(sim: Simulator) -> Any:
-    """The mounting handed to the pipeline (with the scene's stated error, if any)."""
-    return getattr(sim, "pipeline_mounting", sim.mounting)
-
-
-def stress_names() -> list[str]:
-    """The stress scenes (launch/scenes/stress)."""
-    return stress_scenes()
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the rows as a JSON list")
     parser.add_argument("--scenes", nargs="+", default=None, metavar="NAME",
@@ -207,8 +190,8 @@ def _text(row: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     if args.maps < 1:
-        raise ValueError(f"--maps must be >= 1, got {args.maps}")
-    names = list(args.scenes or shipped_scenes()) + (stress_names() if args.stress else [])
+        raise ConfigError(f"--maps must be >= 1, got {args.maps}")
+    names = list(args.scenes or shipped_scenes()) + (stress_scenes() if args.stress else [])
     rows = []
     for name in names:
         rows.append(score_scene(name, args.maps).row())

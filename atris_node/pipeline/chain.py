@@ -31,7 +31,7 @@ from atris_node.pipeline import (
 )
 from atris_node.pipeline import objects as objects_mod
 from atris_node.pipeline.bands import Band, line_bands
-from atris_node.pipeline.evidence import SectorJudge, samples_per_column, sized
+from atris_node.pipeline.evidence import SectorJudge
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import (
@@ -49,6 +49,7 @@ from atris_node.pipeline.peaks import (
     ExtractorSettings,
     LineSamples,
     extract_lines,
+    per_column,
     select,
     smooth_along_lines,
     supported_along_lines,
@@ -279,10 +280,10 @@ class Pipeline:
         extraction, whole = self._extract(dmap)
         timings["lines"] = _lap(start)
         samples = self._clean_samples(extraction.samples)
-        removed = (samples_per_column(extraction.samples, self._width)
-                   - samples_per_column(samples, self._width))
-        extraction = replace(extraction, doubtful_columns=(
-            sized(extraction.doubtful_columns, self._width) + removed))
+        removed = (per_column(extraction.samples.col_px, self._width)
+                   - per_column(samples.col_px, self._width))
+        extraction = replace(extraction,
+                             doubtful_columns=extraction.doubtful_columns + removed)
         points, vehicle = self._triangulate(samples)
         timings["triangulate"] = _lap(start)
         self._update_ground(vehicle[points.valid])

@@ -17,7 +17,7 @@ from atris_node.mounting import Mounting
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import SectorInput, SectorSettings
-from atris_node.pipeline.peaks import Extraction, LineSamples
+from atris_node.pipeline.peaks import Extraction, per_column
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import SectorDistance
@@ -72,9 +72,8 @@ class SectorJudge:
         saturated = per_column(samples.col_px[samples.saturated], width)
         return ColumnEvidence(
             self.column_sector,
-            doubtful=(sized(extraction.doubtful_columns, width) + saturated
-                      + foreign.astype(np.int64)),
-            ambiguous=sized(extraction.ambiguous_columns, width),
+            doubtful=extraction.doubtful_columns + saturated + foreign.astype(np.int64),
+            ambiguous=extraction.ambiguous_columns,
             missing=(expected & ~seen).sum(axis=0).astype(np.int64))
 
     def _doubt_ranges(self, extraction: Extraction) -> FloatArray:
@@ -117,18 +116,3 @@ def expected_on_ground(prior: VisibilityPrior, calibration: Calibration,
         row = cam.cy_px + cam.focal_px * cot - cam.focal_px * prior.baseline_m / z
     z_min, z_max = z_range_m
     return np.asarray((z <= z_max) & (z >= z_min) & (row >= 0) & (row < cam.height_px))
-
-
-def per_column(col_px: FloatArray, width: int) -> IntArray:
-    """(W,) count of the given column positions per image column."""
-    return np.bincount(col_px.astype(np.int64), minlength=width)[:width].astype(np.int64)
-
-
-def samples_per_column(samples: LineSamples, width: int) -> IntArray:
-    """(W,) samples per image column."""
-    return per_column(samples.col_px, width)
-
-
-def sized(counts: IntArray, width: int) -> IntArray:
-    """``counts`` (W,) int64, or zeros when an extraction did not fill them."""
-    return counts.astype(np.int64) if counts.size == width else np.zeros(width, np.int64)

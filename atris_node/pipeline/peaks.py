@@ -22,7 +22,7 @@ Peak methods (``PEAK_METHODS``), all on the column profile around the integer ma
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -117,16 +117,15 @@ class Extraction:
     unassigned: int  # strong peaks inside the bands that belong to no line (foreign light)
     foreign_columns: BoolArray  # (W,) columns holding such peaks
     line_snr: tuple[float, ...]  # median SNR of the accepted samples per line, 0 if none
-    narrowed: bool = False  # peaks were looked for on the ``search`` rows only
     #: (W,) ambiguous peaks per column (no order/continuity choice, or a rival identity)
-    ambiguous_columns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    ambiguous_columns: IntArray
     #: (W,) peaks per column left out before the samples: isolated peaks (no stripe) and
     #: identified peaks that gave no sample (weak or failed fit)
-    doubtful_columns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    doubtful_columns: IntArray
     #: the ambiguous peaks as (row, column, line) (n,) int64 each, the line being the one
     #: among their hypotheses that puts them nearest (atris_node.pipeline.rivals.Identity)
-    doubts: tuple[IntArray, IntArray, IntArray] = field(
-        default_factory=lambda: (np.zeros(0, np.int64),) * 3)
+    doubts: tuple[IntArray, IntArray, IntArray]
+    narrowed: bool = False  # peaks were looked for on the ``search`` rows only
 
 
 # --------------------------------------------------------------------------- rows read
@@ -325,9 +324,13 @@ def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> Floa
 
 def _unsampled(rows: IntArray, samples: LineSamples) -> IntArray:
     """(W,) identified peaks per column that gave no sample."""
-    width = rows.shape[1]
-    got = np.bincount(samples.col_px.astype(np.int64), minlength=width)[:width]
+    got = per_column(samples.col_px, rows.shape[1])
     return np.maximum((rows >= 0).sum(axis=0) - got, 0).astype(np.int64)
+
+
+def per_column(col_px: FloatArray, width: int) -> IntArray:
+    """(W,) how many of the given column positions (px) fall in each image column."""
+    return np.bincount(col_px.astype(np.int64), minlength=width)[:width].astype(np.int64)
 
 
 def smooth_along_lines(samples: LineSamples, lines: int, width: int,

@@ -218,10 +218,11 @@ def _compact(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
 
 def stripe_peaks(peaks: IntArray, reach: int = LONE_REACH, max_step: int = LONE_STEP_PX
                  ) -> tuple[IntArray, IntArray]:
-    """``peaks`` (M, W) without the isolated ones (-1 in their place) and the (W,) count
-    removed per column. A stripe continues into a neighbouring column within ``max_step``
-    rows; a maximum that does not is noise or a sliver too thin to identify, and must not
-    anchor a comb. The count stays evidence: such a column is not free."""
+    """``peaks`` (M, W) without the isolated ones (each column kept sorted, -1 padding
+    last) and the (W,) count removed per column. A stripe continues into a neighbouring
+    column within ``max_step`` rows; a maximum that does not is noise or a sliver too thin
+    to identify, and must not anchor a comb. The count stays evidence: such a column is
+    not free."""
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     lone = rivals_kernels.isolated(peaks, reach, max_step)
     if not lone.any():

@@ -85,10 +85,11 @@ class ObstaclePoints:
 @dataclass(frozen=True)
 class ColumnEvidence:
     """What each image column (W,) holds besides its accepted samples: ``sector`` (W,)
-    its sector (-1 outside), ``doubtful`` (W,) ambiguous, lone, dropped or saturated
-    samples and foreign light (any count > 0 blocks NO_RETURN), ``ambiguous`` (W,) samples
-    whose line could not be told (any makes the sector INVALID), and ``missing`` (W,)
-    lines expected on the ground within z_max but not seen."""
+    its sector (-1 outside), ``doubtful`` (W,) lone, dropped or saturated samples and
+    foreign light, ``ambiguous`` (W,) peaks whose line could not be told, and ``missing``
+    (W,) lines expected on the ground within z_max but not seen. Any of them in a sector
+    blocks NO_RETURN; an ambiguous peak blocks VALID too where its nearest hypothesis may
+    stand as near as the distance (``doubt_m`` of :func:`sector_verdicts`)."""
 
     sector: IntArray
     doubtful: IntArray
