@@ -10,11 +10,18 @@ import numpy as np
 import pytest
 from numba.core.registry import CPUDispatcher
 
-from atris_node.pipeline import identity_kernels, peaks_kernels, rivals_kernels, verdicts_kernels
+from atris_node.pipeline import (
+    alignment_kernels,
+    identity_kernels,
+    peaks_kernels,
+    rivals_kernels,
+    verdicts_kernels,
+)
 from atris_node.pipeline.bands import Band
 from atris_node.pipeline.peaks import ExtractorSettings, extract_lines
 
-MODULES = (peaks_kernels, identity_kernels, rivals_kernels, verdicts_kernels)
+MODULES = (peaks_kernels, identity_kernels, alignment_kernels, rivals_kernels,
+           verdicts_kernels)
 
 
 def _public_kernels(module: ModuleType) -> list[str]:

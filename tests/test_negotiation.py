@@ -139,7 +139,7 @@ def test_more_units_than_codes_grows_n_and_reports_the_output_rate_cost(make_fle
     with caplog.at_level(logging.WARNING, logger="atris_node.bus.negotiation.machine"):
         fleet.run_until(1.0)
     leader = min(fleet.units, key=lambda u: u.name)
-    assert leader.plan_growths == [(PLAN, Plan(64, 480.0))]
+    assert leader.agreement.growths == [(PLAN, Plan(64, 480.0))]
     assert all(u.plan.code_length == 64 for u in fleet.units)
     assert len(set(owners(fleet))) == 6 and None not in owners(fleet)
     assert "output rate 30.00 -> 7.50 Hz" in caplog.text

@@ -129,8 +129,8 @@ def test_sync_followers_align_to_the_leader_and_report_the_leak(fleets):
         error = unit.alignment_error_chips
         assert error is not None and abs(error) < 0.05
         others = [r for r in rows if r != unit.code_row]
-        assert unit.sync_leak == pytest.approx(worst_leak(unit.code_row, others, 16, error))
-    assert max(u.sync_leak or 0.0 for u in fleet.units) > 0.0  # misaligned rows do leak
+        assert unit.sync.leak == pytest.approx(worst_leak(unit.code_row, others, 16, error))
+    assert max(u.sync.leak or 0.0 for u in fleet.units) > 0.0  # misaligned rows do leak
     assert overlaps(fleet, 2.0) == [] and window_violations(fleet, 2.0, 0.25) == []
 
 

@@ -45,7 +45,7 @@ from atris_node.bus.negotiation.frames import (
     make_id,
     parse_id,
 )
-from atris_node.bus.negotiation.machine import REFUSED_GRACE_S
+from atris_node.bus.negotiation.lease import REFUSED_GRACE_S
 from atris_node.bus.negotiation.peers import PeerTable
 from atris_node.bus.negotiation.plan import Plan
 from atris_node.testing.faultbus import Faults, FaultyBus
@@ -262,7 +262,7 @@ def test_garbage_sync_and_plan_frames_do_not_change_n_and_growth_goes_back(
     silent for the silence timeout the fleet goes back to 16 and every unit owns a
     distinct row.
 
-    Checked by counting every peer as demand again (``Negotiator.demand`` over all peers,
+    Checked by counting every peer as demand again (``PlanAgreement.demand`` over all peers,
     as before): N went 16 -> 128 on the garbage and the first assert failed; by letting
     unnamed identities propose (the inbox's NAME check removed): N went to 128 on the
     proposals; and without the way back (``_maybe_grow`` growing only): N stayed 32 and

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from atris_node.adaptive.assessment import assess
@@ -18,6 +19,7 @@ from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.errors import DemodulationError
+from atris_node.node.snapshot import obstacle_map, write_snapshot
 from atris_node.node.stats import NodeStats
 from atris_node.pipeline.interference import InterferenceReport, InterferenceWatch
 from atris_node.types import DistortionMap, FaultBits, Measurement, SubFrame
@@ -185,3 +187,20 @@ class Measurer:
         period_s = dmap.code_length / rate
         if self.clock() - dmap.last_time_s > period_s:
             self.stats.deadline_misses += 1
+
+    # ----------------------------------------------------------------- views
+    def truth_sector_distances(self, camera: Camera | None) -> tuple[float | None, ...] | None:
+        """The simulator's true sector distances for the newest map, or None (hardware)."""
+        simulator = getattr(camera, "simulator", None)
+        if simulator is None or self.last_map is None:
+            return None
+        truth = simulator.truth(self.last_map.last_sequence, self.pipeline.layout)
+        return tuple(truth.sector_distance_m)
+
+    def snapshot(self, directory: str | Path, label: str, z_max_m: float) -> list[Path]:
+        """Write the newest plain sub-frame, distortion map and top-down obstacle map."""
+        result = self.last_result
+        top_down = obstacle_map(
+            None if result is None else result.measurement, self.pipeline.layout,
+            None if result is None else result.points_vehicle_m, z_max_m)
+        return write_snapshot(directory, label, self.last_sub, self.last_map, top_down)

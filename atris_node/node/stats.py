@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+#: sub-frames of strobe history kept (the older half is dropped when full)
+HISTORY_KEPT = 20000
+
 
 @dataclass
 class NodeStats:
@@ -22,3 +25,11 @@ class NodeStats:
     strobe_lit_while_not_allowed: int = 0
     last_lag: int = 0
     history: list[tuple[float, bool, int | None]] = field(default_factory=list)
+
+    def record_strobe(self, now: float, lit: bool, allowed: bool, row: int | None) -> None:
+        """One sub-frame's laser state: lit, whether the negotiation allowed it, the row."""
+        if lit and not allowed:
+            self.strobe_lit_while_not_allowed += 1
+        self.history.append((now, lit, row if allowed else None))
+        if len(self.history) > HISTORY_KEPT:
+            del self.history[:HISTORY_KEPT // 2]

@@ -33,7 +33,7 @@ import can
 from atris_node.adaptive.controller import controller_from_config
 from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
-from atris_node.codes import code_set, walsh_chips
+from atris_node.codes import walsh_chips
 from atris_node.config import Config
 from atris_node.errors import (
     AtrisError,
@@ -45,16 +45,14 @@ from atris_node.errors import (
 )
 from atris_node.node import wiring
 from atris_node.node.measure import Measurer
-from atris_node.node.snapshot import obstacle_map, write_snapshot
+from atris_node.node.snapshot import write_snapshot
 from atris_node.node.stats import NodeStats
+from atris_node.node.status import compose_status, unit_state
 from atris_node.types import (
     DistortionMap,
     FaultBits,
     Measurement,
-    SectorDistance,
-    SectorState,
     SubFrame,
-    UnitState,
     UnitStatus,
 )
 from drivers import Camera, Projector
@@ -72,13 +70,6 @@ class Lifecycle:
     INACTIVE = "inactive"
     ACTIVE = "active"
     FINALIZED = "finalized"
-
-
-def invalid_sectors(count: int, fov_rad: float) -> tuple[SectorDistance, ...]:
-    """``count`` INVALID sectors: what is published when nothing valid is known."""
-    width = fov_rad / count
-    return tuple(SectorDistance(i, -fov_rad / 2 + (i + 0.5) * width, SectorState.INVALID)
-                 for i in range(count))
 
 
 class Unit:
@@ -326,12 +317,7 @@ class Unit:
 
     def _record_strobe(self, allowed: bool) -> None:
         lit = bool(self._projector is not None and self._projector.is_lit)
-        if lit and not allowed:
-            self.stats.strobe_lit_while_not_allowed += 1
-        row = self._negotiator.code_row if allowed else None
-        self.stats.history.append((self.clock(), lit, row))
-        if len(self.stats.history) > 20000:
-            del self.stats.history[:10000]
+        self.stats.record_strobe(self.clock(), lit, allowed, self._negotiator.code_row)
 
     def _chips(self) -> Any:
         row = self._negotiator.code_row
@@ -423,67 +409,23 @@ class Unit:
 
     def truth_sector_distances(self) -> tuple[float | None, ...] | None:
         """The simulator's true sector distances for the newest map, or None (hardware)."""
-        simulator = getattr(self._camera, "simulator", None)
         work = self._measure
-        if simulator is None or work is None or work.last_map is None:
-            return None
-        truth = simulator.truth(work.last_map.last_sequence, work.pipeline.layout)
-        return tuple(truth.sector_distance_m)
+        return None if work is None else work.truth_sector_distances(self._camera)
 
     def snapshot(self, directory: str | Path) -> list[Path]:
         """Write the newest plain sub-frame, distortion map and top-down obstacle map."""
-        work = self._measure
-        if work is None:
+        if self._measure is None:
             return write_snapshot(directory, self.label, None, None, None)
-        result = work.last_result
-        top_down = obstacle_map(
-            None if result is None else result.measurement, work.pipeline.layout,
-            None if result is None else result.points_vehicle_m,
-            float(self.config["pipeline.z_max_m"]))
-        return write_snapshot(directory, self.label, work.last_sub, work.last_map, top_down)
+        return self._measure.snapshot(directory, self.label,
+                                      float(self.config["pipeline.z_max_m"]))
 
     # ----------------------------------------------------------------- output
     def status(self) -> UnitStatus:
         """The content of the status frame now."""
-        neg = self._negotiator
-        dmap = None if self._measure is None else self._measure.last_map
-        extra = dmap.extra if dmap is not None else {}
-        plan = neg.plan
-        return UnitStatus(
-            state=self._unit_state(),
-            code_row=int(neg.code_row or 0) if neg.may_strobe else 0,
-            code_length=int(plan.code_length),
-            chip_rate_hz=float(getattr(self._camera, "rate_hz", 0.0)),
-            measurement_counter=self._counter,
-            faults=self.faults | self._negotiator.faults | self._measure_faults(),
-            ambient_level=float(extra.get("ambient_level", 0.0)),
-            saturated_fraction=float(extra.get("saturated_fraction", 0.0)),
-            foreign_code_energy=(0.0 if self._measure is None
-                                 else self._measure.foreign_energy(extra)),
-            dropped_sub_frames=self.stats.dropped_sub_frames,
-        )
-
-    def _measure_faults(self) -> FaultBits:
-        """CALIBRATION while the sub-frames do not fit the calibration, the adaptation's
-        LOW_SIGNAL, and the pipeline's verdict on the newest map while the unit measures."""
-        work = self._measure
-        if work is None:
-            return FaultBits.NONE
-        bits = FaultBits.NONE if work.fits_calibration else FaultBits.CALIBRATION
-        if work.low_signal:
-            bits |= FaultBits.LOW_SIGNAL
-        if self._negotiator.may_strobe:
-            bits |= work.map_faults
-        return bits
-
-    def _unit_state(self) -> UnitState:
-        broken = FaultBits.CAMERA_LOST | FaultBits.LASER_FAULT
-        if self.faults & broken or self._fatal is not None:
-            return UnitState.FAULT
-        name = getattr(self._negotiator.state, "name", str(self._negotiator.state))
-        if self._negotiator.may_strobe:
-            return UnitState.RUNNING
-        return UnitState.NO_CODE if name in ("NO_CODE", "CONFLICT") else UnitState.NEGOTIATING
+        state = unit_state(self.faults, self._fatal is not None, self._negotiator)
+        return compose_status(state, self.faults, self._negotiator, self._measure,
+                              float(getattr(self._camera, "rate_hz", 0.0)), self._counter,
+                              self.stats)
 
     def _publish(self, measurement: Measurement | None) -> None:
         if measurement is not None:
@@ -494,7 +436,3 @@ class Unit:
         assert self._publisher is not None
         self._publisher.update(measurement, self.status())
 
-
-def default_code_rows(config: Config) -> tuple[int, ...]:
-    """The code rows a unit may claim under its configured plan."""
-    return code_set(int(config["code.length"]), str(config["code.mode"]))

@@ -24,6 +24,7 @@ from atris_node.calibration import Calibration
 from atris_node.errors import ConfigError, check_setting
 from atris_node.mounting import Mounting
 from atris_node.pipeline import (
+    alignment_kernels,
     identity_kernels,
     peaks_kernels,
     rivals,
@@ -268,7 +269,8 @@ class Pipeline:
         self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
-        for kernels in (peaks_kernels, identity_kernels, rivals, verdicts_kernels):
+        for kernels in (peaks_kernels, identity_kernels, alignment_kernels, rivals,
+                        verdicts_kernels):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
 

@@ -20,7 +20,7 @@ neighbouring columns (continuity), plus BEYOND_PX when the row is past the line'
 row (the sample would be no return, while the same peak may be a near range of the next
 line); a missing line costs SKIP_PX; a spare peak inside a band costs SPARE_PX (it would
 count as foreign light). A column costs K·M steps of a compiled loop
-(:func:`atris_node.pipeline.identity_kernels.align`). All rows are int64 px; costs float64 px,
+(:func:`atris_node.pipeline.alignment_kernels.align`). All rows are int64 px; costs float64 px,
 finite.
 """
 
@@ -32,6 +32,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
+from atris_node.pipeline import alignment_kernels
 from atris_node.pipeline import identity_kernels as kernels
 from atris_node.pipeline.bands import Band, in_image_order
 
@@ -71,7 +72,7 @@ def align(peaks: IntArray, bands: tuple[tuple[int, int], ...], ref: FloatArray,
         beyond: (K,) first row past each line's z_max range (inf: none).
     """
     lo, hi = _edges(bands)
-    rows, cost = kernels.align(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
+    rows, cost = alignment_kernels.align(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
                                np.ascontiguousarray(ref, dtype=np.float64),
                                np.ascontiguousarray(beyond, dtype=np.float64), _COSTS)
     return np.asarray(rows), np.asarray(cost)
@@ -83,7 +84,7 @@ def rows_cost(rows: IntArray, peaks: IntArray, bands: tuple[tuple[int, int], ...
     assigned row one of the (M, n) ``peaks`` inside its band), in the terms of
     :func:`align`: what the alignment minimises, so the two compare."""
     lo, hi = _edges(bands)
-    return np.asarray(kernels.rows_cost(
+    return np.asarray(alignment_kernels.rows_cost(
         np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(peaks, dtype=np.int64),
         lo, hi, np.ascontiguousarray(ref, dtype=np.float64),
         np.ascontiguousarray(beyond, dtype=np.float64), _COSTS))
@@ -134,7 +135,7 @@ def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
     rows, unsure = rows_and_unsure = (greedy[0].copy(), greedy[1].copy())
     cols = np.flatnonzero(unsettled & (unsure == 0))
     lo, hi = edges
-    kernels.improve(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
+    alignment_kernels.improve(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
                     order.astype(np.int64), rows, unsure, cols.astype(np.int64),
                     np.ascontiguousarray(ref, dtype=np.float64), beyond_rows(prior, order),
                     max(SWITCH_PX, float(sep)), _COSTS, *prior_arrays(prior, rows.shape))

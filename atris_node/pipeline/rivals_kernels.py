@@ -20,7 +20,8 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.identity_kernels import _in_any, _sorted_peaks, _unexplained_column
+from atris_node.pipeline.alignment_kernels import _in_any
+from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]

@@ -188,7 +188,7 @@ class Fleet:
                 if running and other != index:
                     self.units[other].tick()
         cycle = unit.plan.cycle_s
-        reference = None if unit.is_sync_leader else unit.sync.last_sync_s
+        reference = None if unit.is_sync_leader else unit.sync.state.last_sync_s
         next_start = now + cycle
         if reference is not None:
             periods = int((now - reference) // cycle) + 1
@@ -236,7 +236,7 @@ def strobe_intervals(unit: Negotiator, end_s: float) -> list[tuple[float, float,
 
 def plan_at(unit: Negotiator, time_s: float) -> Plan:
     """The plan ``unit`` used at ``time_s``."""
-    plan = unit.configured_plan
+    plan = unit.agreement.configured_plan
     for t, p in unit.plan_history:
         if t <= time_s:
             plan = p
