@@ -33,6 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eds": ("atris_node.cli.eds", "print the shipped CANopen EDS"),
     "config": ("atris_node.cli.config", "show the effective configuration"),
     "soak": ("atris_node.cli.soak", "run the simulated fleet and report resource use"),
+    "watchdog": ("atris_node.cli.watchdog",
+                 "keep the laser enable line set only while a node's lease runs"),
 }
 
 
