@@ -505,3 +505,29 @@ def test_a_bus_that_already_has_a_notifier_is_shared_or_refused_clearly():
     finally:
         notifier.stop()
         bus.shutdown()
+
+
+def test_a_unit_that_hung_claims_its_row_again_before_it_strobes(make_fleet):  # type: ignore[no-untyped-def]
+    """A host that hangs longer than the others' silence timeout is forgotten, and the unit
+    that waited for a code takes its row. When the hung unit resumes, its old claim is void:
+    it must claim again and wait the window, not strobe the row at once.
+
+    Checked by removing the protection once (``CodeContest.check_own_silence`` returning at
+    once): the resumed unit strobed its old row from 8.000 s while the waiting unit still
+    owned it until 8.005 s (one shared interval, until the claim reached the other unit);
+    the test failed at the check inside the window."""
+    fleet = make_fleet(NAMES[:5], max_code_length=16)  # five units, four codes: one waits
+    fleet.start_all(spread_s=0.01)
+    fleet.run_until(3.0)
+    waiting = owners(fleet).index(None)
+    hung = min((i for i in range(5) if i != waiting), key=lambda i: fleet.units[i].name)
+    row = fleet.units[hung].code_row
+    fleet.hang(hung, 3.0, 8.0)
+    fleet.run_until(7.9)
+    assert fleet.units[waiting].may_strobe and fleet.units[waiting].code_row == row
+    fleet.run_until(8.0 + WINDOW_S - 0.01)
+    assert not fleet.units[hung].may_strobe  # claiming again, inside its window
+    fleet.run_until(10.0)
+    assert fleet.units[hung].may_strobe and fleet.units[hung].code_row == row
+    assert not fleet.units[waiting].may_strobe  # the lower NAME took its row back
+    assert_safe(fleet, 10.0)

@@ -44,12 +44,31 @@ class CodeContest:
         self.announce_due = False
         self._last_announce_s = -1e9
         self._last_defence_s = -1e9
+        self._last_tick_s: float | None = None
 
     def reset(self) -> None:
         """Nothing announced yet (a start)."""
         self.announce_due = False
         self._last_announce_s = -1e9
         self._last_defence_s = -1e9
+        self._last_tick_s = None
+
+    def check_own_silence(self, now: float) -> None:
+        """After a gap in our own ticks long enough for the others to have forgotten us (a
+        hung host, a stopped process), our claim is void: another unit may own the row by
+        now. Laser off, claim the row again; OWNED again only after the window."""
+        unit = self._unit
+        last, self._last_tick_s = self._last_tick_s, now
+        gap = 0.0 if last is None else now - last
+        holding = unit.state in (NegotiationState.CLAIMING, NegotiationState.OWNED)
+        if gap < unit.silence_timeout_s - unit.reannounce_s or not holding:
+            return
+        if unit.code_row is not None:
+            logger.warning("row %d: this unit was silent for %.2f s, others may have taken "
+                           "the row: laser off, claiming again", unit.code_row, gap)
+            unit.lease.claim_again()
+            unit._set_state(NegotiationState.CLAIMING, unit.code_row, now)
+        self.announce_due = True
 
     # ------------------------------------------------------------------ what is free
     def taken_by(self) -> dict[int, int]:

@@ -161,6 +161,19 @@ class Fleet:
             self.units[index].timeline.append((self.clock.now, False, None))  # power is gone
         self.at(time_s, cut)
 
+    def hang(self, index: int, from_s: float, to_s: float) -> None:
+        """Unit ``index`` hangs from ``from_s`` to ``to_s``: no tick, nothing sent, frames
+        pile up in its receive queue; its laser is dark meanwhile (its lease ran out)."""
+        def freeze() -> None:
+            self._running[index] = False
+            self.units[index].timeline.append((self.clock.now, False, None))
+
+        def thaw() -> None:
+            self._running[index] = True
+            self._tick(index)
+        self.at(from_s, freeze)
+        self.at(to_s, thaw)
+
     def _tick(self, index: int) -> None:
         if not self._running[index]:
             return

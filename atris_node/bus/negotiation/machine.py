@@ -301,6 +301,7 @@ class Negotiator:
                 self.on_message(msg, now)
         with self._lock:
             self._raise_stored_error(now)
+            self.contest.check_own_silence(now)
             self._expire(now)
             if self._listening:
                 self._end_listening(now)
