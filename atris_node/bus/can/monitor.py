@@ -191,6 +191,61 @@ def render_table(snapshot: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+#: frames read from the bus after its Notifier stopped, at most (a busy real bus never
+#: falls silent; the virtual bus has only what was queued before)
+DRAIN_LIMIT = 100_000
+
+
+class _Fanout(can.Listener):
+    """One Notifier listener passing each frame on to several; stopping it stops none."""
+
+    def __init__(self, listeners: list[can.Listener]) -> None:
+        self.listeners = listeners
+
+    def on_message_received(self, msg: can.Message) -> None:
+        for listener in self.listeners:
+            listener.on_message_received(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        for listener in self.listeners:
+            listener.on_error(exc)
+
+    def stop(self) -> None:
+        """The listeners belong to the BusTap, which stops them itself."""
+
+
+class BusTap:
+    """Every frame of ``bus`` to ``listeners`` (a BusMonitor, a log writer) through one
+    Notifier. :meth:`stop` stops the Notifier, passes on the frames still queued on the
+    bus (the last frames of units that were just shut down) and then stops each listener
+    exactly once: the tap is the listeners' one owner (a log writer closed twice fails).
+    """
+
+    def __init__(self, bus: can.BusABC, listeners: list[can.Listener]) -> None:
+        self.bus = bus
+        self._fanout = _Fanout(listeners)
+        self._notifier: can.Notifier | None = can.Notifier(bus, [self._fanout], timeout=0.1)
+
+    def stop(self) -> None:
+        """Stop listening, drain the bus, stop the listeners. Idempotent."""
+        if self._notifier is None:
+            return
+        notifier, self._notifier = self._notifier, None
+        try:
+            notifier.stop()
+            self._drain()
+        finally:
+            for listener in self._fanout.listeners:
+                listener.stop()
+
+    def _drain(self) -> None:
+        for _ in range(DRAIN_LIMIT):
+            msg = self.bus.recv(timeout=0.0)
+            if msg is None:
+                return
+            self._fanout.on_message_received(msg)
+
+
 #: the E2E states that count as errors
 E2E_ERRORS = (E2EState.WRONG_CRC, E2EState.WRONG_SEQUENCE, E2EState.REPEATED)
 
