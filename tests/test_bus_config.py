@@ -45,7 +45,7 @@ def test_unknown_interface_is_a_bus_error(monkeypatch: pytest.MonkeyPatch) -> No
     with pytest.raises(BusError, match="accepted interfaces"):
         open_bus(BusConfig("no-such-interface", "x"))
     monkeypatch.setenv("CAN_INTERFACE", "no-such-interface")
-    with pytest.raises(BusError, match="no-such-interface.*accepted interfaces"):
+    with pytest.raises(BusError, match=r"no-such-interface.*accepted interfaces"):
         resolve(BusConfig())
 
 

@@ -5,7 +5,8 @@ monitor (E2E checked) and, with ``--log FILE``, into a python-can log in the for
 file's suffix; an existing FILE is refused (exit 2) unless ``--overwrite`` is given. With
 ``--json`` the run prints no table and ends with a summary object on stdout: ``units``,
 each with ``name``, ``code_row``, ``code_length``, ``state``, ``frames_sent`` and
-``e2e_errors``.
+``e2e_errors``; ``frames_not_taken`` counts frames the monitor or the log could not take
+(then the exit code is 1, after the summary).
 """
 
 from __future__ import annotations
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     if summary.get("failed"):
         logger.error("units that stopped and stay down: %s", ", ".join(summary["failed"]))
         return 1
-    return 0
+    return 1 if summary["frames_not_taken"] else 0
 
 
 def _monitor_bus(spec: LaunchSpec) -> can.BusABC:
@@ -97,7 +98,12 @@ def run_launch(spec: LaunchSpec, duration_s: float, log: str | None = None,
         finally:
             runner.stop()
             tap.stop()
-    return summarize(spec, runner, monitor, running)
+    summary = summarize(spec, runner, monitor, running)
+    summary["frames_not_taken"] = tap.failures
+    if tap.failures:
+        logger.error("%d frame(s) could not be decoded or logged, the first: %s",
+                     tap.failures, tap.first_failure)
+    return summary
 
 
 def _watch(runner: FleetRun | ProcessRun, monitor: BusMonitor, duration_s: float,

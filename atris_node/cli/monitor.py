@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from typing import Any
@@ -23,6 +24,8 @@ from atris_node.bus.can.config import BusConfig, open_bus
 from atris_node.bus.can.logfile import check_log_target, open_log_reader, open_log_writer
 from atris_node.bus.can.monitor import BusMonitor, BusTap, render_table
 from atris_node.errors import UsageError
+
+logger = logging.getLogger(__name__)
 
 CLEAR = "\x1b[H\x1b[2J"
 #: options that describe a live bus, refused with --replay
@@ -62,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2, default=str))
     elif args.replay or not sys.stdout.isatty():
         print(render_table(summary))
-    return 0
+    return 1 if summary.get("frames_not_taken") else 0
 
 
 def replay(path: str) -> dict[str, Any]:
@@ -88,7 +91,12 @@ def watch_bus(args: argparse.Namespace) -> dict[str, Any]:
             _watch(monitor, args)
         finally:
             tap.stop()
-    return monitor.snapshot(time.time())
+    summary = monitor.snapshot(time.time())
+    summary["frames_not_taken"] = tap.failures
+    if tap.failures:
+        logger.error("%d frame(s) could not be decoded or logged, the first: %s",
+                     tap.failures, tap.first_failure)
+    return summary
 
 
 def _watch(monitor: BusMonitor, args: argparse.Namespace) -> None:

@@ -9,6 +9,8 @@ by mistake as the output of a recording would otherwise be lost.
 
 from __future__ import annotations
 
+import copy
+import functools
 import importlib.util
 import logging
 from pathlib import Path
@@ -24,6 +26,8 @@ logger = logging.getLogger(__name__)
 
 #: formats whose python-can reader and writer need a package python-can does not require
 OPTIONAL_PACKAGES = {".mf4": "asammdf"}
+#: highest channel number a log keeps (BLF: 16 bits; ASC and TRC: small bus numbers)
+MAX_LOG_CHANNEL = 255
 #: formats python-can does not write gzipped
 NOT_GZIPPED = (".blf", ".db")
 
@@ -72,11 +76,40 @@ def check_log_target(path: str | Path, overwrite: bool = False) -> Path:
     return target
 
 
-def open_log_writer(path: str | Path, overwrite: bool = False) -> MessageWriter:
-    """A python-can writer for ``path`` (a listener; its ``stop()`` closes the file)."""
+class LogWriter(can.Listener):
+    """A python-can writer, given each frame with the bus's channel only when it names a
+    channel number the formats can hold (``can0``, ``PCAN_USBBUS1``, 3): a virtual channel
+    such as ``fleet-1795607737`` made the BLF writer fail on every frame (its channel
+    field is 16 bits). ``stop()`` closes the file once, however often it is called."""
+
+    def __init__(self, writer: MessageWriter) -> None:
+        self.writer = writer
+        self._stopped = False
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if not _channel_number(msg.channel):
+            msg = copy.copy(msg)
+            msg.channel = None
+        self.writer.on_message_received(msg)
+
+    def stop(self) -> None:
+        if not self._stopped:
+            self._stopped = True
+            self.writer.stop()
+
+
+@functools.lru_cache(maxsize=64)
+def _channel_number(channel: object) -> bool:
+    number = can.util.channel2int(channel) if isinstance(channel, int | str) else None
+    return number is not None and 0 <= number <= MAX_LOG_CHANNEL
+
+
+def open_log_writer(path: str | Path, overwrite: bool = False) -> LogWriter:
+    """A writer of ``path`` in the format of its suffix (a listener; ``stop()`` closes
+    the file); UsageError as :func:`check_log_target` says."""
     target = check_log_target(path, overwrite)
     logger.info("recording frames to %s", target)
-    return can.Logger(target)
+    return LogWriter(can.Logger(target))
 
 
 def open_log_reader(path: str | Path) -> MessageReader:

@@ -12,6 +12,7 @@ replays exactly as it was seen.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import threading
 from dataclasses import dataclass, field
@@ -197,18 +198,33 @@ DRAIN_LIMIT = 100_000
 
 
 class _Fanout(can.Listener):
-    """One Notifier listener passing each frame on to several; stopping it stops none."""
+    """One Notifier listener passing each frame on to several. A listener that fails on a
+    frame (a log writer on a full disk) is logged and counted, and the others still get
+    it; stopping the fan-out stops none of them."""
 
     def __init__(self, listeners: list[can.Listener]) -> None:
         self.listeners = listeners
+        self.failures = 0
+        self.first_failure = ""
 
     def on_message_received(self, msg: can.Message) -> None:
         for listener in self.listeners:
-            listener.on_message_received(msg)
+            try:
+                listener.on_message_received(msg)
+            except Exception as exc:
+                self._failed(listener, exc)
+
+    def _failed(self, listener: can.Listener, exc: Exception) -> None:
+        self.failures += 1
+        if not self.first_failure:
+            self.first_failure = f"{type(listener).__name__}: {exc!r}"
+            logger.exception("%s could not take a frame (the frames it cannot take are "
+                             "counted)", type(listener).__name__)
 
     def on_error(self, exc: Exception) -> None:
         for listener in self.listeners:
-            listener.on_error(exc)
+            with contextlib.suppress(NotImplementedError):
+                listener.on_error(exc)
 
     def stop(self) -> None:
         """The listeners belong to the BusTap, which stops them itself."""
@@ -237,6 +253,16 @@ class BusTap:
         finally:
             for listener in self._fanout.listeners:
                 listener.stop()
+
+    @property
+    def failures(self) -> int:
+        """Frames a listener could not take (each logged or counted, never silent)."""
+        return self._fanout.failures
+
+    @property
+    def first_failure(self) -> str:
+        """The first of those failures, as text ('' if none)."""
+        return self._fanout.first_failure
 
     def _drain(self) -> None:
         for _ in range(DRAIN_LIMIT):
