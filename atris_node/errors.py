@@ -30,6 +30,10 @@ class UsageError(AtrisError, ValueError):
     as argparse does for its own usage errors."""
 
 
+class LogFileError(AtrisError, ValueError):
+    """A recorded CAN log that cannot be read to its end (damaged or truncated)."""
+
+
 class CodeError(AtrisError, ValueError):
     """A code length, code row or code set that cannot exist or is not allowed."""
 

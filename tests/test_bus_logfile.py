@@ -264,6 +264,16 @@ def test_unreadable_format_names_what_is_accepted(tmp_path: Path,
     assert "cannot read log file" in err and ".blf" in accepted and ".txt" not in accepted
 
 
+def test_a_damaged_log_is_a_clear_error(tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """python-can's own reader error comes out as ``error: ...`` naming the file (exit 1),
+    not as a traceback."""
+    damaged = tmp_path / "damaged.db"
+    damaged.write_bytes(b"not an sqlite database, though named like one")
+    assert main(["monitor", "--replay", str(damaged)]) == 1
+    assert "damaged.db' cannot be read after frame 0" in capsys.readouterr().err
+
+
 class Holding(can.Listener):
     """Keeps the frames it takes. Holds the Notifier thread in its first frame until
     ``release`` is set and the Notifier is stopping, so the frames sent meanwhile are still

@@ -21,7 +21,7 @@ from typing import Any
 import can
 
 from atris_node.bus.can.config import BusConfig, open_bus
-from atris_node.bus.can.logfile import check_log_target, open_log_reader, open_log_writer
+from atris_node.bus.can.logfile import check_log_target, open_log_writer, read_log
 from atris_node.bus.can.monitor import BusMonitor, BusTap, render_table
 from atris_node.errors import UsageError
 
@@ -71,10 +71,12 @@ def run(args: argparse.Namespace) -> int:
 def replay(path: str) -> dict[str, Any]:
     """Feed every frame of the log at ``path`` to a BusMonitor; its snapshot at the log's
     last frame (ages and rates in the log's time, not the time of the replay)."""
-    monitor = BusMonitor()
-    with open_log_reader(path) as reader:
-        for msg in reader:
-            monitor.feed(msg)
+    monitor, frames = BusMonitor(), 0
+    for msg in read_log(path):
+        monitor.feed(msg)
+        frames += 1
+    if not frames:
+        logger.warning("log file %s holds no frame python-can could read", path)
     return monitor.snapshot()
 
 

@@ -10,9 +10,9 @@ by mistake as the output of a recording would otherwise be lost.
 from __future__ import annotations
 
 import copy
-import functools
 import importlib.util
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -20,7 +20,7 @@ from can.io.generic import MessageReader, MessageWriter
 from can.io.logger import MESSAGE_WRITERS
 from can.io.player import MESSAGE_READERS
 
-from atris_node.errors import UsageError
+from atris_node.errors import LogFileError, UsageError
 
 logger = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ class LogWriter(can.Listener):
         self._stopped = False
 
     def on_message_received(self, msg: can.Message) -> None:
-        if not _channel_number(msg.channel):
+        if msg.channel is not None and not _channel_number(msg.channel):
             msg = copy.copy(msg)
             msg.channel = None
         self.writer.on_message_received(msg)
@@ -98,7 +98,6 @@ class LogWriter(can.Listener):
             self.writer.stop()
 
 
-@functools.lru_cache(maxsize=64)
 def _channel_number(channel: object) -> bool:
     number = can.util.channel2int(channel) if isinstance(channel, int | str) else None
     return number is not None and 0 <= number <= MAX_LOG_CHANNEL
@@ -120,3 +119,17 @@ def open_log_reader(path: str | Path) -> MessageReader:
         raise UsageError(f"log file {str(source)!r} does not exist or is not a file")
     _check_format(source, MESSAGE_READERS, "read")
     return can.LogReader(source)
+
+
+def read_log(path: str | Path) -> Iterator[can.Message]:
+    """The frames of the log at ``path`` (:func:`open_log_reader`); LogFileError naming
+    the place when python-can's reader fails on a damaged or truncated file."""
+    count = 0
+    with open_log_reader(path) as reader:
+        try:
+            for msg in reader:
+                count += 1
+                yield msg
+        except Exception as exc:  # each python-can reader fails in its own way
+            raise LogFileError(f"log file {str(path)!r} cannot be read after frame {count}: "
+                               f"{exc!r}") from exc
