@@ -25,7 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("atris_node.cli.launch", "run the units of a launch file"),
     "sim": ("atris_node.cli.sim", "render a scene, demodulate it and compare with the truth"),
     "codes": ("atris_node.cli.codes", "list cyclic orthogonal Walsh code sets"),
-    "monitor": ("atris_node.cli.monitor", "live decoded view of every unit on a bus"),
+    "monitor": ("atris_node.cli.monitor", "decoded view of every unit on a bus or in a log"),
     "record": ("atris_node.cli.record", "record sub-frames from a camera backend"),
     "replay": ("atris_node.cli.replay", "run the pipeline on recorded sub-frames"),
     "calib": ("atris_node.cli.calib", "calibration: intrinsics, laser planes, verification"),

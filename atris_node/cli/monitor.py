@@ -36,8 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--interface", "--bus", help="python-can interface (default: "
                         "$CAN_INTERFACE, $CAN_CONFIG, python-can config file, else virtual)")
     parser.add_argument("--channel", help="python-can channel (default: $CAN_CHANNEL, "
-                        "$CAN_CONFIG, python-can config file, else atris)")
-    parser.add_argument("--bitrate", type=int, help="bit rate, bit/s")
+                        "$CAN_CONFIG, python-can config file, else atris on the virtual "
+                        "bus, the backend's own default on another)")
+    parser.add_argument("--bitrate", type=int, help="bit rate, bit/s (default: "
+                        "$CAN_BITRATE, $CAN_CONFIG, python-can config file, else 500000 "
+                        "where the interface has one)")
     parser.add_argument("--fd", action="store_true", default=None, help="CAN FD")
     parser.add_argument("--replay", metavar="FILE", help="read a recorded log (any python-can "
                         "format: .asc, .blf, .csv, .db, .log, .trc...) instead of a bus")
@@ -54,8 +57,9 @@ def run(args: argparse.Namespace) -> int:
     if args.replay:
         given = [f"--{name}" for name in LIVE_OPTIONS if getattr(args, name) is not None]
         if given:
-            raise UsageError(f"--replay reads a log file; {', '.join(given)} only apply to a "
-                             "live bus (to convert a log, use python -m can.logconvert)")
+            verb = "applies" if len(given) == 1 else "apply"
+            raise UsageError(f"--replay reads a log file; {', '.join(given)} {verb} only to "
+                             "a live bus (to convert a log, use python -m can.logconvert)")
         summary = replay(args.replay)
     else:
         if args.log:
