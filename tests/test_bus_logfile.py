@@ -4,6 +4,9 @@ as it went on the bus, ``atris monitor --replay``, and no log written over by mi
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
+import sys
 import threading
 import time
 import uuid
@@ -343,3 +346,28 @@ def test_a_failing_listener_is_counted_and_the_others_go_on(
     assert len(holding.frames) == 1 + len(frames)
     assert tap.failures == len(frames) and "No space left" in tap.first_failure
     assert "Failing could not take a frame" in caplog.text
+
+
+def test_ctrl_c_ends_the_watch_with_the_summary_and_the_log(tmp_path: Path) -> None:
+    """SIGINT ends ``atris monitor`` as --duration would: exit 0, the JSON summary, a
+    closed log. Checked by letting KeyboardInterrupt through the watch: exit 130, no
+    summary."""
+    log = tmp_path / "interrupted.blf"
+    argv = ["monitor", "--channel", f"int-{uuid.uuid4().hex}", "--json", "--log", str(log)]
+    # SIGINT handled as in a terminal, even where the test run itself ignores it
+    code = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            f"from atris_node.cli import main; sys.exit(main({argv!r}))")
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 60.0
+        while not log.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # from the log's creation into the watch
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 0, err
+    assert json.loads(out)["units"] == {}
+    assert list(can.LogReader(log)) == []

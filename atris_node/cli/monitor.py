@@ -106,11 +106,16 @@ def watch_bus(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _watch(monitor: BusMonitor, args: argparse.Namespace) -> None:
+    """Until ``--duration`` has passed or Ctrl-C (which ends the watch, not the command:
+    the summary and the log still come out)."""
     end = None if args.duration is None else time.monotonic() + args.duration
     live = not args.json and sys.stdout.isatty()
-    while end is None or time.monotonic() < end:
-        left = args.refresh if end is None else min(args.refresh, end - time.monotonic())
-        time.sleep(max(0.0, left))
-        if live:
-            sys.stdout.write(CLEAR + render_table(monitor.snapshot(time.time())) + "\n")
-            sys.stdout.flush()
+    try:
+        while end is None or time.monotonic() < end:
+            left = args.refresh if end is None else min(args.refresh, end - time.monotonic())
+            time.sleep(max(0.0, left))
+            if live:
+                sys.stdout.write(CLEAR + render_table(monitor.snapshot(time.time())) + "\n")
+                sys.stdout.flush()
+    except KeyboardInterrupt:
+        logger.info("interrupted: the watch ends")
