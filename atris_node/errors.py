@@ -24,6 +24,16 @@ def check_setting(ok: bool, key: str, value: object, accepted: str) -> None:
         raise ConfigError(f"{key} = {value!r} is not accepted; it must be {accepted}")
 
 
+class UsageError(AtrisError, ValueError):
+    """A command line that asks for something that cannot be done as given (an existing
+    output file, options that exclude each other); the ``atris`` command exits 2 for it,
+    as argparse does for its own usage errors."""
+
+
+class LogFileError(AtrisError, ValueError):
+    """A recorded CAN log that cannot be read to its end (damaged or truncated)."""
+
+
 class CodeError(AtrisError, ValueError):
     """A code length, code row or code set that cannot exist or is not allowed."""
 

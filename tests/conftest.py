@@ -59,6 +59,26 @@ def no_leaked_buses() -> Iterator[None]:
     assert not open_buses, f"test left {len(open_buses)} python-can bus(es) open"
 
 
+#: python-can's configuration variables (can.util.load_environment_config)
+CAN_VARIABLES = ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG")
+
+
+@pytest.fixture(autouse=True)
+def no_python_can_config(monkeypatch: pytest.MonkeyPatch,
+                         tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Keep the python-can configuration of the machine running the tests out of them (the
+    node and the monitor read it for the bus settings a test leaves open): no CAN_*
+    variables, HOME an empty folder (also for child processes), and of python-can's config
+    files only those under HOME. Returns that HOME, for tests that write a ~/.canrc."""
+    for name in CAN_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    home = tmp_path_factory.mktemp("home")
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setattr(can.util, "CONFIG_FILES",
+                        [path for path in can.util.CONFIG_FILES if path.startswith("~")])
+    return home
+
+
 def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
     """Host runs (``-m 'not vcan ...'``) do not even import the SocketCAN tier."""
     if collection_path.name == "vcan" and "not vcan" in str(config.getoption("markexpr")):

@@ -21,13 +21,6 @@ from atris_node.bus.can.publisher import Publisher
 from atris_node.errors import BusError
 
 
-@pytest.fixture(autouse=True)
-def no_python_can_sources(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Keep the developer's own CAN_* variables out of these tests."""
-    for name in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
-        monkeypatch.delenv(name, raising=False)
-
-
 def test_virtual_is_the_embedded_default() -> None:
     assert resolve(BusConfig()) == {"interface": "virtual", "channel": "atris"}
 
@@ -38,22 +31,28 @@ def test_given_values_win() -> None:
                                "bitrate": 250000, "fd": True}
 
 
-def test_python_can_environment_fills_the_gaps(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("CAN_INTERFACE", "virtual")
-    monkeypatch.setenv("CAN_CHANNEL", "from-env")
-    monkeypatch.setenv("CAN_BITRATE", "125000")
-    kwargs = resolve(BusConfig(), python_can_sources=True)
-    assert kwargs["channel"] == "from-env" and kwargs["bitrate"] == 125000
-    assert resolve(BusConfig(channel="given"), python_can_sources=True)["channel"] == "given"
-    assert resolve(BusConfig(), python_can_sources=False)["channel"] == "atris"
+def test_an_interface_with_a_bit_rate_gets_the_default_one() -> None:
+    """500 kbit/s for an interface that has a bit rate, none for a virtual bus; the
+    channel of a named interface is its backend's own default (None), ``atris`` only for
+    the virtual bus."""
+    kwargs = resolve(BusConfig("socketcan"))
+    assert kwargs["bitrate"] == 500000 and kwargs["channel"] is None
+    assert "bitrate" not in resolve(BusConfig("udp_multicast"))
+    assert resolve(BusConfig("virtual")) == {"interface": "virtual", "channel": "atris"}
 
 
 def test_unknown_interface_is_a_bus_error(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(BusError, match="accepted interfaces"):
         open_bus(BusConfig("no-such-interface", "x"))
     monkeypatch.setenv("CAN_INTERFACE", "no-such-interface")
-    with pytest.raises(BusError, match="unknown CAN interface"):
-        resolve(BusConfig(), python_can_sources=True)
+    with pytest.raises(BusError, match=r"no-such-interface.*accepted interfaces"):
+        resolve(BusConfig())
+
+
+def test_bad_can_config_is_a_bus_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CAN_CONFIG", "{not json")
+    with pytest.raises(BusError, match="CAN_CONFIG is not a JSON object"):
+        resolve(BusConfig())
 
 
 def test_open_bus_opens_a_virtual_bus() -> None:

@@ -3,7 +3,8 @@
 Each subcommand lives in its own module with ``add_arguments(parser)`` and
 ``run(args) -> int`` and is imported only when it is used, so one broken or
 slow-to-import subcommand never breaks the others (as in cantools).
-Errors print ``error: ...`` and exit 1; ``--debug`` shows the traceback.
+Errors print ``error: ...`` and exit 1, usage errors (:class:`UsageError`) exit 2 as
+argparse's do; ``--debug`` shows the traceback.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from collections.abc import Sequence
 from types import ModuleType
 
 from atris_node import __version__
-from atris_node.errors import AtrisError
+from atris_node.errors import AtrisError, UsageError
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -24,7 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "launch": ("atris_node.cli.launch", "run the units of a launch file"),
     "sim": ("atris_node.cli.sim", "render a scene, demodulate it and compare with the truth"),
     "codes": ("atris_node.cli.codes", "list cyclic orthogonal Walsh code sets"),
-    "monitor": ("atris_node.cli.monitor", "live decoded view of every unit on a bus"),
+    "monitor": ("atris_node.cli.monitor", "decoded view of every unit on a bus or in a log"),
     "record": ("atris_node.cli.record", "record sub-frames from a camera backend"),
     "replay": ("atris_node.cli.replay", "run the pipeline on recorded sub-frames"),
     "calib": ("atris_node.cli.calib", "calibration: intrinsics, laser planes, verification"),
@@ -81,6 +82,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except UsageError as exc:
+        if options.debug:
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     except (AtrisError, OSError) as exc:
         if options.debug:
             raise

@@ -1,9 +1,12 @@
 """``atris launch FILE``: run the units of a launch file and watch what they publish.
 
 ``--print`` shows what would start. Every frame on the bus goes through a decoding
-monitor (E2E checked) and, with ``--log FILE``, into a python-can log. With ``--json`` the
-run ends with a summary object: ``units``, each with ``name``, ``code_row``,
-``code_length``, ``state``, ``frames_sent`` and ``e2e_errors``.
+monitor (E2E checked) and, with ``--log FILE``, into a python-can log in the format of the
+file's suffix; an existing FILE is refused (exit 2) unless ``--overwrite`` is given. With
+``--json`` the run prints no table and ends with a summary object on stdout: ``units``,
+each with ``name``, ``code_row``, ``code_length``, ``state``, ``frames_sent`` and
+``e2e_errors``; ``frames_not_taken`` counts frames the monitor or the log could not take
+(then the exit code is 1, after the summary).
 """
 
 from __future__ import annotations
@@ -18,11 +21,13 @@ from typing import Any
 
 import can
 
-from atris_node.bus.can.config import BusConfig, open_bus
-from atris_node.bus.can.monitor import BusMonitor, e2e_errors_by_unit
+from atris_node.bus.can.config import open_bus
+from atris_node.bus.can.logfile import check_log_target, open_log_writer
+from atris_node.bus.can.monitor import BusMonitor, BusTap, e2e_errors_by_unit
 from atris_node.node.fleetview import fleet_table
 from atris_node.node.launch import LaunchSpec, describe, load_launch
 from atris_node.node.runner import FleetRun, ProcessRun, stop_on_signals
+from atris_node.node.wiring import bus_settings
 
 logger = logging.getLogger(__name__)
 
@@ -35,7 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, metavar="S",
                         help="run time, s (default: the launch file's)")
     parser.add_argument("--json", action="store_true", help="end with a JSON summary")
-    parser.add_argument("--log", metavar="FILE", help="write every frame (.log, .asc, .blf)")
+    parser.add_argument("--log", metavar="FILE",
+                        help="write every frame (.asc, .blf, .csv, .db, .log, .trc, ...)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="let --log replace an existing file")
     parser.add_argument("--refresh", type=float, default=1.0, help="table period, s")
     parser.add_argument("--quiet", action="store_true", help="no table while running")
 
@@ -45,9 +53,12 @@ def run(args: argparse.Namespace) -> int:
     if args.print:
         print("\n".join(describe(spec)))
         return 0
+    if args.log:
+        check_log_target(args.log, args.overwrite)
     duration = spec.duration_s if args.duration is None else args.duration
-    summary = run_launch(spec, duration, args.log, None if args.quiet else args.refresh,
-                         live=sys.stdout.isatty() and not args.json)
+    quiet = args.quiet or args.json  # stdout carries the JSON summary alone
+    summary = run_launch(spec, duration, args.log, None if quiet else args.refresh,
+                         live=sys.stdout.isatty(), overwrite=args.overwrite)
     if args.json:
         print(json.dumps(summary, indent=1))
     else:
@@ -55,24 +66,27 @@ def run(args: argparse.Namespace) -> int:
     if summary.get("failed"):
         logger.error("units that stopped and stay down: %s", ", ".join(summary["failed"]))
         return 1
-    return 0
+    return 1 if summary["frames_not_taken"] else 0
 
 
 def _monitor_bus(spec: LaunchSpec) -> can.BusABC:
-    first = spec.units[0]
-    config = BusConfig(first["bus.interface"], first["bus.channel"],
-                       None if first["bus.interface"] == "virtual" else first["bus.bitrate"])
-    return open_bus(config, receive_own_messages=False)
+    """The bus of the first unit, opened as the unit opens it (same settings, same
+    precedence), without its own frames."""
+    return open_bus(bus_settings(spec.units[0]), receive_own_messages=False)
 
 
 def run_launch(spec: LaunchSpec, duration_s: float, log: str | None = None,
-               refresh_s: float | None = 1.0, live: bool = False) -> dict[str, Any]:
-    """Run ``spec`` for ``duration_s`` seconds; return the summary object."""
+               refresh_s: float | None = 1.0, live: bool = False,
+               overwrite: bool = False) -> dict[str, Any]:
+    """Run ``spec`` for ``duration_s`` seconds; return the summary object. With ``log``
+    every frame is also written there (an existing file only if ``overwrite``)."""
     monitor = BusMonitor(e2e_timeout_s=0.5)
-    listeners: list[can.Listener] = [monitor] + ([can.Logger(log)] if log else [])
     stop = threading.Event()
     with _monitor_bus(spec) as bus:
-        notifier = can.Notifier(bus, listeners, timeout=0.1)
+        listeners: list[can.Listener] = [monitor]
+        if log:
+            listeners.append(open_log_writer(log, overwrite))
+        tap = BusTap(bus, listeners)  # stops the log writer, once
         runner: FleetRun | ProcessRun = (FleetRun(spec) if spec.mode == "threads"
                                          else ProcessRun(spec))
         running: dict[str, Any] | None = None
@@ -83,10 +97,13 @@ def run_launch(spec: LaunchSpec, duration_s: float, log: str | None = None,
                 running = monitor.snapshot()["units"]  # before the units' final frames
         finally:
             runner.stop()
-            notifier.stop()
-            for listener in listeners:
-                listener.stop()
-    return summarize(spec, runner, monitor, running)
+            tap.stop()
+    summary = summarize(spec, runner, monitor, running)
+    summary["frames_not_taken"] = tap.failures
+    if tap.failures:
+        logger.error("%d frame(s) could not be decoded or logged, the first: %s",
+                     tap.failures, tap.first_failure)
+    return summary
 
 
 def _watch(runner: FleetRun | ProcessRun, monitor: BusMonitor, duration_s: float,

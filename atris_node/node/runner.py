@@ -23,10 +23,10 @@ from typing import Any
 import can
 
 from atris_node.bus.can import config as busconfig
-from atris_node.bus.can.config import BusConfig
 from atris_node.config import Config
 from atris_node.node.launch import LaunchSpec
 from atris_node.node.unit import Unit
+from atris_node.node.wiring import bus_settings
 
 logger = logging.getLogger(__name__)
 
@@ -37,12 +37,9 @@ RESPAWN_BACKOFF_S = (0.5, 8.0)
 
 
 def open_bus(config: Config, **extra: Any) -> can.BusABC:
-    """Open the python-can bus a unit's configuration names (``bus.*`` parameters)."""
-    virtual = config["bus.interface"] in ("virtual", "udp_multicast")
-    settings = BusConfig(config["bus.interface"], config["bus.channel"],
-                         None if virtual else config["bus.bitrate"],
-                         True if config["bus.fd"] else None)
-    return busconfig.open_bus(settings, **extra)
+    """Open the python-can bus of a unit: its ``bus.*`` parameters that were set, then
+    python-can's sources, then the defaults (:func:`wiring.bus_settings`)."""
+    return busconfig.open_bus(bus_settings(config), **extra)
 
 
 @contextmanager

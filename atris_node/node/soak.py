@@ -20,7 +20,7 @@ import psutil
 
 from atris_node.bus.can.monitor import BusMonitor, e2e_errors_by_unit
 from atris_node.node.launch import LaunchSpec, load_launch
-from atris_node.node.runner import FleetRun
+from atris_node.node.runner import FleetRun, open_bus
 
 WARMUP_FRACTION = 0.2
 WARMUP_MAX_S = 60.0
@@ -89,8 +89,7 @@ def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
     warmup_s = min(total_s * WARMUP_FRACTION, WARMUP_MAX_S)
     monitor = BusMonitor(e2e_timeout_s=1.0)
     fleet = FleetRun(spec)
-    first = spec.units[0]
-    with can.Bus(interface=first["bus.interface"], channel=first["bus.channel"]) as bus:
+    with open_bus(spec.units[0]) as bus:  # the units' bus, opened as they open it
         notifier = can.Notifier(bus, [monitor], timeout=0.1)
         try:
             fleet.start()

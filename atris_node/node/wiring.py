@@ -15,6 +15,7 @@ import can
 import canopen
 from can.typechecking import CanFilter
 
+from atris_node.bus.can.config import BusConfig
 from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
 from atris_node.bus.negotiation import name as negotiation_name
@@ -108,6 +109,20 @@ def make_pipeline(config: Config, camera: Camera) -> Pipeline:
     p = pipeline_config(config)
     layout = SectorLayout(p.sector_count, math.radians(p.fov_deg))
     return Pipeline(p, calibration_of(config, camera), mounting_of(config, camera), layout)
+
+
+#: the unit parameters that are python-can bus settings, and their python-can names
+BUS_SETTINGS = {"bus.interface": "interface", "bus.channel": "channel",
+                "bus.bitrate": "bitrate", "bus.fd": "fd"}
+
+
+def bus_settings(config: Config) -> BusConfig:
+    """The ``bus.*`` parameters that were set (file, launch file, environment, --set) as
+    python-can arguments; the others are left to python-can's sources and then to the
+    defaults, as for ``atris monitor`` (:mod:`atris_node.bus.can.config`)."""
+    given = {key: value for key, value, source in config.describe()
+             if source != "default" and key in BUS_SETTINGS}
+    return BusConfig(**{BUS_SETTINGS[key]: value for key, value in given.items()})
 
 
 @dataclass

@@ -1,16 +1,27 @@
 """Open a python-can bus from configuration, and watch its health.
 
-Settings are python-can's own: ``interface``, ``channel``, ``bitrate``, ``fd``. Values
-given explicitly win; with ``python_can_sources=True`` the missing ones come from where
-python-can reads them (``CAN_INTERFACE``, ``CAN_CHANNEL``, ``CAN_BITRATE``, ``CAN_CONFIG``
-and the ``can.conf`` / ``.canrc`` files), and ``virtual`` on channel ``atris`` is the
-embedded default when nothing names an interface.
+Settings are python-can's own (``interface``, ``channel``, ``bitrate``, ``fd``, and any
+other keyword of the interface), taken key by key from the first source that has them,
+in python-can's order (``can.util.load_config``):
+
+1. the arguments: what the command line or the node's own configuration gives;
+2. ``can.rc``, then the environment: ``CAN_INTERFACE``, ``CAN_CHANNEL``, ``CAN_BITRATE``,
+   over the JSON object in ``CAN_CONFIG``;
+3. python-can's config files, section ``[default]`` (on Linux ``~/can.conf``,
+   ``/etc/can.conf``, ``~/.can``, ``~/.canrc``, the later ones winning);
+4. the defaults: interface ``virtual``, on channel ``atris``; another interface gets a
+   bit rate of 500 kbit/s and its backend's own default channel.
+
+The bus is then opened with exactly these settings (``ignore_config=True``): python-can
+does not add more of its own.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,6 +33,9 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_INTERFACE = "virtual"
 DEFAULT_CHANNEL = "atris"
+DEFAULT_BITRATE = 500_000
+#: interfaces without a bit rate: the default one is not passed to them
+NO_BITRATE = ("virtual", "udp_multicast")
 #: socketcan error class bits (linux/can/error.h), in the error frame's arbitration ID
 CAN_ERR_CRTL = 0x04
 CAN_ERR_BUSOFF = 0x40
@@ -30,7 +44,7 @@ CAN_ERR_RESTARTED = 0x100
 
 @dataclass(frozen=True)
 class BusConfig:
-    """python-can bus settings; None means "not given"."""
+    """python-can bus settings given as arguments; None means "not given"."""
 
     interface: str | None = None
     channel: str | None = None
@@ -42,30 +56,63 @@ class BusConfig:
         return {k: v for k, v in vars(self).items() if v is not None}
 
 
-def resolve(config: BusConfig, python_can_sources: bool = False) -> dict[str, Any]:
-    """Keyword arguments for :class:`can.Bus`: given values, python-can's sources, default."""
-    kwargs = config.given()
-    if python_can_sources:
-        try:
-            kwargs = dict(can.util.load_config(config=kwargs))
-        except can.CanInterfaceNotImplementedError as exc:
-            raise BusError(f"unknown CAN interface: {exc}") from exc
-    if not kwargs.get("interface"):
-        kwargs["interface"] = DEFAULT_INTERFACE
-        kwargs.setdefault("channel", DEFAULT_CHANNEL)
-    if kwargs.get("channel") is None:
-        kwargs["channel"] = DEFAULT_CHANNEL
-    return kwargs
+def python_can_sources() -> list[dict[str, Any]]:
+    """python-can's own settings below the arguments, highest first: ``can.rc``, the
+    environment, the config files (read now, as python-can reads them)."""
+    try:
+        environment = can.util.load_environment_config()
+    except json.JSONDecodeError as exc:
+        raise BusError(f"CAN_CONFIG is not a JSON object: {exc}") from exc
+    return [dict(can.rc), dict(environment), dict(can.util.load_file_config())]
 
 
-def open_bus(config: BusConfig | None = None, python_can_sources: bool = False,
-             **extra: Any) -> can.BusABC:
-    """Open the bus ``config`` describes; BusError when the interface cannot be opened."""
-    kwargs = {**resolve(config or BusConfig(), python_can_sources), **extra}
+def defaults_for(interface: str | None) -> dict[str, Any]:
+    """The lowest level: ``virtual`` on ``atris`` when nothing names an interface, else
+    ``atris`` for a virtual bus and 500 kbit/s for an interface with a bit rate."""
+    interface = interface or DEFAULT_INTERFACE
+    if interface == DEFAULT_INTERFACE:
+        return {"interface": interface, "channel": DEFAULT_CHANNEL}
+    return {} if interface in NO_BITRATE else {"bitrate": DEFAULT_BITRATE}
+
+
+def _without_bustype(source: Mapping[str, Any]) -> dict[str, Any]:
+    """python-can's legacy ``bustype`` key as ``interface``, as load_config reads it."""
+    settings = dict(source)
+    bustype = settings.pop("bustype", None)
+    if bustype and not settings.get("interface"):
+        settings["interface"] = bustype
+    return settings
+
+
+def merge(*sources: Mapping[str, Any]) -> dict[str, Any]:
+    """Key by key, the first source that has a key wins."""
+    merged: dict[str, Any] = {}
+    for source in sources:
+        for key, value in _without_bustype(source).items():
+            merged.setdefault(key, value)
+    return merged
+
+
+def resolve(config: BusConfig) -> dict[str, Any]:
+    """Keyword arguments for :class:`can.Bus`: arguments > python-can's sources > defaults,
+    checked and typed by python-can (strings from files become numbers)."""
+    found = merge(config.given(), *python_can_sources())
+    settings = merge(found, defaults_for(found.get("interface")))
+    try:
+        return dict(can.util.load_config(config=settings))
+    except (can.CanInterfaceNotImplementedError, ValueError, TypeError) as exc:
+        raise BusError(f"bus settings {settings} not accepted: {exc}; accepted interfaces: "
+                       f"{', '.join(sorted(can.VALID_INTERFACES))}") from exc
+
+
+def open_bus(config: BusConfig | None = None, **extra: Any) -> can.BusABC:
+    """Open the bus ``config`` and python-can's sources describe (:func:`resolve`), with
+    ``extra`` keywords over them; BusError when the interface cannot be opened."""
+    kwargs = {**resolve(config or BusConfig()), **extra}
     logger.info("opening CAN bus %s", kwargs)
     try:
-        return can.Bus(**kwargs)
-    except (can.CanError, OSError, ImportError, ValueError) as exc:
+        return can.Bus(ignore_config=True, **kwargs)
+    except (can.CanError, OSError, ImportError, ValueError, TypeError) as exc:
         raise BusError(f"cannot open CAN bus {kwargs}: {exc}; accepted interfaces: "
                        f"{', '.join(sorted(can.VALID_INTERFACES))}") from exc
 

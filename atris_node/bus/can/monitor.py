@@ -12,6 +12,7 @@ replays exactly as it was seen.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import threading
 from dataclasses import dataclass, field
@@ -189,6 +190,86 @@ def render_table(snapshot: dict[str, Any]) -> str:
     lines.append(f"unknown frames: {snapshot['unknown_frames']}  "
                  f"error frames: {snapshot['error_frames']}")
     return "\n".join(lines)
+
+
+#: frames read from the bus after its Notifier stopped, at most (a busy real bus never
+#: falls silent; the virtual bus has only what was queued before)
+DRAIN_LIMIT = 100_000
+
+
+class _Fanout(can.Listener):
+    """One Notifier listener passing each frame on to several. A listener that fails on a
+    frame (a log writer on a full disk) is logged and counted, and the others still get
+    it; stopping the fan-out stops none of them."""
+
+    def __init__(self, listeners: list[can.Listener]) -> None:
+        self.listeners = listeners
+        self.failures = 0
+        self.first_failure = ""
+
+    def on_message_received(self, msg: can.Message) -> None:
+        for listener in self.listeners:
+            try:
+                listener.on_message_received(msg)
+            except Exception as exc:
+                self._failed(listener, exc)
+
+    def _failed(self, listener: can.Listener, exc: Exception) -> None:
+        self.failures += 1
+        if not self.first_failure:
+            self.first_failure = f"{type(listener).__name__}: {exc!r}"
+            logger.exception("%s could not take a frame (the frames it cannot take are "
+                             "counted)", type(listener).__name__)
+
+    def on_error(self, exc: Exception) -> None:
+        for listener in self.listeners:
+            with contextlib.suppress(NotImplementedError):
+                listener.on_error(exc)
+
+    def stop(self) -> None:
+        """The listeners belong to the BusTap, which stops them itself."""
+
+
+class BusTap:
+    """Every frame of ``bus`` to ``listeners`` (a BusMonitor, a log writer) through one
+    Notifier. :meth:`stop` stops the Notifier, passes on the frames still queued on the
+    bus (the last frames of units that were just shut down) and then stops each listener
+    exactly once: the tap is the listeners' one owner (a log writer closed twice fails).
+    """
+
+    def __init__(self, bus: can.BusABC, listeners: list[can.Listener]) -> None:
+        self.bus = bus
+        self._fanout = _Fanout(listeners)
+        self._notifier: can.Notifier | None = can.Notifier(bus, [self._fanout], timeout=0.1)
+
+    def stop(self) -> None:
+        """Stop listening, drain the bus, stop the listeners. Idempotent."""
+        if self._notifier is None:
+            return
+        notifier, self._notifier = self._notifier, None
+        try:
+            notifier.stop()
+            self._drain()
+        finally:
+            for listener in self._fanout.listeners:
+                listener.stop()
+
+    @property
+    def failures(self) -> int:
+        """Frames a listener could not take (each logged or counted, never silent)."""
+        return self._fanout.failures
+
+    @property
+    def first_failure(self) -> str:
+        """The first of those failures, as text ('' if none)."""
+        return self._fanout.first_failure
+
+    def _drain(self) -> None:
+        for _ in range(DRAIN_LIMIT):
+            msg = self.bus.recv(timeout=0.0)
+            if msg is None:
+                return
+            self._fanout.on_message_received(msg)
 
 
 #: the E2E states that count as errors
