@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import random
+import threading
 
 import pytest
 
@@ -21,7 +23,9 @@ from atris_node.errors import ConfigError
 
 FIELDS = {"minutes", "units", "rss_start_mb", "rss_end_mb", "rss_growth_mb", "threads_start",
           "threads_end", "cycles", "deadline_misses", "deadline_miss_fraction", "e2e_errors",
-          "measurements"}
+          "measurements", "late_cycles_on_bus", "unflagged_late_cycles"}
+#: seconds into the half-minute soak (after its 6 s warm-up) when the process stalls
+STALL_AT_S = 12.0
 
 
 def run_cli(*argv: str) -> None:
@@ -30,9 +34,35 @@ def run_cli(*argv: str) -> None:
     assert soak_cli.run(parser.parse_args(list(argv))) == 0
 
 
+def stall_the_process(done: threading.Event) -> None:
+    """At STALL_AT_S, hold the GIL for about half a second (one sort of shuffled ints is one
+    C call with no switch inside): every thread of the process, each unit's publisher
+    included, stops. Then wait for ``done``, so the thread count is the same at the soak's
+    start and end."""
+    numbers = list(range(1_000_000))
+    random.Random(1).shuffle(numbers)
+    if not done.wait(STALL_AT_S):
+        sorted(numbers)
+        done.wait()
+
+
 def test_half_minute_soak_reports_and_leaves_nothing_behind(
         capsys: pytest.CaptureFixture[str]) -> None:
-    run_cli("--minutes", "0.5", "--json")
+    """The soak's numbers, and what the bus saw: a stall of the whole process half-way
+    makes every unit's next Status cycle late on the bus, and each late cycle carries
+    DeadlineMiss.
+
+    Checked by removing the protection once (``Publisher._faults`` no longer adding
+    DEADLINE_MISS for a late cycle): ``unflagged_late_cycles`` was 4 of 4 late cycles and
+    the test failed."""
+    done = threading.Event()
+    stall = threading.Thread(target=stall_the_process, args=(done,))
+    stall.start()
+    try:
+        run_cli("--minutes", "0.5", "--json")
+    finally:
+        done.set()
+        stall.join()
     report = json.loads(capsys.readouterr().out)
     assert set(report) >= FIELDS
     assert report["units"] == 4 and report["minutes"] == 0.5
@@ -43,7 +73,9 @@ def test_half_minute_soak_reports_and_leaves_nothing_behind(
     # four units publish at 20 Hz over the 24 s after the warm-up: never more often
     assert 0 < report["cycles"] <= 1.1 * 4 * 20 * 24
     assert report["measurements"] >= 4
-    assert report["deadline_misses"] <= report["cycles"]
+    assert report["late_cycles_on_bus"] >= report["units"], "the stall made no cycle late"
+    assert report["unflagged_late_cycles"] == 0
+    assert report["deadline_misses"] >= report["units"]  # the publishers counted them too
     assert report["deadline_miss_fraction"] == pytest.approx(
         report["deadline_misses"] / report["cycles"])
 

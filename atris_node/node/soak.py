@@ -2,7 +2,9 @@
 
 Reported after a warm-up (the first fifth of the run, at most 60 s): resident memory growth
 in MB, thread count at the start and the end, the fraction of publisher cycles that missed
-their deadline, and frames whose E2E check failed.
+their deadline, and frames whose E2E check failed. What went out is also checked on the
+bus itself (:class:`CycleWatch`): a unit's Status frame that came later than its period
+plus tolerance after the one before is a late cycle, and it must carry DeadlineMiss.
 """
 
 from __future__ import annotations
@@ -18,7 +20,10 @@ from typing import Any
 import can
 import psutil
 
+from atris_node.bus.can.frames import FrameCodec
+from atris_node.bus.can.ids import FrameKind, message_name
 from atris_node.bus.can.monitor import BusMonitor, e2e_errors_by_unit
+from atris_node.errors import FrameDecodeError
 from atris_node.node.launch import LaunchSpec, load_launch
 from atris_node.node.runner import FleetRun, open_bus
 
@@ -46,9 +51,42 @@ class SoakReport:
     deadline_miss_fraction: float
     e2e_errors: int
     measurements: int
+    late_cycles_on_bus: int
+    unflagged_late_cycles: int
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+class CycleWatch(can.Listener):
+    """Late Status cycles as the bus saw them, per frame's send timestamp, and how many of
+    them lack the DeadlineMiss bit. ``limits`` maps a Status frame's name to the largest
+    gap, s, its unit's cycles may have (period + tolerance)."""
+
+    def __init__(self, limits: dict[str, float]) -> None:
+        self.limits = limits
+        self.late = 0
+        self.unflagged = 0
+        self._codec = FrameCodec()
+        self._last: dict[str, float] = {}
+
+    def on_message_received(self, msg: can.Message) -> None:
+        try:
+            frame = self._codec.decode_message(msg)
+        except FrameDecodeError:
+            return
+        limit = self.limits.get(frame.name)
+        if limit is None:
+            return
+        last, self._last[frame.name] = self._last.get(frame.name), msg.timestamp
+        if last is not None and msg.timestamp - last > limit:
+            self.late += 1
+            self.unflagged += not frame.signals.get("Fault_DeadlineMiss")
+
+
+def _status_limits(fleet: FleetRun) -> dict[str, float]:
+    return {message_name(u.publisher.unit_id, FrameKind.STATUS):
+            u.publisher.period_s + u.publisher.tolerance_s for u in fleet.units}
 
 
 def _rss_mb() -> float:
@@ -94,6 +132,8 @@ def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
         try:
             fleet.start()
             _run_phase(fleet, warmup_s)
+            watch = CycleWatch(_status_limits(fleet))
+            notifier.add_listener(watch)
             rss0, threads0 = _rss_mb(), threading.active_count()
             cycles0, misses0 = _publisher_totals(fleet)
             errors0 = sum(e2e_errors_by_unit(monitor).values())
@@ -102,6 +142,7 @@ def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
             cycles1, misses1 = _publisher_totals(fleet)
             errors1 = sum(e2e_errors_by_unit(monitor).values())
             measurements = sum(u.stats.measurements for u in fleet.units)
+            notifier.remove_listener(watch)
         finally:
             fleet.stop()
             notifier.stop()
@@ -111,4 +152,5 @@ def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
         rss_end_mb=round(rss1, 2), rss_growth_mb=round(rss1 - rss0, 2),
         threads_start=threads0, threads_end=threads1, cycles=cycles,
         deadline_misses=misses, deadline_miss_fraction=misses / cycles if cycles else 0.0,
-        e2e_errors=errors1 - errors0, measurements=measurements)
+        e2e_errors=errors1 - errors0, measurements=measurements,
+        late_cycles_on_bus=watch.late, unflagged_late_cycles=watch.unflagged)
