@@ -20,6 +20,15 @@ Rows (one per scene; JSON keys relied on by the tests and docs/benchmarks.md):
 ``near_phantom``, ``far``, ``false_free``, ``accurate``, ``invalid_fraction``,
 ``accurate_fraction`` (of VALID; null without VALID), ``ambiguous_samples`` (per map),
 ``pipeline_ms`` (median).
+
+``--groups G`` evaluates a fan split into G groups of lines, each on its own orthogonal
+code and demodulated on its own: group g holds lines g, g + G, g + 2G... at the same power
+per line, rendered alone (the other groups' light cancels in its demodulation; their shot
+noise is left out) and measured with its own calibration. A sector-frame is then what a
+unit publishing all groups would say, conservatively: INVALID when any group says INVALID,
+else the nearest VALID distance of the groups, else NO_RETURN; it is scored against the
+truth of the whole fan. ``ambiguous_samples`` and ``pipeline_ms`` are summed over the
+groups.
 """
 
 from __future__ import annotations
@@ -28,7 +37,7 @@ import argparse
 import json
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -139,35 +148,77 @@ def over_window(truths: list[tuple[float | None, ...]]) -> tuple[Truth, ...]:
     return tuple(out)
 
 
-def score_scene(name: str, maps: int = MAPS) -> SceneScore:
+def score_scene(name: str, maps: int = MAPS, groups: int = 1) -> SceneScore:
     """Render ``maps`` maps of scene ``name`` (unit 0, its own code), run the pipeline the
-    node would run on them, and score every sector-frame."""
-    from atris_node.pipeline.chain import Pipeline, PipelineConfig
+    node would run on them, and score every sector-frame (``groups``: see the module
+    docstring)."""
+    from atris_node.pipeline.chain import PipelineConfig
 
     scene = load_scene(name)
-    chips = walsh_chips(scene.code_length, scene.code_row)
-    sim = Simulator(scene, chips=chips, seed=1)
     config = PipelineConfig(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad))
-    pipe = Pipeline(config, sim.calibration(), sim.mounting, LAYOUT)
-    demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
+    whole = Simulator(scene, chips=walsh_chips(scene.code_length, scene.code_row), seed=1)
+    runs = [_measure(_group(scene, g, groups), maps, config, seed=1 + g)
+            for g in range(groups)]
     score = SceneScore(name)
-    sequence = 0
-    while score.maps < maps:
-        dmap = demod.push(sim.render(sequence))
-        sequence += 1
-        if dmap is None:
-            continue
-        result = pipe.process(dmap)
-        score.add(result.measurement, _truth(sim, dmap, config.z_max_m))
-        score.ambiguous.append(result.diagnostics.ambiguous)
-        score.pipeline_ms.append(result.diagnostics.timings_ms.get("total", 0.0))
+    for per_group in zip(*runs, strict=True):
+        measurement, _, _, span = per_group[0]
+        sectors = _combined([m.sectors for m, _, _, _ in per_group])
+        score.add(replace(measurement, sectors=sectors), _truth(whole, span, config.z_max_m))
+        score.ambiguous.append(sum(a for _, a, _, _ in per_group))
+        score.pipeline_ms.append(sum(ms for _, _, ms, _ in per_group))
     return score
 
 
-def _truth(sim: Simulator, dmap: Any, z_max_m: float) -> tuple[Truth, ...]:
-    """The truth of a map: at its middle sub-frame, or over its first, middle and last
-    when the scene moves."""
-    first, last = dmap.first_sequence, dmap.last_sequence
+def _group(scene: Any, group: int, groups: int) -> Any:
+    """``scene`` with only lines ``group``, ``group + groups``... at the same power per
+    line."""
+    if groups == 1:
+        return scene
+    laser = scene.projector
+    alpha = tuple(laser.alpha_rad[group::groups])
+    power = laser.power_w * len(alpha) / len(laser.alpha_rad)
+    return replace(scene, projector=replace(laser, alpha_rad=alpha, power_w=power))
+
+
+def _measure(scene: Any, maps: int, config: Any, seed: int
+             ) -> list[tuple[Measurement, int, float, tuple[int, int]]]:
+    """(measurement, ambiguous samples, pipeline ms, (first, last) sub-frame) of the first
+    ``maps`` maps."""
+    from atris_node.pipeline.chain import Pipeline
+
+    chips = walsh_chips(scene.code_length, scene.code_row)
+    sim = Simulator(scene, chips=chips, seed=seed)
+    pipe = Pipeline(config, sim.calibration(), sim.mounting, LAYOUT)
+    demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
+    out: list[tuple[Measurement, int, float, tuple[int, int]]] = []
+    sequence = 0
+    while len(out) < maps:
+        dmap = demod.push(sim.render(sequence))
+        sequence += 1
+        if dmap is not None:
+            result = pipe.process(dmap)
+            out.append((result.measurement, result.diagnostics.ambiguous,
+                        result.diagnostics.timings_ms.get("total", 0.0),
+                        (dmap.first_sequence, dmap.last_sequence)))
+    return out
+
+
+def _combined(groups: list[tuple[SectorDistance, ...]]) -> tuple[SectorDistance, ...]:
+    """Per sector: INVALID when any group says so, else the nearest VALID, else NO_RETURN."""
+    out = []
+    for sectors in zip(*groups, strict=True):
+        if any(s.state is SectorState.INVALID for s in sectors):
+            out.append(next(s for s in sectors if s.state is SectorState.INVALID))
+            continue
+        valid = [s for s in sectors if s.state is SectorState.VALID]
+        out.append(min(valid, key=lambda s: s.distance_m) if valid else sectors[0])
+    return tuple(out)
+
+
+def _truth(sim: Simulator, span: tuple[int, int], z_max_m: float) -> tuple[Truth, ...]:
+    """The truth of a map of sub-frames ``span`` (first, last): at its middle sub-frame,
+    or over its first, middle and last when the scene moves."""
+    first, last = span
     instants = [first, (first + last) // 2, last] if sim.dynamic else [(first + last) // 2]
     return over_window([within_range(sim.truth(i, LAYOUT).sector_distance_m, z_max_m)
                         for i in instants])
@@ -179,6 +230,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene names (default: every shipped scene)")
     parser.add_argument("--stress", action="store_true", help="also every stress scene")
     parser.add_argument("--maps", type=int, default=MAPS, help=f"maps per scene ({MAPS})")
+    parser.add_argument("--groups", type=int, default=1,
+                        help="split the fan into G groups of lines on their own codes (1)")
 
 
 def _text(row: dict[str, Any]) -> str:
@@ -191,10 +244,12 @@ def _text(row: dict[str, Any]) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.maps < 1:
         raise ConfigError(f"--maps must be >= 1, got {args.maps}")
+    if not 1 <= args.groups <= 4:
+        raise ConfigError(f"--groups must be in 1..4, got {args.groups}")
     names = list(args.scenes or shipped_scenes()) + (stress_scenes() if args.stress else [])
     rows = []
     for name in names:
-        rows.append(score_scene(name, args.maps).row())
+        rows.append(score_scene(name, args.maps, args.groups).row())
         if not args.json:
             print(_text(rows[-1]), flush=True)
     if args.json:
