@@ -180,7 +180,7 @@ def test_shipped_eds_has_the_standard_objects() -> None:
     od = canopen.import_od(str(eds_path()), NODE_ID)
     for index in (0x1000, 0x1001, 0x1017, 0x1018, 0x1800, 0x1A00, 0x2000, 0x2100, 0x2120):
         assert index in od
-    assert od[0x1800][1].default == 0x180 + NODE_ID
+    assert od[0x1800][1].default == 0x4000_0000 | 0x180 + NODE_ID  # no RTR
     assert "[FileInfo]" in eds_text()
 
 
