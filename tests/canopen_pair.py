@@ -70,12 +70,14 @@ class Pair:
             return list(self.frames[can_id])
 
     def nmt(self, state: str) -> None:
-        """NMT command to the device; returns once the device is in the new state."""
+        """NMT command to the device; returns once the device is in the new state (after
+        a reset: once it booted again)."""
+        boot_ups = self.device.nmt.boot_ups
         self.master.nmt.state = state
-        wanted = {"RESET": "PRE-OPERATIONAL", "RESET COMMUNICATION": "PRE-OPERATIONAL"}
-        target = wanted.get(state, state)
+        reset = state in ("RESET", "RESET COMMUNICATION")
+        target = "PRE-OPERATIONAL" if reset else state
         deadline = time.monotonic() + 2.0
-        while self.device.nmt_state != target:
+        while self.device.nmt_state != target or (reset and self.device.nmt.boot_ups == boot_ups):
             assert time.monotonic() < deadline, f"device stays {self.device.nmt_state}"
             time.sleep(0.005)
 
