@@ -301,7 +301,7 @@ class CanopenDevice:
         elif index in TPDO_MAP_INDEXES:
             pdo.check_map_write(self.node, index, subindex, value)
         elif index == SYNC_COB_ID_INDEX:
-            pdo.check_sync_cob_id(pdo.raw(self.node, index, 0), value)
+            pdo.check_sync_cob_id(value)
             self._subscribe_sync(value)
         elif index == EMCY_COB_ID_INDEX:
             pdo.check_cob_id(pdo.raw(self.node, index, 0), value, pdo.NOT_VALID)

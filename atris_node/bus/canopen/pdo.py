@@ -41,25 +41,31 @@ def raw(node: canopen.LocalNode, index: int, subindex: int) -> int:
     return int(variable.decode_raw(node.get_data(index, subindex)))
 
 
-def check_cob_id(old: int, new: int, valid_bit: int) -> None:
-    """Raise SdoAbortedError 0x06090030 unless ``new`` is an 11-bit COB-ID outside the
-    restricted CAN-IDs whose CAN-ID part differs from ``old`` only if one of them has
-    ``valid_bit`` set (the object does not exist while being moved)."""
-    can_id = new & CAN_ID_MASK
-    if new & FRAME_29_BIT or new & 0x1FFFFFFF & ~CAN_ID_MASK:
+def check_can_id(cob_id: int) -> None:
+    """Raise SdoAbortedError 0x06090030 unless ``cob_id`` is an 11-bit COB-ID outside the
+    CAN-IDs CiA 301 restricts."""
+    can_id = cob_id & CAN_ID_MASK
+    if cob_id & FRAME_29_BIT or cob_id & 0x1FFFFFFF & ~CAN_ID_MASK:
         raise SdoAbortedError(ABORT_RANGE)
     if any(can_id in ids for ids in RESTRICTED_IDS):
         raise SdoAbortedError(ABORT_RANGE)
+
+
+def check_cob_id(old: int, new: int, valid_bit: int) -> None:
+    """:func:`check_can_id`, and the CAN-ID of ``new`` differs from ``old`` only if one
+    of them has ``valid_bit`` set (the object does not exist while being moved)."""
+    check_can_id(new)
     moved = (old & 0x1FFFFFFF) != (new & 0x1FFFFFFF)
     if moved and not (old & valid_bit or new & valid_bit):
         raise SdoAbortedError(ABORT_RANGE)
 
 
-def check_sync_cob_id(old: int, new: int) -> None:
-    """0x1005: the device consumes SYNC and never produces it (bit 30 refused)."""
+def check_sync_cob_id(new: int) -> None:
+    """0x1005: the device consumes SYNC (on any allowed CAN-ID, changed at any time) and
+    never produces it (bit 30 refused)."""
     if new & SYNC_PRODUCER:
         raise SdoAbortedError(ABORT_RANGE)
-    check_cob_id(old & ~NOT_VALID, new & ~NOT_VALID, NOT_VALID | SYNC_PRODUCER)
+    check_can_id(new & ~NOT_VALID)
 
 
 def check_comm_write(node: canopen.LocalNode, index: int, subindex: int, value: int) -> None:
