@@ -72,11 +72,15 @@ def problems(text: str) -> list[str]:
         eds.read_string(text)
     except configparser.Error as exc:
         return [f"not an EDS: {exc}"]
-    found = _load_problems(text) + _list_problems(eds) + _pdo_count_problems(eds)
-    variables = _variables(eds)
-    found += _record_problems(eds, variables)
-    for key, section in variables.items():
-        found += _variable_problems(eds[section], section, key)
+    found = _load_problems(text)
+    try:
+        found += _list_problems(eds) + _pdo_count_problems(eds)
+        variables = _variables(eds)
+        found += _record_problems(eds, variables)
+        for key, section in variables.items():
+            found += _variable_problems(eds[section], section, key)
+    except (ValueError, KeyError) as exc:
+        return [*found, f"unreadable entry: {exc}"]
     for key in sorted(set(DEVICE_OBJECTS) - set(variables)):
         found.append(f"0x{key[0]:04X} sub {key[1]}: served by the device, not in the EDS")
     for key in sorted(set(variables) - set(DEVICE_OBJECTS)):
