@@ -50,7 +50,9 @@ def _abort(pair: Pair, name: str, value: int) -> int:
 def test_max_data_age_takes_effect_on_the_next_sync(pair: Pair, clock: FakeClock) -> None:
     """After MaxDataAge = 30 ms is written in OPERATIONAL, no TPDO carries data older than
     30 ms as valid, from the very next SYNC on; younger data stays valid (read
-    MaxDataAge once at start instead of per transmission and this fails)."""
+    MaxDataAge once at start instead of per transmission and this fails). SDO reads of
+    the values are aged at the read (skip the composing in _on_sdo_request and the
+    last one reads valid)."""
     pair.device.start()
     pair.operational()
     newest = clock.now
@@ -68,6 +70,12 @@ def test_max_data_age_takes_effect_on_the_next_sync(pair: Pair, clock: FakeClock
         sector_valid = pair.master.tpdo[3]["SectorDistance_mm.Sector0"].raw != INVALID
         nearest_valid = pair.master.tpdo[2]["Nearest.Distance_mm"].raw != INVALID
         assert sector_valid == nearest_valid == (age_ms <= 30), age_ms
+    clock.now = newest + 0.029
+    pair.device.heartbeat()
+    sync_and_read(pair, 3)
+    clock.now = newest + 0.031  # no SYNC since: an SDO read is aged all the same
+    assert pair.master.sdo["Nearest"]["Valid"].raw == 0
+    assert pair.master.sdo["SectorDistance_mm"]["Sector0"].raw == INVALID
 
 
 def test_min_confidence_makes_less_confident_sectors_invalid(pair: Pair,

@@ -67,6 +67,8 @@ EMCY_BUS_OFF_RECOVERED = 0x8140
 ERROR_REGISTER_GENERIC, ERROR_REGISTER_COMMUNICATION = 0x01, 0x10
 ERROR_REGISTER_MANUFACTURER = 0x80
 ABORT_NO_SUBINDEX = 0x06090011
+SDO_INITIATE_UPLOAD = 0x40  # client command specifier 2, in bits 5..7
+PROCESS_INDEXES = (SECTOR_DISTANCE_INDEX, SECTOR_CONFIDENCE_INDEX, NEAREST_INDEX, STATUS_INDEX)
 ConfigCallback = Callable[[str, int], None]
 SyncIdCallback = Callable[[int], None]
 
@@ -281,9 +283,15 @@ class CanopenDevice:
     # -- SDO -----------------------------------------------------------------------------
     def _on_sdo_request(self, serve: Callable[[int, bytearray, float], None], can_id: int,
                         data: bytearray, timestamp: float) -> None:
-        """An SDO request, served unless STOPPED (CiA 301: no SDO there)."""
-        if self.nmt.state in configuration.LIVE:
-            serve(can_id, data, timestamp)
+        """An SDO request, served unless STOPPED (CiA 301: no SDO there); an upload of a
+        process value reads it as a TPDO sent now would carry it (aged)."""
+        if self.nmt.state not in configuration.LIVE:
+            return
+        if len(data) >= 3 and data[0] & 0xE0 == SDO_INITIATE_UPLOAD and int.from_bytes(
+                data[1:3], "little") in PROCESS_INDEXES:
+            with self._lock:
+                self._write_values(self.clock())
+        serve(can_id, data, timestamp)
 
     def _on_read(self, index: int, subindex: int, od: ODVariable, **_: Any) -> None:
         """canopen's arrays answer any sub-index; ours serve only those in the EDS."""
