@@ -135,7 +135,7 @@ def test_commands_and_broadcast(pair: Pair) -> None:
 
 
 def test_emcy_only_in_pre_operational_and_operational(pair: Pair) -> None:
-    """No EMCY in STOPPED (CiA 301; remove the state check in _send_emcy and this
+    """No EMCY in STOPPED (CiA 301; remove the state check in EmcyService._send and this
     fails); the error register still records it."""
     pair.device.start()
     pair.nmt("STOPPED")

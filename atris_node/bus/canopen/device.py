@@ -30,20 +30,19 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import can
 import canopen
 from canopen.objectdictionary import ODArray, ODVariable
 from canopen.sdo import SdoAbortedError
 
 from atris_node.bus.can import payloads
 from atris_node.bus.canopen import configuration, nmt, pdo, values
+from atris_node.bus.canopen.emcy import EmcyService
 from atris_node.bus.canopen.objects import (
     ABORT_STORE,
     APPLICATION_AREA,
     COMMUNICATION_AREA,
     CONFIG_INDEX,
     EMCY_COB_ID_INDEX,
-    ERROR_REGISTER,
     HEARTBEAT_TIME,
     NEAREST_INDEX,
     SECTOR_CONFIDENCE_INDEX,
@@ -121,9 +120,7 @@ class CanopenDevice:
                                 publish_period_ms=lambda: self.config("PublishPeriod_ms"),
                                 on_recovered=self.emcy_bus_off_recovered)
         self._sync_id: int | None = None
-        self._error_register = 0
-        self._emcy_valid = True
-        self._emcy_errors = 0
+        self.emcy = EmcyService(self.node, lambda: self.nmt.state)
         self._stopping = threading.Event()
         self._timer: threading.Thread | None = None
         self._fatal: BaseException | None = None
@@ -181,7 +178,7 @@ class CanopenDevice:
     @property
     def send_errors(self) -> int:
         """TPDOs, heartbeats and EMCYs the bus refused."""
-        return self.tpdo.send_errors + self.nmt.send_errors + self._emcy_errors
+        return self.tpdo.send_errors + self.nmt.send_errors + self.emcy.send_errors
 
     @property
     def frames_sent(self) -> int:
@@ -247,38 +244,19 @@ class CanopenDevice:
     # -- EMCY ----------------------------------------------------------------------------
     def emcy_camera_lost(self) -> None:
         """EMCY 0xFF01: the camera stopped delivering sub-frames."""
-        self._emcy(EMCY_CAMERA_LOST, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
+        self.emcy.error(EMCY_CAMERA_LOST, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
 
     def emcy_laser_fault(self) -> None:
         """EMCY 0xFF02: projector fault."""
-        self._emcy(EMCY_LASER_FAULT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
+        self.emcy.error(EMCY_LASER_FAULT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
 
     def emcy_bus_off_recovered(self) -> None:
         """EMCY 0x8140: recovered from bus-off."""
-        self._emcy(EMCY_BUS_OFF_RECOVERED, ERROR_REGISTER_COMMUNICATION)
+        self.emcy.error(EMCY_BUS_OFF_RECOVERED, ERROR_REGISTER_COMMUNICATION)
 
     def emcy_reset(self) -> None:
         """EMCY 0x0000: all errors cleared."""
-        self._error_register = 0
-        self._set(ERROR_REGISTER, 0, 0)
-        self._send_emcy(0, 0)
-
-    def _emcy(self, code: int, register_bits: int) -> None:
-        self._error_register |= register_bits
-        self._set(ERROR_REGISTER, 0, self._error_register)
-        logger.warning("CANopen EMCY 0x%04X (error register 0x%02X)", code, self._error_register)
-        self._send_emcy(code, self._error_register)
-
-    def _send_emcy(self, code: int, register: int) -> None:
-        """EMCY on the COB-ID of 0x1014, in PRE-OPERATIONAL and OPERATIONAL only."""
-        if not self._emcy_valid or self.nmt.state not in configuration.LIVE:
-            logger.info("EMCY 0x%04X not sent (NMT %s)", code, self.nmt.state)
-            return
-        try:
-            self.node.emcy.send(code, register)
-        except can.CanError as exc:
-            logger.error("EMCY 0x%04X not sent: %s", code, exc)
-            self._emcy_errors += 1
+        self.emcy.reset()
 
     # -- SDO -----------------------------------------------------------------------------
     def _on_sdo_request(self, serve: Callable[[int, bytearray, float], None], can_id: int,
@@ -313,7 +291,7 @@ class CanopenDevice:
             self._subscribe_sync(value)
         elif index == EMCY_COB_ID_INDEX:
             pdo.check_cob_id(pdo.raw(self.node, index, 0), value, pdo.NOT_VALID)
-            self._apply_emcy_cob_id(value)
+            self.emcy.set_cob_id(value)
         elif index == CONFIG_INDEX and subindex:
             configuration.check_write(od, value, self.nmt.state, self.power_on)
             self._notify_config(od.name, value)
@@ -342,10 +320,6 @@ class CanopenDevice:
             if self.on_sync_id is not None:
                 self.on_sync_id(can_id)
 
-    def _apply_emcy_cob_id(self, cob_id: int) -> None:
-        self.node.emcy.cob_id = cob_id & pdo.CAN_ID_MASK
-        self._emcy_valid = not cob_id & pdo.NOT_VALID
-
     def _heartbeat_ms(self) -> int:
         return pdo.raw(self.node, HEARTBEAT_TIME, 0)
 
@@ -355,7 +329,7 @@ class CanopenDevice:
         with self._lock:
             self._restore(COMMUNICATION_AREA)
             self._subscribe_sync(pdo.raw(self.node, SYNC_COB_ID_INDEX, 0))
-            self._apply_emcy_cob_id(pdo.raw(self.node, EMCY_COB_ID_INDEX, 0))
+            self.emcy.set_cob_id(pdo.raw(self.node, EMCY_COB_ID_INDEX, 0))
             self.tpdo.reset()
 
     def _reset_application(self) -> None:
