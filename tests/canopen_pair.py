@@ -5,8 +5,7 @@ from __future__ import annotations
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping
 
 import canopen
 
@@ -90,15 +89,6 @@ class Pair:
         self.device.stop()
         self.master_net.disconnect()
         self.device_net.disconnect()
-
-
-@contextmanager
-def pair_of(**kwargs: object) -> Iterator[Pair]:
-    p = Pair(**kwargs)  # type: ignore[arg-type]
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def measurement(newest_time_s: float | None = None, confidence: float = 0.5) -> Measurement:
