@@ -3,11 +3,12 @@ valid changes take effect, invalid ones are refused with the CiA 301 abort codes
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
 import pytest
 from canopen.sdo import SdoAbortedError, SdoVariable
-from canopen_pair import NODE_ID, RUNNING, Pair, measurement, sync_and_read
+from canopen_pair import NODE_ID, RUNNING, FakeClock, Pair, measurement, sync_and_read
 
 from atris_node.types import UnitState
 
@@ -193,3 +194,27 @@ def test_emcy_cob_id_0x1014_is_honoured(pair: Pair) -> None:
     pair.device.emcy_laser_fault()
     assert pair.wait_frames(MOVED_EMCY, 1)[0][:2] == (0xFF02).to_bytes(2, "little")
     assert _abort(pair, 0x1014, 0, 0x0A6) == 0x06090030  # moved while valid
+
+
+def test_inhibit_time_bounds_the_event_period() -> None:
+    """An event-driven TPDO with a 10 ms event timer and a 50 ms inhibit time goes out
+    every 50 ms (ignore the inhibit time in TpdoService._event_period_s and a second
+    frame comes after 20 ms)."""
+    clock = FakeClock()
+    p = Pair(clock=clock, watch=(TPDO3,))
+    try:
+        p.device.start()
+        p.master.sdo[0x1802][1].raw = NOT_VALID | NO_RTR | TPDO3
+        p.master.sdo[0x1802][2].raw = 254
+        p.master.sdo[0x1802][3].raw = 500  # 100 us steps
+        p.master.sdo[0x1802][5].raw = 10
+        p.master.sdo[0x1802][1].raw = NO_RTR | TPDO3
+        p.operational()
+        sent = len(p.wait_frames(TPDO3, 1))
+        clock.now += 0.02
+        time.sleep(0.1)
+        assert len(p.frames[TPDO3]) == sent
+        clock.now += 0.031
+        p.wait_frames(TPDO3, sent + 1)
+    finally:
+        p.close()
