@@ -199,9 +199,9 @@ def _value_problems(section: configparser.SectionProxy, where: str, kind: int) -
     """The default within the type's range and LowLimit..HighLimit (numbers only)."""
     if kind not in datatypes.INTEGER_TYPES:
         return []
-    default = section.get("DefaultValue", "0").replace("$NODEID", "0x7F").replace("$nodeid",
-                                                                                  "0x7F")
-    value = sum(int(part, 0) for part in default.split("+"))
+    default = section.get("DefaultValue", "0")
+    value = sum(int(part, 0) for part in re.sub(r"\$NODEID", "0x7F", default, flags=re.I)
+                .split("+"))  # the highest node ID: the widest value the default can take
     bits = {U8: 8, U16: 16, U32: 32, I16: 16}.get(kind, 64)
     lo, hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if kind in datatypes.SIGNED_TYPES \
         else (0, (1 << bits) - 1)
