@@ -103,9 +103,10 @@ def test_stopped_heartbeats_but_answers_no_sdo_and_sends_no_tpdo(pair: Pair) -> 
     pair.nmt("STOPPED")
     before = len(pair.frames[HEARTBEAT])
     assert pair.wait_frames(HEARTBEAT, before + 2)[-1][0] == STOPPED
-    pair.master.sdo.RESPONSE_TIMEOUT = 0.2
+    timeout, pair.master.sdo.RESPONSE_TIMEOUT = pair.master.sdo.RESPONSE_TIMEOUT, 0.2
     with pytest.raises(SdoCommunicationError):
         _ = pair.master.sdo[0x1017].raw
+    pair.master.sdo.RESPONSE_TIMEOUT = timeout
     pair.master_net.sync.transmit()
     assert pair.master.tpdo[3].wait_for_reception(timeout=0.2) is None
     pair.nmt("OPERATIONAL")
