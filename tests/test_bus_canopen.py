@@ -3,46 +3,17 @@
 from __future__ import annotations
 
 import time
-import uuid
 from collections.abc import Iterator
 
 import canopen
 import pytest
 from canopen.sdo import SdoAbortedError
+from canopen_pair import NODE_ID, RUNNING, Pair
+from canopen_pair import measurement as _measurement
+from canopen_pair import sync_and_read as _sync_and_read
 
 from atris_node.bus.canopen.device import CanopenDevice, eds_path, eds_text
-from atris_node.errors import ConfigError
 from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
-
-NODE_ID = 0x21
-RUNNING = UnitStatus(UnitState.RUNNING, code_row=3, code_length=16, chip_rate_hz=480.0,
-                     measurement_counter=0)
-
-
-class Pair:
-    """A master network and a device network on one virtual channel."""
-
-    def __init__(self) -> None:
-        channel = f"co-{uuid.uuid4().hex}"
-        self.master_net, self.device_net = canopen.Network(), canopen.Network()
-        for network in (self.master_net, self.device_net):
-            network.NOTIFIER_CYCLE = 0.02  # quick disconnect: the notifier polls faster
-        self.master_net.connect(interface="virtual", channel=channel)
-        self.device_net.connect(interface="virtual", channel=channel)
-        self.config: list[tuple[str, int]] = []
-        self.device = CanopenDevice(self.device_net, NODE_ID, on_config=self._on_config)
-        self.master = canopen.RemoteNode(NODE_ID, str(eds_path()))
-        self.master_net.add_node(self.master)
-
-    def _on_config(self, name: str, value: int) -> None:
-        if name == "WarningDistance_mm" and value == 1234:
-            raise ConfigError("1234 mm is refused by the node")
-        self.config.append((name, value))
-
-    def close(self) -> None:
-        self.device.stop()
-        self.master_net.disconnect()
-        self.device_net.disconnect()
 
 
 @pytest.fixture
@@ -52,18 +23,6 @@ def pair() -> Iterator[Pair]:
         yield p
     finally:
         p.close()
-
-
-def _measurement() -> Measurement:
-    valid = [SectorDistance(i, 0.0, SectorState.VALID, 1.0 + 0.5 * i, 0.5) for i in range(7)]
-    sectors = (*valid, SectorDistance(7, 0.0, SectorState.NO_RETURN))
-    return Measurement(42, sectors, time.monotonic(), 9, nearest=sectors[0],
-                       closing_speed_mps=0.5, time_to_collision_s=2.0)
-
-
-def _sync_and_read(pair: Pair, number: int) -> None:
-    pair.master_net.sync.transmit()
-    assert pair.master.tpdo[number].wait_for_reception(timeout=1.0) is not None
 
 
 def test_master_configures_starts_and_receives_tpdos(pair: Pair) -> None:
@@ -180,7 +139,7 @@ def test_shipped_eds_has_the_standard_objects() -> None:
     od = canopen.import_od(str(eds_path()), NODE_ID)
     for index in (0x1000, 0x1001, 0x1017, 0x1018, 0x1800, 0x1A00, 0x2000, 0x2100, 0x2120):
         assert index in od
-    assert od[0x1800][1].default == 0x180 + NODE_ID
+    assert od[0x1800][1].default == 0x4000_0000 | 0x180 + NODE_ID  # no RTR
     assert "[FileInfo]" in eds_text()
 
 

@@ -9,6 +9,8 @@ from typing import Any
 
 import can
 import canopen
+import pytest
+from canopen.sdo import SdoAbortedError
 
 from atris_node import config as cfg
 from atris_node.bus.canopen.device import eds_path
@@ -76,6 +78,47 @@ def test_master_starts_unit_and_reads_tpdos_then_emcy_on_camera_loss() -> None:
             time.sleep(0.01)
         assert emcy and emcy[0] == 0xFF01
         assert unit.projector is not None and not unit.projector.is_lit
+    finally:
+        unit.shutdown()
+        bus.shutdown()
+        master_net.disconnect()
+
+
+def test_node_settings_are_the_power_on_values_and_sdo_writes_reach_the_node() -> None:
+    """The node's settings read back from 0x2000; a CodeLength written in PRE-OPERATIONAL
+    becomes the unit's plan, one above code.max_length is refused with 0x08000020 (skip
+    wiring.connect_output and the plan stays N = 8); SYNC moved to 0x081 over 0x1005
+    reaches the unit through its bus filters (drop on_sync_id in wiring.make_output and
+    no TPDO answers)."""
+    channel = f"node-co-{uuid.uuid4().hex}"
+    config = cfg.load(environ={}, overrides=[
+        "bus.protocol=canopen", f"bus.node_id={NODE_ID}", "code.length=8",
+        "code.max_length=16", "negotiation.window_s=0.1", "publish.max_age_s=0.3"])
+    master_net = canopen.Network()
+    master_net.connect(interface="virtual", channel=channel)
+    master = canopen.RemoteNode(NODE_ID, str(eds_path()))
+    master_net.add_node(master)
+    bus = can.Bus(interface="virtual", channel=channel)
+    unit = Unit(config, bus)
+    try:
+        unit.configure()
+        unit.activate(threaded=False)
+        master.nmt.wait_for_heartbeat(timeout=5.0)
+        assert master.sdo["Configuration"]["CodeLength"].raw == 8
+        assert master.sdo["Configuration"]["MaxDataAge_ms"].raw == 300
+        assert master.sdo["Configuration"]["SectorCount"].raw == 8
+        step_until(unit, lambda: unit.stats.measurements >= 1)
+        with pytest.raises(SdoAbortedError) as info:
+            master.sdo["Configuration"]["CodeLength"].raw = 32
+        assert info.value.code == 0x08000020
+        master.sdo["Configuration"]["CodeLength"].raw = 16
+        step_until(unit, lambda: unit.negotiator.plan.code_length == 16)
+        master.sdo[0x1005].raw = 0x081
+        master.tpdo.read(from_od=True)
+        master.nmt.state = "OPERATIONAL"
+        step_until(unit, lambda: unit.stats.measurements >= 3)
+        master_net.send_message(0x081, b"")
+        assert master.tpdo[1].wait_for_reception(timeout=1.0) is not None
     finally:
         unit.shutdown()
         bus.shutdown()

@@ -117,6 +117,7 @@ class Unit:
         self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
                                                   self._services)
+        wiring.connect_output(self._publisher, self._negotiator, self.config)
         adaptive = controller_from_config(self.config,
                                           float(getattr(self._camera, "rate_hz", 0.0)))
         self._measure = Measurer(self.config, pipeline, adaptive, self._negotiator, self.stats,

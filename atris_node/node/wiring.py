@@ -34,6 +34,8 @@ from drivers.watchdog import LeasedProjector
 
 #: default 64-bit NAME when none is configured: a fixed prefix and the unit id
 DEFAULT_NAME_PREFIX = 0x0A70_0000_0000_0000
+#: CANopen SYNC CAN-ID until 0x1005 says otherwise
+DEFAULT_SYNC_ID = 0x080
 
 
 def driver_settings(config: Config) -> tuple[str, dict[str, Any]]:
@@ -137,16 +139,17 @@ class BusServices:
         self.notifier.stop()
 
 
-def receive_filters(config: Config) -> list[CanFilter]:
+def receive_filters(config: Config, sync_id: int = DEFAULT_SYNC_ID) -> list[CanFilter]:
     """The frames a unit reads: the negotiation frames (29-bit, their prefix), and in
-    CANopen mode NMT, SYNC and the SDO requests to its node ID. Everything else (other
-    units' distances, a babbling node) is dropped by the interface (in the kernel on
-    SocketCAN) and cannot crowd the negotiation frames out of the receive queue."""
+    CANopen mode NMT, SYNC (on ``sync_id``, 0x1005) and the SDO requests to its node ID.
+    Everything else (other units' distances, a babbling node) is dropped by the interface
+    (in the kernel on SocketCAN) and cannot crowd the negotiation frames out of the
+    receive queue."""
     filters: list[CanFilter] = [
         {"can_id": PREFIX_BITS, "can_mask": PREFIX_MASK, "extended": True}]
     if config["bus.protocol"] == "canopen":
         filters += [{"can_id": can_id, "can_mask": 0x7FF, "extended": False}
-                    for can_id in (0x000, 0x080, 0x600 + int(config["bus.node_id"]))]
+                    for can_id in (0x000, sync_id, 0x600 + int(config["bus.node_id"]))]
     return filters
 
 
@@ -166,12 +169,41 @@ def make_output(config: Config, bus: can.BusABC, services: BusServices,
                 clock: Callable[[], float]) -> Publisher | CanopenDevice:
     """The frames of this unit: the DBC cycle publisher, or a CANopen slave."""
     if services.network is not None:
-        return CanopenDevice(services.network, config["bus.node_id"], clock=clock)
+        return CanopenDevice(services.network, config["bus.node_id"], clock=clock,
+                             settings=canopen_settings(config),
+                             on_sync_id=lambda sync_id: bus.set_filters(
+                                 receive_filters(config, sync_id)))
     publisher = Publisher(bus, config["unit.unit_id"], period_s=config["publish.period_s"],
                           max_age_s=config["publish.max_age_s"], clock=clock,
                           sector_count=config["pipeline.sector_count"], fd=config["bus.fd"])
     services.notifier.add_listener(publisher.health)
     return publisher
+
+
+def canopen_settings(config: Config) -> dict[str, int]:
+    """Power-on values of the CANopen configuration object 0x2000: the node's settings."""
+    return {"CodeLength": int(config["code.length"]),
+            "SectorCount": int(config["pipeline.sector_count"]),
+            "PublishPeriod_ms": round(float(config["publish.period_s"]) * 1000.0),
+            "MaxDataAge_ms": round(float(config["publish.max_age_s"]) * 1000.0)}
+
+
+def connect_output(output: Publisher | CanopenDevice, negotiator: Negotiator,
+                   config: Config) -> None:
+    """In CANopen mode a CodeLength written over SDO becomes the negotiator's plan
+    request (the other entries of 0x2000 the device applies itself)."""
+    if not isinstance(output, CanopenDevice):
+        return
+    max_length = int(config["code.max_length"])
+
+    def on_config(name: str, value: int) -> None:
+        if name != "CodeLength":
+            return
+        if value > max_length:
+            raise ConfigError(f"CodeLength {value}: this unit runs codes up to "
+                              f"code.max_length = {max_length}")
+        negotiator.request_plan(value)
+    output.on_config = on_config
 
 
 def unit_name(config: Config, camera: Camera) -> int:

@@ -1,14 +1,13 @@
 """CANopen mode: the same sector distances, nearest obstacle and status as a CANopen slave.
 
-A canopen ``LocalNode`` built from the shipped ``atris.eds`` gives the SDO server, NMT
-slave and EMCY producer. The heartbeat (period from 0x1017) is sent by this class's own
-timer thread, not by canopen's ``send_periodic`` task, which dies on the first failed
-send and lingers a period after stop. canopen does not send TPDOs by itself either, so
-this class does: on each SYNC (transmission types 1..240, every n-th SYNC) and on
-each TPDO's event timer (types 254/255), and only in OPERATIONAL. PDO parameters written
-over SDO are re-read (``tpdo.read(from_od=False)``) before the next transmission. SDO
-writes to the configuration (0x2000) are checked against the EDS limits and the rules
-below, aborted with the CiA 301 codes, and handed to ``on_config(name, value)``.
+A canopen ``LocalNode`` built from the shipped ``atris.eds`` gives the object dictionary,
+the SDO server and the EMCY producer. The NMT state machine and the heartbeat are this
+package's (:mod:`~atris_node.bus.canopen.nmt`); no SDO is answered in STOPPED. canopen
+does not send TPDOs by itself, so this class does, only in OPERATIONAL: on each SYNC
+(COB-ID from 0x1005; transmission type 0 when new values came since, 1..240 every n-th
+SYNC) and on each event-driven TPDO's timer (254/255: 0x180x sub 5, else PublishPeriod_ms).
+SDO writes are checked before they are stored (:mod:`~atris_node.bus.canopen.pdo`,
+:mod:`~atris_node.bus.canopen.configuration`) and take effect at the next transmission.
 
 The values a TPDO carries are composed when it is sent, from the newest measurement and
 status the loop handed over: distances older than MaxDataAge (0x2000) go out invalid, and
@@ -20,50 +19,57 @@ invalid distances.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import importlib.resources
 import logging
-import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import can
 import canopen
-from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary import ODArray, ODVariable
 from canopen.sdo import SdoAbortedError
 
 from atris_node.bus.can import payloads
+from atris_node.bus.canopen import configuration, nmt, pdo, values
+from atris_node.bus.canopen.emcy import EmcyService
+from atris_node.bus.canopen.objects import (
+    ABORT_STORE,
+    APPLICATION_AREA,
+    COMMUNICATION_AREA,
+    CONFIG_INDEX,
+    EMCY_COB_ID_INDEX,
+    HEARTBEAT_TIME,
+    NEAREST_INDEX,
+    SECTOR_CONFIDENCE_INDEX,
+    SECTOR_DISTANCE_INDEX,
+    STATUS_INDEX,
+    SYNC_COB_ID_INDEX,
+    TPDO_COMM_INDEXES,
+    TPDO_MAP_INDEXES,
+)
+from atris_node.bus.canopen.tpdo import TpdoService
 from atris_node.errors import AtrisError, NodeFaultError
 from atris_node.types import Measurement, UnitState, UnitStatus
 
 logger = logging.getLogger(__name__)
 
 EDS_NAME = "atris.eds"
-CONFIG_INDEX = 0x2000
-SECTOR_DISTANCE_INDEX, SECTOR_CONFIDENCE_INDEX = 0x2100, 0x2101
-NEAREST_INDEX, STATUS_INDEX = 0x2110, 0x2120
-TPDO_COMM_INDEXES = range(0x1800, 0x1804)
-TPDO_MAP_INDEXES = range(0x1A00, 0x1A04)
-SYNC_COB_ID = 0x80
-# CiA 301 SDO abort codes
-ABORT_RANGE = 0x06090030
-ABORT_TOO_HIGH = 0x06090031
-ABORT_TOO_LOW = 0x06090032
-ABORT_STATE = 0x08000022
-ABORT_STORE = 0x08000020
 # EMCY error codes: manufacturer-specific camera / laser, CiA 301 bus-off recovery
 EMCY_CAMERA_LOST = 0xFF01
 EMCY_LASER_FAULT = 0xFF02
 EMCY_BUS_OFF_RECOVERED = 0x8140
 ERROR_REGISTER_GENERIC, ERROR_REGISTER_COMMUNICATION = 0x01, 0x10
 ERROR_REGISTER_MANUFACTURER = 0x80
-NOT_AVAILABLE_I16, NOT_AVAILABLE_U16 = -32768, 0xFFFF
+ABORT_NO_SUBINDEX = 0x06090011
+SDO_INITIATE_UPLOAD = 0x40  # client command specifier 2, in bits 5..7
+PROCESS_INDEXES = (SECTOR_DISTANCE_INDEX, SECTOR_CONFIDENCE_INDEX, NEAREST_INDEX, STATUS_INDEX)
 ConfigCallback = Callable[[str, int], None]
-#: NMT state name -> heartbeat byte
-NMT_STATE_CODES = {name: code for code, name in canopen.nmt.NMT_STATES.items()}
+SyncIdCallback = Callable[[int], None]
 
 
 def eds_text() -> str:
@@ -76,63 +82,72 @@ def eds_path() -> Path:
     return Path(str(importlib.resources.files("atris_node.bus.canopen").joinpath(EDS_NAME)))
 
 
-def check_config_value(name: str, od: ODVariable, value: int) -> None:
-    """Raise SdoAbortedError if ``value`` is outside the EDS limits or the rules of ``name``."""
-    if od.min is not None and value < od.min:
-        raise SdoAbortedError(ABORT_TOO_LOW)
-    if od.max is not None and value > od.max:
-        raise SdoAbortedError(ABORT_TOO_HIGH)
-    if name == "CodeLength" and value & (value - 1):
-        raise SdoAbortedError(ABORT_RANGE)  # code lengths are powers of two
-
-
 class CanopenDevice:
     """The unit as a CANopen slave on ``network`` with node ID ``node_id`` (1..127).
 
     Args:
         network: a connected canopen Network (its bus and Notifier belong to the owner).
         node_id: CANopen node ID.
+        settings: power-on values of configuration entries of 0x2000 by name (the node's
+            own settings, e.g. ``{"SectorCount": 8}``); the others are the EDS defaults.
+            SectorCount is the number of sectors the node measures.
         on_config: called as ``on_config(name, value)`` for each accepted SDO write to
-            the configuration object 0x2000 (e.g. ``("SectorCount", 8)``); an AtrisError
+            0x2000 and for each entry an NMT reset node changes back; an AtrisError
             raised there aborts the write with 0x08000020.
+        on_sync_id: called with the new SYNC CAN-ID when 0x1005 changes (bus filters).
         clock: monotonic clock of ``Measurement.newest_time_s``, seconds.
+    Raises:
+        ConfigError: a setting that is no entry of 0x2000 or that it does not accept.
     """
 
     def __init__(self, network: canopen.Network, node_id: int, *,
+                 settings: Mapping[str, int] | None = None,
                  on_config: ConfigCallback | None = None,
+                 on_sync_id: SyncIdCallback | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.network, self.node_id, self.on_config, self.clock = network, node_id, on_config, clock
+        self.on_sync_id = on_sync_id
         self.node = canopen.LocalNode(node_id, str(eds_path()))
-        # the heartbeat is ours (see the module docstring): drop canopen's 0x1017 handler
-        self.node._write_callbacks.remove(self.node.nmt.on_write)
-        self.node.add_write_callback(self._on_write)
-        self._last_heartbeat_s = -math.inf
-        self._sync_count = 0
-        self._pdo_dirty = True
-        self._bus_trouble = False
-        self._error_register = 0
-        self._lock = threading.Lock()
+        self.power_on = configuration.power_on_values(
+            self.node.object_dictionary[CONFIG_INDEX], settings or {})
+        self.nmt = nmt.NmtSlave(network, node_id, heartbeat_ms=self._heartbeat_ms,
+                                reset_communication=self._reset_communication,
+                                reset_application=self._reset_application)
+        self._hook_services()
+        self._lock = threading.RLock()
+        self.tpdo = TpdoService(self.node, network, lock=self._lock,
+                                compose=lambda: self._write_values(self.clock()),
+                                publish_period_ms=lambda: self.config("PublishPeriod_ms"),
+                                on_recovered=self.emcy_bus_off_recovered)
+        self._sync_id: int | None = None
+        self.emcy = EmcyService(self.node, lambda: self.nmt.state)
         self._stopping = threading.Event()
         self._timer: threading.Thread | None = None
         self._fatal: BaseException | None = None
-        self._last_event_s: dict[int, float] = {}
-        self.send_errors = 0  # TPDOs and heartbeats the bus refused
-        self.frames_sent = 0  # and those it took
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
         self._progress_s: float | None = None  # the owner's loop last made progress
+        self._store_power_on()
+
+    def _hook_services(self) -> None:
+        """Our NMT instead of canopen's NmtSlave (no heartbeat task of its own, which dies
+        on the first failed send), SDO requests through the NMT gate, our write and read
+        checks. Instance attributes, so ``LocalNode.associate_network`` subscribes them."""
+        node: Any = self.node
+        node._write_callbacks.remove(node.nmt.on_write)
+        node.nmt.on_command = self.nmt.on_command
+        node.sdo.on_request = functools.partial(self._on_sdo_request, node.sdo.on_request)
+        node.add_write_callback(self._on_write)
+        node.add_read_callback(self._on_read)
 
     # -- lifecycle -----------------------------------------------------------------------
     def start(self) -> None:
-        """Join the network, send boot-up, enter PRE-OPERATIONAL with heartbeat."""
+        """Join the network, boot (boot-up message), PRE-OPERATIONAL with heartbeat."""
         if self._timer is not None:
             return
+        self._stopping.clear()
         self.network.add_node(self.node)
-        self.network.subscribe(SYNC_COB_ID, self._on_sync)
-        self.node.nmt.state = "INITIALISING"  # sends the boot-up message
-        # enter PRE-OPERATIONAL without NmtSlave starting its own heartbeat task
-        canopen.nmt.NmtBase.send_command(self.node.nmt, canopen.nmt.NMT_COMMANDS[
-            "PRE-OPERATIONAL"])
+        self.nmt.boot()
         self._timer = threading.Thread(target=self._run_timer, daemon=True,
                                        name=f"atris-canopen-{self.node_id}")
         self._timer.start()
@@ -148,9 +163,9 @@ class CanopenDevice:
         with self._lock:
             self._measurement, self._progress_s = None, None
             self._status = replace(self._status, state=UnitState.STOPPED)
-        if self.node.nmt.state == "OPERATIONAL":
-            self._transmit(self._tpdos())
-        self.network.unsubscribe(SYNC_COB_ID, self._on_sync)
+        if self.nmt.state == nmt.OPERATIONAL:
+            self.tpdo.transmit(self.tpdo.enabled())
+        self._subscribe_sync(None)
         self.node.remove_network()
         self.network.nodes.pop(self.node_id, None)
 
@@ -161,14 +176,23 @@ class CanopenDevice:
                                  f"{self._fatal!r}") from self._fatal
 
     @property
+    def send_errors(self) -> int:
+        """TPDOs, heartbeats and EMCYs the bus refused."""
+        return self.tpdo.send_errors + self.nmt.send_errors + self.emcy.send_errors
+
+    @property
+    def frames_sent(self) -> int:
+        """TPDOs the bus took."""
+        return self.tpdo.frames_sent
+
+    @property
     def nmt_state(self) -> str:
         """NMT state as canopen names it (``OPERATIONAL``, ``PRE-OPERATIONAL``...)."""
-        return str(self.node.nmt.state)
+        return self.nmt.state
 
     def config(self, name: str) -> int:
         """Current value of configuration entry ``name`` of object 0x2000."""
-        od = self._od(CONFIG_INDEX, name)
-        return int(od.decode_raw(self.node.get_data(CONFIG_INDEX, od.subindex)))
+        return pdo.raw(self.node, CONFIG_INDEX, self._od(CONFIG_INDEX, name).subindex)
 
     # -- values --------------------------------------------------------------------------
     def update(self, measurement: Measurement | None, status: UnitStatus) -> None:
@@ -177,6 +201,7 @@ class CanopenDevice:
         with self._lock:
             self._measurement, self._status = measurement, status
             self._progress_s = self.clock()
+            self.tpdo.updates += 1
             self._write_values(self._progress_s)
 
     def heartbeat(self) -> None:
@@ -186,15 +211,22 @@ class CanopenDevice:
 
     def _write_values(self, now: float) -> None:
         """The newest values as they may go out at ``now`` into the object dictionary
-        (the lock held): aged, invalid when stale, FAULT when the loop stopped reporting."""
-        measurement = self._measurement
+        (the lock held): aged, invalid when stale, FAULT when the loop stopped reporting,
+        the configuration (0x2000) in force now applied."""
         max_age_s = self.config("MaxDataAge_ms") / 1000.0
         status = payloads.alive_status(self._status, self._progress_s, now, max_age_s)
+        measurement = self._measurement
+        if measurement is not None:
+            measurement = values.confident(measurement, self.config("MinConfidence_pct"))
         age = None if measurement is None else now - measurement.newest_time_s
         usable = payloads.data_usable(measurement, status, age, max_age_s)
-        self._write_status(status, age)
-        self._write_sectors(measurement, usable)
-        self._write_nearest(measurement, usable)
+        self._set_all(STATUS_INDEX, values.status_values(status, age))
+        distances, confidences = values.sector_values(measurement, usable,
+                                                      self.config("SectorCount"))
+        self._set_all(SECTOR_DISTANCE_INDEX, distances)
+        self._set_all(SECTOR_CONFIDENCE_INDEX, confidences)
+        self._set_all(NEAREST_INDEX, values.nearest_values(
+            measurement, usable, self.config("WarningDistance_mm")))
 
     def _od(self, index: int, subindex: int | str) -> ODVariable:
         entry = self.node.object_dictionary[index]
@@ -205,81 +237,65 @@ class CanopenDevice:
         od = self._od(index, subindex)
         self.node.data_store.setdefault(index, {})[od.subindex] = od.encode_raw(value)
 
-    def _write_status(self, status: UnitStatus, age: float | None) -> None:
-        age_ms = NOT_AVAILABLE_U16 if age is None or math.isnan(age) else payloads.scaled(
-            max(age, 0.0), 0.001, 0, NOT_AVAILABLE_U16 - 1)
-        values = [int(status.state), max(0, min(255, status.code_row)),
-                  max(0, min(255, status.code_length)),
-                  payloads.scaled(status.chip_rate_hz, 0.1, 0, 0xFFFF),
-                  status.measurement_counter % 0x10000, int(status.faults) & 0xFF, age_ms,
-                  max(0, min(255, status.dropped_sub_frames)),
-                  payloads.scaled(status.ambient_level * 100.0, 0.5, 0, 200),
-                  payloads.scaled(status.saturated_fraction * 100.0, 0.5, 0, 200),
-                  payloads.scaled(status.foreign_code_energy * 100.0, 1.0, 0, 255)]
-        for subindex, value in enumerate(values, 1):
-            self._set(STATUS_INDEX, subindex, value)
-
-    def _write_sectors(self, measurement: Measurement | None, usable: bool) -> None:
-        count = self.config("SectorCount")
-        sectors = measurement.sectors if measurement is not None else ()
-        slots = payloads.sector_slots(sectors, count, usable) + [None] * (16 - count)
-        for i, sector in enumerate(slots):
-            self._set(SECTOR_DISTANCE_INDEX, i + 1, payloads.distance_raw(sector))
-            self._set(SECTOR_CONFIDENCE_INDEX, i + 1, payloads.confidence_raw(sector))
-
-    def _write_nearest(self, measurement: Measurement | None, usable: bool) -> None:
-        raw = payloads.nearest_signals(measurement, usable)
-        valid = bool(raw["Valid"]) and measurement is not None
-        nearest = measurement.nearest if measurement is not None and valid else None
-        values = [raw["Distance"], NOT_AVAILABLE_I16, NOT_AVAILABLE_I16, NOT_AVAILABLE_U16,
-                  int(valid)]
-        if nearest is not None and measurement is not None:
-            values[1] = payloads.bearing_raw(nearest.bearing_rad)
-            values[2] = _optional(measurement.closing_speed_mps, 0.01, -32767, 32767,
-                                  NOT_AVAILABLE_I16)
-            ttc = measurement.time_to_collision_s
-            values[3] = _optional(ttc if ttc is None or ttc >= 0 else None, 0.01, 0, 0xFFFE,
-                                  NOT_AVAILABLE_U16)
-        for subindex, value in enumerate(values, 1):
-            self._set(NEAREST_INDEX, subindex, value)
+    def _set_all(self, index: int, raw_values: list[int]) -> None:
+        for subindex, value in enumerate(raw_values, 1):
+            self._set(index, subindex, value)
 
     # -- EMCY ----------------------------------------------------------------------------
     def emcy_camera_lost(self) -> None:
         """EMCY 0xFF01: the camera stopped delivering sub-frames."""
-        self._emcy(EMCY_CAMERA_LOST, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
+        self.emcy.error(EMCY_CAMERA_LOST, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
 
     def emcy_laser_fault(self) -> None:
         """EMCY 0xFF02: projector fault."""
-        self._emcy(EMCY_LASER_FAULT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
+        self.emcy.error(EMCY_LASER_FAULT, ERROR_REGISTER_GENERIC | ERROR_REGISTER_MANUFACTURER)
 
     def emcy_bus_off_recovered(self) -> None:
         """EMCY 0x8140: recovered from bus-off."""
-        self._emcy(EMCY_BUS_OFF_RECOVERED, ERROR_REGISTER_COMMUNICATION)
+        self.emcy.error(EMCY_BUS_OFF_RECOVERED, ERROR_REGISTER_COMMUNICATION)
 
     def emcy_reset(self) -> None:
         """EMCY 0x0000: all errors cleared."""
-        self._error_register = 0
-        self._set(0x1001, 0, 0)
-        self.node.emcy.reset(0)
+        self.emcy.reset()
 
-    def _emcy(self, code: int, register_bits: int) -> None:
-        self._error_register |= register_bits
-        self._set(0x1001, 0, self._error_register)
-        logger.warning("CANopen EMCY 0x%04X (error register 0x%02X)", code, self._error_register)
-        self.node.emcy.send(code, self._error_register)
+    # -- SDO -----------------------------------------------------------------------------
+    def _on_sdo_request(self, serve: Callable[[int, bytearray, float], None], can_id: int,
+                        data: bytearray, timestamp: float) -> None:
+        """An SDO request, served unless STOPPED (CiA 301: no SDO there); an upload of a
+        process value reads it as a TPDO sent now would carry it (aged)."""
+        if self.nmt.state not in configuration.LIVE:
+            return
+        if len(data) >= 3 and data[0] & 0xE0 == SDO_INITIATE_UPLOAD and int.from_bytes(
+                data[1:3], "little") in PROCESS_INDEXES:
+            with self._lock:
+                self._write_values(self.clock())
+        serve(can_id, data, timestamp)
 
-    # -- SDO writes ----------------------------------------------------------------------
+    def _on_read(self, index: int, subindex: int, od: ODVariable, **_: Any) -> None:
+        """canopen's arrays answer any sub-index; ours serve only those in the EDS."""
+        parent = self.node.object_dictionary[index]
+        if isinstance(parent, ODArray) and subindex not in parent.subindices:
+            raise SdoAbortedError(ABORT_NO_SUBINDEX)
+
     def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes,
                   **_: Any) -> None:
-        if index in TPDO_COMM_INDEXES or index in TPDO_MAP_INDEXES:
-            self._pdo_dirty = True
-        if index != CONFIG_INDEX or subindex == 0:
-            return
-        if self.node.nmt.state == "OPERATIONAL":
-            raise SdoAbortedError(ABORT_STATE)
+        """Check an SDO write before canopen stores it, and apply it (an abort stops it)."""
+        self._on_read(index, subindex, od)
         value = int(od.decode_raw(data))
-        check_config_value(od.name, od, value)
-        self._notify_config(od.name, value)
+        if index in TPDO_COMM_INDEXES:
+            pdo.check_comm_write(self.node, index, subindex, value)
+        elif index in TPDO_MAP_INDEXES:
+            pdo.check_map_write(self.node, index, subindex, value)
+        elif index == SYNC_COB_ID_INDEX:
+            pdo.check_sync_cob_id(value)
+            self._subscribe_sync(value)
+        elif index == EMCY_COB_ID_INDEX:
+            pdo.check_cob_id(pdo.raw(self.node, index, 0), value, pdo.NOT_VALID)
+            self.emcy.set_cob_id(value)
+        elif index == CONFIG_INDEX and subindex:
+            configuration.check_write(od, value, self.nmt.state, self.power_on)
+            self._notify_config(od.name, value)
+        self.tpdo.dirty = True
 
     def _notify_config(self, name: str, value: int) -> None:
         logger.info("CANopen configuration %s = %d", name, value)
@@ -291,90 +307,69 @@ class CanopenDevice:
             logger.error("configuration %s = %d refused: %s", name, value, exc)
             raise SdoAbortedError(ABORT_STORE) from exc
 
+    def _subscribe_sync(self, cob_id: int | None) -> None:
+        """Consume SYNC on ``cob_id`` (its CAN-ID) from now on; None: not at all."""
+        can_id = None if cob_id is None else cob_id & pdo.CAN_ID_MASK
+        if can_id == self._sync_id:
+            return
+        if self._sync_id is not None:
+            self.network.unsubscribe(self._sync_id, self._on_sync)
+        self._sync_id = can_id
+        if can_id is not None:
+            self.network.subscribe(can_id, self._on_sync)
+            if self.on_sync_id is not None:
+                self.on_sync_id(can_id)
+
+    def _heartbeat_ms(self) -> int:
+        return pdo.raw(self.node, HEARTBEAT_TIME, 0)
+
+    # -- NMT resets ----------------------------------------------------------------------
+    def _reset_communication(self) -> None:
+        """The communication area (0x1000-0x1FFF) back to its power-on values."""
+        with self._lock:
+            self._restore(COMMUNICATION_AREA)
+            self._subscribe_sync(pdo.raw(self.node, SYNC_COB_ID_INDEX, 0))
+            self.emcy.set_cob_id(pdo.raw(self.node, EMCY_COB_ID_INDEX, 0))
+            self.tpdo.reset()
+
+    def _reset_application(self) -> None:
+        """Configuration 0x2000 back to the power-on values; ``on_config`` hears of each
+        entry that changes (its refusal is logged: the reset goes on)."""
+        with self._lock:
+            changed = {name: value for name, value in self.power_on.items()
+                       if self.config(name) != value}
+            self._restore(APPLICATION_AREA)
+            self._store_power_on()
+        for name, value in changed.items():
+            with contextlib.suppress(SdoAbortedError):  # logged by _notify_config
+                self._notify_config(name, value)
+
+    def _store_power_on(self) -> None:
+        for name, value in self.power_on.items():
+            self._set(CONFIG_INDEX, self._od(CONFIG_INDEX, name).subindex, value)
+
+    def _restore(self, area: range) -> None:
+        """Forget what was written to the writable objects in ``area`` (the lock held)."""
+        for index in [i for i in self.node.data_store if i in area]:
+            stored = self.node.data_store[index]
+            for subindex in [s for s in stored if self._od(index, s).writable]:
+                del stored[subindex]
+
     # -- TPDO transmission -----------------------------------------------------------------
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         try:
-            self._sync_count += 1
-            if self.node.nmt.state != "OPERATIONAL":
-                return
-            self._transmit([pdo for pdo in self._tpdos()
-                            if pdo.trans_type and pdo.trans_type <= 240
-                            and self._sync_count % pdo.trans_type == 0])
+            if self.nmt.state == nmt.OPERATIONAL:
+                self.tpdo.on_sync()
         except Exception:
             logger.exception("CANopen SYNC handling failed")
-
-    def _tpdos(self) -> list[Any]:
-        with self._lock:
-            if self._pdo_dirty:
-                self._pdo_dirty = False
-                self.node.tpdo.read(from_od=False)
-            maps: Any = self.node.tpdo.map
-            return [pdo for pdo in maps.values() if pdo.enabled]
-
-    def _transmit(self, pdos: list[Any]) -> None:
-        """Send ``pdos`` in order, their values composed once, now (aged, see update)."""
-        if not pdos:
-            return
-        with self._lock:
-            self._write_values(self.clock())
-            frames = []
-            for pdo in pdos:
-                for variable in pdo.map:
-                    variable.set_data(self.node.get_data(variable.index, variable.subindex))
-                frames.append((pdo.cob_id, bytes(pdo.data)))
-        for cob_id, data in frames:
-            self._send_tpdo(cob_id, data)
-
-    def _send_tpdo(self, cob_id: int, data: bytes) -> None:
-        try:
-            self.network.send_message(cob_id, data)
-        except can.CanError as exc:
-            logger.error("TPDO 0x%X not sent: %s", cob_id, exc)
-            self.send_errors += 1
-            self._bus_trouble = True
-            return
-        self.frames_sent += 1
-        if self._bus_trouble:
-            self._bus_trouble = False
-            self.emcy_bus_off_recovered()
 
     def _run_timer(self) -> None:
         try:
             while not self._stopping.wait(0.005):
                 now = self.clock()
-                self._heartbeat_tick(now)
-                self._event_tick(now)
+                self.nmt.tick(now)
+                if self.nmt.state == nmt.OPERATIONAL:
+                    self.tpdo.on_time(now)
         except Exception as exc:
             logger.exception("CANopen event timer of node %d stopped", self.node_id)
             self._fatal = exc
-
-    def _heartbeat_tick(self, now: float) -> None:
-        period_ms = int.from_bytes(self.node.get_data(0x1017, 0), "little")
-        if not period_ms or now - self._last_heartbeat_s < period_ms / 1000.0:
-            return
-        self._last_heartbeat_s = now
-        try:
-            self.network.send_message(0x700 + self.node_id, bytes([NMT_STATE_CODES.get(
-                self.nmt_state, 0)]))
-        except can.CanError as exc:
-            logger.error("heartbeat of node %d not sent: %s", self.node_id, exc)
-            self.send_errors += 1
-
-    def _event_tick(self, now: float) -> None:
-        if self.node.nmt.state != "OPERATIONAL":
-            return
-        due = []
-        for pdo in self._tpdos():
-            if pdo.trans_type is None or pdo.trans_type < 254 or not pdo.event_timer:
-                continue
-            last = self._last_event_s.get(pdo.cob_id, -math.inf)
-            if now - last >= pdo.event_timer / 1000.0:
-                self._last_event_s[pdo.cob_id] = now
-                due.append(pdo)
-        self._transmit(due)
-
-
-def _optional(value: float | None, scale: float, lo: int, hi: int, missing: int) -> int:
-    if value is None or math.isnan(value):
-        return missing
-    return payloads.scaled(value, scale, lo, hi)
