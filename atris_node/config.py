@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from atris_node.bus.can.ids import DEFAULT_BASE_ID, ID_SPAN, MAX_STANDARD_ID, check_base_id
 from atris_node.errors import ConfigError
 
 ENV_PREFIX = "ATRIS_"
@@ -63,7 +64,7 @@ PARAMS: tuple[Param, ...] = (
       in_range(0, 2**64 - 1)),
     P("unit.name_file", str, "", "file that keeps a random NAME across restarts (empty = "
       "none)"),
-    P("unit.unit_id", int, 0, "CAN ID block 0x500 + 0x10 * unit_id", in_range(0, 15)),
+    P("unit.unit_id", int, 0, "CAN ID block bus.base_id + 4 * unit_id", in_range(0, 15)),
     P("unit.label", str, "front", "human-readable unit name"),
     P("driver.name", str, "sim", "camera/projector backend", one_of("sim", "depthai", "replay")),
     P("driver.scene", str, "indoor_lab", "simulator scene: shipped name or TOML path"),
@@ -113,6 +114,11 @@ PARAMS: tuple[Param, ...] = (
     P("bus.channel", str, "atris", "python-can channel"),
     P("bus.bitrate", int, 500000, "bit rate, bit/s", in_range(10000, 8000000)),
     P("bus.fd", bool, False, "CAN FD frames"),
+    P("bus.base_id", int, DEFAULT_BASE_ID, "first unit frame ID (16 units x 4 IDs); outside "
+      "the CANopen predefined connection set unless bus.allow_canopen_ids",
+      in_range(0, MAX_STANDARD_ID + 1 - ID_SPAN)),
+    P("bus.allow_canopen_ids", bool, False, "allow a bus.base_id inside the CANopen "
+      "predefined connection set (a bus without CANopen devices)"),
     P("bus.protocol", str, "atris", "atris frames (DBC) or canopen", one_of("atris", "canopen")),
     P("bus.node_id", int, 0x20, "CANopen node id", in_range(1, 127)),
     P("publish.period_s", float, 0.05, "cycle period, s", in_range(0.01, 1.0)),
@@ -251,6 +257,10 @@ class Config:
 
 
 def _check_cross(values: Mapping[str, Any], source: str) -> None:
+    try:
+        check_base_id(values["bus.base_id"], values["bus.allow_canopen_ids"])
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: bus.base_id: {exc}") from None
     if values["pipeline.z_min_m"] >= values["pipeline.z_max_m"]:
         raise ConfigError(f"{source}: pipeline.z_min_m ({values['pipeline.z_min_m']}) must be "
                           f"below pipeline.z_max_m ({values['pipeline.z_max_m']})")

@@ -154,7 +154,8 @@ def make_output(config: Config, bus: can.BusABC, services: BusServices,
         return CanopenDevice(services.network, config["bus.node_id"], clock=clock)
     publisher = Publisher(bus, config["unit.unit_id"], period_s=config["publish.period_s"],
                           max_age_s=config["publish.max_age_s"], clock=clock,
-                          sector_count=config["pipeline.sector_count"], fd=config["bus.fd"])
+                          sector_count=config["pipeline.sector_count"], fd=config["bus.fd"],
+                          base_id=config["bus.base_id"])
     services.notifier.add_listener(publisher.health)
     return publisher
 
