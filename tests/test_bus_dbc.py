@@ -12,8 +12,9 @@ from pathlib import Path
 import can
 import cantools
 import pytest
+from e2e.p01 import E2E_P01_DATAID_BOTH, e2e_p01_check, e2e_p01_protect
 
-from atris_node.bus.can import dbc, ids
+from atris_node.bus.can import dbc, e2e, ids
 from atris_node.bus.can.frames import FrameCodec, dbc_text, load_database
 from atris_node.bus.can.ids import FrameKind, check_base_id, frame_id, message_name
 from atris_node.bus.can.publisher import Publisher
@@ -155,3 +156,53 @@ def test_feature_sectors_cycle_time_is_the_mean_frame_interval() -> None:
     assert db.get_message_by_frame_id(sectors_id).cycle_time == dbc.CYCLE_MS // per_cycle
     for kind in (FrameKind.STATUS, FrameKind.QUALITY, FrameKind.NEAREST):
         assert db.get_message_by_frame_id(frame_id(2, kind)).cycle_time == dbc.CYCLE_MS
+
+
+def _e2e_config(message: cantools.database.can.Message) -> tuple[int, int, int]:
+    """(data ID, data ID mode, byte offset of the E2E header) of ``message``, read from
+    its DBC attributes alone as a receiver would."""
+    attributes = message.dbc.attributes
+    profile = dbc.DEFINITIONS["E2EProfile"].choices[attributes["E2EProfile"].value]
+    assert profile == "Profile1"
+    roles = {dbc.DEFINITIONS["E2ESignalRole"].choices[s.dbc.attributes["E2ESignalRole"].value]:
+             s for s in message.signals if s.dbc and "E2ESignalRole" in s.dbc.attributes}
+    crc, counter = roles["CRC"], roles["Counter"]
+    assert (crc.length, counter.length, counter.start - crc.start) == (8, 4, 8)
+    return attributes["E2EDataID"].value, attributes["E2EDataIDMode"].value, crc.start // 8
+
+
+@pytest.mark.parametrize("base_id", [ids.DEFAULT_BASE_ID, 0x100])
+def test_feature_autosar_e2e_accepts_what_the_node_sends(base_id: int) -> None:
+    """The autosar-e2e package's Profile 1 check, configured from the DBC attributes (data
+    ID, data ID mode, CRC and counter signals), accepts every frame the publisher sends
+    over a full counter cycle, for two units; with the data ID of another frame it does
+    not.
+
+    Checked to fail: with E2EDataIDMode ALT for unit 0 in the shipped file, with ALT in
+    the generator (other base), and with profile1_crc given the plain J1850 start 0xFF
+    (which also fails the next test)."""
+    text = dbc_text() if base_id == ids.DEFAULT_BASE_ID else dbc.generate_text(base_id)
+    db = cantools.database.load_string(text, database_format="dbc")
+    checked = 0
+    for unit_id in (0, 13):
+        for msg in _cycle(unit_id, base_id=base_id, cycles=16):
+            data_id, mode, offset = _e2e_config(db.get_message_by_frame_id(msg.arbitration_id))
+            assert e2e_p01_check(bytearray(msg.data), data_id, data_id_mode=mode, offset=offset)
+            assert not e2e_p01_check(bytearray(msg.data), data_id ^ 1, data_id_mode=mode)
+            checked += 1
+    assert checked == 2 * 16 * 7
+
+
+@pytest.mark.parametrize("data_id", [0x0000, 0x0123, 0x0680, 0x06BF, 0xFFFF])
+def test_feature_protect_equals_autosar_e2e(data_id: int) -> None:
+    """e2e.protect writes the same CRC as the autosar-e2e package for every counter value
+    and a spread of payloads (the hand-written CRC is the library's)."""
+    for counter in range(15):
+        for fill in (0x00, 0x5A, 0xFF):
+            body = bytes([0, 0xF0 & fill]) + bytes([fill ^ k for k in range(6)])
+            ours = e2e.protect(body, data_id, counter)
+            theirs = bytearray(body)
+            theirs[1] = (theirs[1] & 0xF0) | counter
+            e2e_p01_protect(theirs, data_id, data_id_mode=E2E_P01_DATAID_BOTH,
+                            increment_counter=False)
+            assert ours == bytes(theirs)
