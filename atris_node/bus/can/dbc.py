@@ -39,7 +39,12 @@ from atris_node.bus.can.ids import (
     frame_id,
     message_name,
 )
-from atris_node.bus.can.layouts import UNIT_MESSAGES, MessageSpec, SignalSpec
+from atris_node.bus.can.layouts import (
+    NEGOTIATION_MESSAGES,
+    UNIT_MESSAGES,
+    MessageSpec,
+    SignalSpec,
+)
 from atris_node.bus.negotiation import frames as nf
 
 VERSION = "atris 2"
@@ -54,14 +59,13 @@ NEGOTIATION_CYCLE_MS = 1000
 E2E_DATA_ID_MODES = ("BOTH", "ALT", "LOW", "NIBBLE")
 E2E_MODE = "BOTH"
 E2E_PROFILE = "Profile1"
-MASK_ATTRIBUTE = "IdMask"
 COMMENT = (
     "ATRIS node CAN database, generated from the frame table of atris_node.bus.can.layouts. "
     "Unit frames: 11-bit IDs base + 4 * unit_id + offset (Status +0, Quality +1, Nearest +2, "
     "Sectors +3). Messages with E2EProfile Profile1 are protected by AUTOSAR E2E Profile 1 "
-    "(E2EDataID, E2EDataIDMode; the signals with E2ESignalRole CRC and Counter). A message "
-    "with a non-zero IdMask attribute matches every frame whose ID ANDed with IdMask equals "
-    "the message ID. Negotiation frames: see docs/negotiation.md")
+    "(E2EDataID, E2EDataIDMode; the signals with E2ESignalRole CRC and Counter). Negotiation "
+    "frames: 29-bit IDs, one message per unit, kind and claimed row; see "
+    "docs/negotiation.md")
 
 
 def _definition(name: str, kind: str, type_name: str, default: int | str,
@@ -78,7 +82,6 @@ DEFINITIONS = OrderedDict((d.name, d) for d in (
     _definition("E2EDataID", "BO_", "INT", 0, limits=(0, 0xFFFF)),
     _definition("E2EDataIDMode", "BO_", "ENUM", E2E_MODE, choices=E2E_DATA_ID_MODES),
     _definition("E2ESignalRole", "SG_", "ENUM", "None", choices=("None", "CRC", "Counter")),
-    _definition(MASK_ATTRIBUTE, "BO_", "INT", 0, limits=(0, 0x1FFFFFFF)),
 ))
 
 
@@ -135,19 +138,37 @@ def unit_messages(base_id: int) -> Iterator[Message]:
                                                   E2EDataIDMode=E2E_MODE))
 
 
-def negotiation_messages() -> Iterator[Message]:
-    """One message per negotiation frame kind at its base identifier, with IdMask."""
-    from atris_node.bus.can.layouts import CANNOT_CLAIM, CLAIM, PLAN, REQUEST, SYNC
+def negotiation_name(unit_id: int, kind: nf.FrameKind, field: int) -> str:
+    """DBC name of a negotiation frame, e.g. ``Negotiation3_Claim5`` (row 5),
+    ``Negotiation3_Leaving`` (the CANNOT_CLAIM of a unit that stops)."""
+    suffix = NEGOTIATION_MESSAGES[kind].suffix
+    if kind is nf.FrameKind.CLAIM:
+        suffix += str(field)
+    elif kind is nf.FrameKind.CANNOT_CLAIM and field == nf.LEAVING:
+        suffix = "Leaving"
+    return f"Negotiation{unit_id}_{suffix}"
 
-    specs = {nf.FrameKind.REQUEST: REQUEST, nf.FrameKind.CLAIM: CLAIM,
-             nf.FrameKind.CANNOT_CLAIM: CANNOT_CLAIM, nf.FrameKind.PLAN: PLAN,
-             nf.FrameKind.SYNC: SYNC}
+
+def _negotiation_comment(spec: MessageSpec, unit_id: int, kind: nf.FrameKind,
+                         field: int) -> str:
+    detail = f", row {field}" if kind is nf.FrameKind.CLAIM else (
+        ", leaving: it stops" if kind is nf.FrameKind.CANNOT_CLAIM and field else "")
+    return f"Unit {unit_id}{detail}. {spec.comment}"
+
+
+def negotiation_messages() -> Iterator[Message]:
+    """One message per identifier a unit sends in code negotiation (every unit_id, kind
+    and field value of :data:`~atris_node.bus.negotiation.frames.FIELDS`)."""
     repeated = (nf.FrameKind.CLAIM, nf.FrameKind.PLAN)
-    for kind, spec in specs.items():
-        cycle = NEGOTIATION_CYCLE_MS if kind in repeated else None
-        yield _message(spec, kind.base_id, f"Negotiation_{spec.suffix}", ANY_SENDER,
-                       spec.comment, extended=True, cycle_ms=cycle,
-                       attributes=_attributes(IdMask=nf.KIND_MASK))
+    for unit_id in range(MAX_UNIT_ID + 1):
+        identity = nf.Identity(unit_id)
+        for kind, spec in NEGOTIATION_MESSAGES.items():
+            for field in nf.FIELDS[kind]:
+                yield _message(spec, nf.make_id(kind, identity, field),
+                               negotiation_name(unit_id, kind, field), f"Atris{unit_id}",
+                               _negotiation_comment(spec, unit_id, kind, field),
+                               extended=True,
+                               cycle_ms=NEGOTIATION_CYCLE_MS if kind in repeated else None)
 
 
 def build_database(base_id: int = DEFAULT_BASE_ID) -> Database:

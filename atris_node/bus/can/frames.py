@@ -4,12 +4,10 @@ The database of the default base ID is the shipped ``atris.dbc``; for another ba
 (the ``bus.base_id`` setting) it is generated from the same frame table
 (:mod:`atris_node.bus.can.dbc`), so this codec is the one place that maps IDs to frames.
 
-Messages are looked up by name (encode) or by arbitration ID (decode), so messages added
-to ``atris.dbc`` (the code-negotiation frames) work without code here. A message with an
+Messages are looked up by name (encode) or by exact arbitration ID (decode), as any DBC
+tool does, so messages added to the frame table work without code here. A message with an
 ``E2EDataID`` attribute is E2E protected (:mod:`atris_node.bus.can.e2e`): its ``CRC`` and
-``Counter`` signals are filled in by :meth:`FrameCodec.encode`. A message with a non-zero
-``IdMask`` attribute stands for every frame whose ID ANDed with the mask equals the
-message's ID (frames that carry the sender's identity in the low ID bits).
+``Counter`` signals are filled in by :meth:`FrameCodec.encode`.
 """
 
 from __future__ import annotations
@@ -34,7 +32,6 @@ logger = logging.getLogger(__name__)
 
 DBC_NAME = "atris.dbc"
 E2E_ATTRIBUTE = "E2EDataID"
-MASK_ATTRIBUTE = "IdMask"
 SignalValue = int | float | str
 
 
@@ -70,11 +67,6 @@ def e2e_data_id(message: Message) -> int | None:
     return _attribute(message, E2E_ATTRIBUTE)
 
 
-def id_mask(message: Message) -> int:
-    """``IdMask`` attribute of ``message``; 0 means its ID must match exactly."""
-    return _attribute(message, MASK_ATTRIBUTE) or 0
-
-
 @dataclass(frozen=True)
 class DecodedFrame:
     """One received frame, decoded with the DBC.
@@ -100,7 +92,6 @@ class FrameCodec:
                  base_id: int = DEFAULT_BASE_ID) -> None:
         self.database = database if database is not None else load_database(base_id)
         self._by_id = {(m.frame_id, m.is_extended_frame): m for m in self.database.messages}
-        self._masked = [(id_mask(m), m) for m in self.database.messages if id_mask(m)]
 
     def message(self, name: str) -> Message:
         """The DBC message called ``name``; FrameDecodeError when there is none."""
@@ -148,14 +139,7 @@ class FrameCodec:
         return self.decode(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
 
     def _lookup(self, arbitration_id: int, is_extended_id: bool) -> Message | None:
-        message = self._by_id.get((arbitration_id, is_extended_id))
-        if message is not None:
-            return message
-        for mask, candidate in self._masked:
-            if (candidate.is_extended_frame == is_extended_id
-                    and arbitration_id & mask == candidate.frame_id):
-                return candidate
-        return None
+        return self._by_id.get((arbitration_id, is_extended_id))
 
     @staticmethod
     def _encode(message: Message, values: dict[str, SignalValue], scaling: bool) -> bytes:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from atris_node.bus.can.ids import FrameKind
+from atris_node.bus.negotiation.frames import FrameKind as NegotiationKind
 
 DISTANCE_CHOICES = {65533: "no_sector", 65534: "no_return", 65535: "invalid"}
 E2E_CRC = "CRC"
@@ -119,16 +120,14 @@ UNIT_MESSAGES = {FrameKind.STATUS: STATUS, FrameKind.QUALITY: QUALITY,
 
 NAME_SIGNAL = (S("Name", 0, 64, 0, 2**64 - 1, "64-bit NAME of the sender; the lowest NAME "
                  "wins"),)
-REQUEST = MessageSpec("Request", "Code negotiation (docs/negotiation.md), request for "
-                      "claims: every unit re-announces its PLAN and CLAIM", NAME_SIGNAL)
-CLAIM = MessageSpec("Claim", "Code negotiation: claim of the Walsh row in the ID (1-based, "
-                    "as in the paper). The claimant strobes only after 250 ms without a "
-                    "lower-NAME claim of the row", NAME_SIGNAL)
-CANNOT_CLAIM = MessageSpec("CannotClaim", "Code negotiation: cannot-claim, the sender has "
-                           "no code and keeps its laser off", NAME_SIGNAL)
-PLAN = MessageSpec("Plan", "Code negotiation: the plan the sender uses (N, chip rate, mode); "
-                   "the plan of the lowest NAME wins. With Flag_Proposal it asks the lowest "
-                   "NAME for this plan", (
+REQUEST = MessageSpec("Request", "Code negotiation (docs/negotiation.md): request for claims, "
+                      "every unit re-announces its PLAN and CLAIM", NAME_SIGNAL)
+CLAIM = MessageSpec("Claim", "Code negotiation: claim of a Walsh row (1-based), strobed after "
+                    "250 ms without a lower-NAME claim of it", NAME_SIGNAL)
+CANNOT_CLAIM = MessageSpec("CannotClaim", "Code negotiation: the sender has no code and keeps "
+                           "its laser off", NAME_SIGNAL)
+PLAN = MessageSpec("Plan", "Code negotiation: the plan the sender uses (the lowest NAME's "
+                   "wins), or with Flag_Proposal asks for", (
     S("CodeLength", 0, 8, 2, 128, "code length N, a power of two"),
     S("Mode", 8, 8, 0, 1, "code set: async (log2 N cyclic orthogonal rows) or sync (N - 1 "
       "rows, sub-frames aligned to SYNC)"),
@@ -141,11 +140,14 @@ PLAN = MessageSpec("Plan", "Code negotiation: the plan the sender uses (N, chip 
     S("ChipRate", 32, 32, 0, 4294967.295, "chip (sub-frame) rate in millihertz steps",
       scale=0.001, unit="Hz"),
 ))
-SYNC = MessageSpec("Sync", "Code negotiation, synchronous mode: sent by the lowest NAME at "
-                   "the start of each of its code periods; the others align their "
-                   "sub-frames to it", (
+SYNC = MessageSpec("Sync", "Code negotiation, sync mode: the lowest NAME's code period "
+                   "starts; the others align their sub-frames to it", (
     S("Counter", 0, 16, 0, 65535, "code periods since the leader started, modulo 65536"),
     S("CodeLength", 16, 8, 2, 128, "code length N of the leader's plan"),
     S("CodePeriod", 32, 32, 0, 4294967295, "duration of one code period (N chips)",
       unit="us"),
 ))
+#: the negotiation frames, by their kind
+NEGOTIATION_MESSAGES = {NegotiationKind.REQUEST: REQUEST, NegotiationKind.CLAIM: CLAIM,
+                        NegotiationKind.CANNOT_CLAIM: CANNOT_CLAIM, NegotiationKind.PLAN: PLAN,
+                        NegotiationKind.SYNC: SYNC}
