@@ -142,7 +142,9 @@ def test_feature_a_fleet_log_decodes_with_plain_cantools():
 
 def test_feature_every_identifier_a_unit_can_send_is_one_message():
     """The DBC holds one message per unit_id, kind and field value the units send
-    (131 per unit), and the codec decodes each by its exact identifier."""
+    (131 per unit), and the codec decodes each by its exact identifier.
+
+    Checked to fail: with row 127 left out of frames.FIELDS."""
     db, codec = _database(), FrameCodec()
     expected = {nf.make_id(kind, nf.Identity(unit_id), field)
                 for unit_id in range(16) for kind, fields in nf.FIELDS.items()
@@ -177,13 +179,15 @@ def _raw_signals(kind: nf.FrameKind, fields: tuple[int, ...]) -> dict[str, int]:
 
 
 def _extremes(kind: nf.FrameKind) -> list[tuple[int, ...]]:
-    """Every combination of each field's minimum, a middle value and its maximum; the
-    PLAN flags byte takes none, one and all flags, SYNC's reserved byte 0."""
+    """Every combination of each field's minimum, a value with distinct bytes (0x0201...,
+    so a byte-order error shows) and its maximum; the PLAN flags byte takes none, one and
+    all flags, SYNC's reserved byte 0."""
     layout, names = STRUCT_SIGNALS[kind]
-    tops = [(1 << (8 * struct.calcsize("<" + code))) - 1 for code in layout.format[1:]]
+    sizes = [struct.calcsize("<" + code) for code in layout.format[1:]]
     reserved = (0, nf.PLAN_FLAG_CONFLICT, nf.PLAN_FLAGS) if kind is nf.FrameKind.PLAN else (0,)
-    return list(itertools.product(*[(0, top // 3, top) if name else reserved
-                                    for name, top in zip(names, tops, strict=True)]))
+    return list(itertools.product(*[
+        (0, int.from_bytes(bytes(range(1, size + 1)), "little"), (1 << 8 * size) - 1)
+        if name else reserved for name, size in zip(names, sizes, strict=True)]))
 
 
 @pytest.mark.parametrize("kind", list(nf.FrameKind))
@@ -192,8 +196,8 @@ def test_feature_struct_codec_equals_cantools_at_every_extreme(kind):
     values no plan can have, such as mode 255 or N 0), the struct bytes equal cantools'
     raw encoding with the DBC message, and cantools decodes them to the same fields.
 
-    Checked to fail: with PLAN's nonce moved to bit 16 in the frame table (a regenerated
-    DBC), and with SYNC_STRUCT's code period read big-endian."""
+    Checked to fail: with PLAN's Nonce signed in the frame table (DBC regenerated), and
+    with SYNC_STRUCT big-endian (which the former middle value 0x5555... hid)."""
     layout, _ = STRUCT_SIGNALS[kind]
     can_id = nf.make_id(kind, nf.Identity(7), nf.FIELDS[kind][0])
     message = _database().get_message_by_frame_id(can_id)
@@ -208,7 +212,9 @@ def test_feature_struct_codec_equals_cantools_at_every_extreme(kind):
 @given(st.binary(min_size=8, max_size=8))
 def test_feature_plan_decoder_accepts_only_what_the_dbc_ranges_allow(data):
     """Any 8 bytes: cantools and the struct decoder read the same PLAN fields, and a
-    payload ``decode_plan`` accepts has every signal inside its DBC range."""
+    payload ``decode_plan`` accepts has every signal inside its DBC range.
+
+    Checked to fail: without decode_plan's mode check (mode 2..255 went through)."""
     message = _database().get_message_by_frame_id(nf.make_id(nf.FrameKind.PLAN, nf.Identity(0)))
     raw = message.decode(data, scaling=False, decode_choices=False)
     assert raw == _raw_signals(nf.FrameKind.PLAN, nf.PLAN_STRUCT.unpack(data))
