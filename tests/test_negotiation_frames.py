@@ -214,7 +214,8 @@ def test_feature_plan_decoder_accepts_only_what_the_dbc_ranges_allow(data):
     """Any 8 bytes: cantools and the struct decoder read the same PLAN fields, and a
     payload ``decode_plan`` accepts has every signal inside its DBC range.
 
-    Checked to fail: without decode_plan's mode check (mode 2..255 went through)."""
+    Checked to fail: without decode_plan's mode check (mode 2..255 then raised
+    IndexError, not FrameDecodeError)."""
     message = _database().get_message_by_frame_id(nf.make_id(nf.FrameKind.PLAN, nf.Identity(0)))
     raw = message.decode(data, scaling=False, decode_choices=False)
     assert raw == _raw_signals(nf.FrameKind.PLAN, nf.PLAN_STRUCT.unpack(data))

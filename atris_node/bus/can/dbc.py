@@ -32,7 +32,6 @@ from cantools.database.conversion import BaseConversion
 
 from atris_node.bus.can.ids import (
     DEFAULT_BASE_ID,
-    MAX_SECTORS,
     MAX_UNIT_ID,
     SECTORS_PER_FRAME,
     FrameKind,
@@ -49,7 +48,8 @@ from atris_node.bus.negotiation import frames as nf
 
 VERSION = "atris 2"
 CONTROLLER = "Controller"
-ANY_SENDER = "Vector__XXX"
+#: DBC's name for "any node": the receivers of negotiation frames are the other units
+ANY_NODE = "Vector__XXX"
 #: default publish period of the node, ms
 CYCLE_MS = 50
 #: default sector count: Sectors frames per cycle = DEFAULT_SECTORS / SECTORS_PER_FRAME
@@ -111,7 +111,7 @@ def _signal(spec: SignalSpec, receivers: list[str]) -> Signal:
 def _message(spec: MessageSpec, can_id: int, name: str, sender: str, comment: str, *,
              extended: bool = False, cycle_ms: int | None = None,
              attributes: OrderedDict[str, DbcAttribute] | None = None) -> Message:
-    receivers = [CONTROLLER] if sender != ANY_SENDER else [ANY_SENDER]
+    receivers = [ANY_NODE] if extended else [CONTROLLER]
     return Message(can_id, name, 8, [_signal(s, receivers) for s in spec.signals],
                    comment=comment, senders=[sender], cycle_time=cycle_ms,
                    is_extended_frame=extended, strict=True,
@@ -132,10 +132,11 @@ def unit_messages(base_id: int) -> Iterator[Message]:
     for unit_id in range(MAX_UNIT_ID + 1):
         for kind, spec in UNIT_MESSAGES.items():
             can_id = frame_id(unit_id, kind, base_id)
+            e2e = _attributes(E2EProfile=E2E_PROFILE, E2EDataID=can_id,
+                              E2EDataIDMode=E2E_MODE) if spec.e2e else None
             yield _message(spec, can_id, message_name(unit_id, kind), f"Atris{unit_id}",
                            f"Unit {unit_id} {spec.comment}", cycle_ms=unit_cycle_ms(kind),
-                           attributes=_attributes(E2EProfile=E2E_PROFILE, E2EDataID=can_id,
-                                                  E2EDataIDMode=E2E_MODE))
+                           attributes=e2e)
 
 
 def negotiation_name(unit_id: int, kind: nf.FrameKind, field: int) -> str:
@@ -185,5 +186,3 @@ def generate_text(base_id: int = DEFAULT_BASE_ID) -> str:
     text = build_database(base_id).as_dbc_string(sort_signals=None)
     return text.replace("\r\n", "\n")
 
-
-assert MAX_SECTORS % SECTORS_PER_FRAME == 0
