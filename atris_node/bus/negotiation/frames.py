@@ -61,7 +61,7 @@ PLAN_FLAGS = PLAN_FLAG_PROPOSAL | PLAN_FLAG_CONFLICT | PLAN_FLAG_ESTABLISHED
 
 
 class FrameKind(enum.IntEnum):
-    """Kind bits of a negotiation identifier; the DBC message is ``Negotiation_<Kind>``."""
+    """Kind bits of a negotiation identifier; DBC messages ``Negotiation<unit>_<Kind>...``."""
 
     REQUEST = 0
     CLAIM = 1
