@@ -58,12 +58,17 @@ def test_smoke_shipped_dbc_is_the_generated_one() -> None:
     assert dbc_text() == dbc.generate_text()
 
 
-def test_smoke_atris_dbc_generate_rewrites_the_shipped_file(tmp_path: Path) -> None:
-    """``atris dbc --generate`` writes the generated text to the shipped path, and
-    ``atris dbc --base-id`` prints the database of another base."""
-    out = subprocess.run([sys.executable, "-m", "atris_node", "dbc", "--base-id", "0x100"],
-                         capture_output=True, text=True, check=True).stdout
-    assert out == dbc.generate_text(0x100) and "BO_ 256 Atris0_Status" in out
+def test_smoke_atris_dbc_generates_and_prints_other_bases(tmp_path: Path) -> None:
+    """``atris dbc --generate -o FILE`` writes the generated text (without ``-o`` it
+    rewrites the shipped file), ``--base-id`` prints the database of another base, and
+    ``--generate`` with another base is refused."""
+    out = tmp_path / "atris.dbc"
+    subprocess.run([sys.executable, "-m", "atris_node", "dbc", "--generate", "-o", str(out)],
+                   check=True)
+    assert out.read_text("utf-8") == dbc.generate_text()
+    printed = subprocess.run([sys.executable, "-m", "atris_node", "dbc", "--base-id", "0x100"],
+                             capture_output=True, text=True, check=True).stdout
+    assert printed == dbc.generate_text(0x100) and "BO_ 256 Atris0_Status" in printed
     failed = subprocess.run([sys.executable, "-m", "atris_node", "dbc", "--generate",
                              "--base-id", "0x100"], capture_output=True, text=True, check=False)
     assert failed.returncode == 1 and "default base" in failed.stderr
