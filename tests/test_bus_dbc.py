@@ -211,3 +211,28 @@ def test_feature_protect_equals_autosar_e2e(data_id: int) -> None:
             e2e_p01_protect(theirs, data_id, data_id_mode=E2E_P01_DATAID_BOTH,
                             increment_counter=False)
             assert ours == bytes(theirs)
+
+
+def test_feature_node_configured_with_another_base_sends_there() -> None:
+    """A unit configured with ``bus.base_id = 0x020`` (outside the predefined set, so no
+    allowance needed) gets a publisher whose frames lie in 0x020 + 4 * unit_id ... + 3,
+    and plain cantools decodes them with ``atris dbc --base-id 0x020``'s database.
+
+    Checked to fail: with make_output not passing bus.base_id (frames at 0x6A4...)."""
+    from atris_node.node.wiring import BusServices, make_output
+
+    config = defaults().with_values({"bus.base_id": "0x020", "unit.unit_id": "9"}, "test",
+                                    from_text=True)
+    with can.Bus(interface="virtual", channel="dbc-node") as bus:
+        services = BusServices(can.Notifier(bus, [], timeout=0.1))
+        try:
+            output = make_output(config, bus, services, lambda: 0.0)
+            assert isinstance(output, Publisher)
+            frames = output.compose(_measurement(0.0), STATUS, 0.0)
+        finally:
+            services.stop()
+    assert {m.arbitration_id for m in frames} == {0x044, 0x045, 0x046, 0x047}
+    db = cantools.database.load_string(dbc.generate_text(0x020), database_format="dbc")
+    names = [db.get_message_by_frame_id(m.arbitration_id).name for m in frames]
+    assert names[:3] == ["Atris9_Status", "Atris9_Quality", "Atris9_Nearest"]
+    assert all(db.decode_message(m.arbitration_id, bytes(m.data)) for m in frames)
