@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from atris_node.bus.can.ids import DEFAULT_BASE_ID, ID_SPAN, MAX_STANDARD_ID, check_base_id
 from atris_node.errors import ConfigError
 
 ENV_PREFIX = "ATRIS_"
@@ -114,9 +113,9 @@ PARAMS: tuple[Param, ...] = (
     P("bus.channel", str, "atris", "python-can channel"),
     P("bus.bitrate", int, 500000, "bit rate, bit/s", in_range(10000, 8000000)),
     P("bus.fd", bool, False, "CAN FD frames"),
-    P("bus.base_id", int, DEFAULT_BASE_ID, "first unit frame ID (16 units x 4 IDs); outside "
-      "the CANopen predefined connection set unless bus.allow_canopen_ids",
-      in_range(0, MAX_STANDARD_ID + 1 - ID_SPAN)),
+    P("bus.base_id", int, 0x680, "first unit frame ID (16 units x 4 IDs, so 0..0x7C0); "
+      "outside the CANopen predefined connection set unless bus.allow_canopen_ids",
+      in_range(0, 0x7C0)),
     P("bus.allow_canopen_ids", bool, False, "allow a bus.base_id inside the CANopen "
       "predefined connection set (a bus without CANopen devices)"),
     P("bus.protocol", str, "atris", "atris frames (DBC) or canopen", one_of("atris", "canopen")),
@@ -257,10 +256,6 @@ class Config:
 
 
 def _check_cross(values: Mapping[str, Any], source: str) -> None:
-    try:
-        check_base_id(values["bus.base_id"], values["bus.allow_canopen_ids"])
-    except ConfigError as exc:
-        raise ConfigError(f"{source}: bus.base_id: {exc}") from None
     if values["pipeline.z_min_m"] >= values["pipeline.z_max_m"]:
         raise ConfigError(f"{source}: pipeline.z_min_m ({values['pipeline.z_min_m']}) must be "
                           f"below pipeline.z_max_m ({values['pipeline.z_max_m']})")

@@ -18,7 +18,7 @@ from atris_node.bus.can import dbc, e2e, ids
 from atris_node.bus.can.frames import FrameCodec, dbc_text, load_database
 from atris_node.bus.can.ids import FrameKind, check_base_id, frame_id, message_name
 from atris_node.bus.can.publisher import Publisher
-from atris_node.config import defaults
+from atris_node.config import PARAMS, defaults
 from atris_node.errors import ConfigError
 from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 
@@ -112,7 +112,7 @@ def test_feature_default_layout_is_outside_the_canopen_predefined_set() -> None:
 @pytest.mark.parametrize(("base_id", "message"), [
     (0x500, r"inside the CANopen predefined connection set \(RPDO4 0x501-0x57F\)"),
     (0x5E0, r"SDO responses 0x581-0x5FF, SDO requests 0x601-0x67F"),
-    (0x7C1, r"must be 0x000\.\.0x7C0 \(16 units x 4 IDs in 11 bits\), got 0x7C1"),
+    (0x7C1, r"\(bus\.base_id\) must be 0x000\.\.0x7C0 \(16 units x 4 IDs in 11 bits\), got 0x7C1"),
     (-1, r"must be 0x000\.\.0x7C0"),
 ])
 def test_exception_base_id_out_of_bounds(base_id: int, message: str) -> None:
@@ -123,15 +123,34 @@ def test_exception_base_id_out_of_bounds(base_id: int, message: str) -> None:
         check_base_id(base_id)
 
 
+def _output(**settings: str) -> Publisher:
+    """The publisher a unit with ``settings`` (text, as from a file) gets."""
+    from atris_node.node.wiring import BusServices, make_output
+
+    config = defaults().with_values(settings, "test", from_text=True)
+    with can.Bus(interface="virtual", channel="dbc-node") as bus:
+        services = BusServices(can.Notifier(bus, [], timeout=0.1))
+        try:
+            output = make_output(config, bus, services, lambda: 0.0)
+        finally:
+            services.stop()
+    assert isinstance(output, Publisher)
+    return output
+
+
 def test_feature_base_id_setting_is_checked_with_its_allowance() -> None:
-    """The node setting refuses CANopen IDs unless bus.allow_canopen_ids is set."""
-    config = defaults()
-    assert config["bus.base_id"] == 0x680
-    with pytest.raises(ConfigError, match=r"bus\.base_id: .*RPDO4"):
-        config.with_values({"bus.base_id": "0x500"}, "test", from_text=True)
-    allowed = config.with_values({"bus.base_id": "0x500", "bus.allow_canopen_ids": "true"},
-                                 "test", from_text=True)
-    assert allowed["bus.base_id"] == 0x500
+    """The node setting defaults to the shipped layout, accepts what check_base_id
+    accepts, and a unit refuses CANopen IDs unless bus.allow_canopen_ids is set.
+
+    Checked to fail: without the check in wiring.make_output (0x500 went through)."""
+    param = next(p for p in PARAMS if p.key == "bus.base_id")
+    assert param.default == ids.DEFAULT_BASE_ID
+    assert param.check(ids.MAX_STANDARD_ID + 1 - ids.ID_SPAN) is None
+    assert param.check(ids.MAX_STANDARD_ID + 2 - ids.ID_SPAN) is not None
+    with pytest.raises(ConfigError, match=r"bus\.base_id\).*RPDO4.*bus\.allow_canopen_ids"):
+        _output(**{"bus.base_id": "0x500"})
+    allowed = _output(**{"bus.base_id": "0x500", "bus.allow_canopen_ids": "true"})
+    assert allowed.compose(None, STATUS, 0.0)[0].arbitration_id == 0x500
 
 
 def test_feature_other_base_sends_there_and_generated_dbc_decodes() -> None:
@@ -219,18 +238,8 @@ def test_feature_node_configured_with_another_base_sends_there() -> None:
     and plain cantools decodes them with ``atris dbc --base-id 0x020``'s database.
 
     Checked to fail: with make_output not passing bus.base_id (frames at 0x6A4...)."""
-    from atris_node.node.wiring import BusServices, make_output
-
-    config = defaults().with_values({"bus.base_id": "0x020", "unit.unit_id": "9"}, "test",
-                                    from_text=True)
-    with can.Bus(interface="virtual", channel="dbc-node") as bus:
-        services = BusServices(can.Notifier(bus, [], timeout=0.1))
-        try:
-            output = make_output(config, bus, services, lambda: 0.0)
-            assert isinstance(output, Publisher)
-            frames = output.compose(_measurement(0.0), STATUS, 0.0)
-        finally:
-            services.stop()
+    publisher = _output(**{"bus.base_id": "0x020", "unit.unit_id": "9"})
+    frames = publisher.compose(_measurement(0.0), STATUS, 0.0)
     assert {m.arbitration_id for m in frames} == {0x044, 0x045, 0x046, 0x047}
     db = cantools.database.load_string(dbc.generate_text(0x020), database_format="dbc")
     names = [db.get_message_by_frame_id(m.arbitration_id).name for m in frames]

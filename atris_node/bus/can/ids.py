@@ -80,15 +80,16 @@ def check_base_id(base_id: int, allow_canopen: bool = False) -> int:
     ``allow_canopen`` (a bus without CANopen devices), stay out of the CANopen predefined
     connection set; else raise :class:`ConfigError` saying which IDs clash."""
     if not 0 <= base_id <= MAX_STANDARD_ID + 1 - ID_SPAN:
-        raise ConfigError(f"CAN base ID must be 0x000..0x{MAX_STANDARD_ID + 1 - ID_SPAN:03X} "
-                          f"(16 units x {UNIT_STRIDE} IDs in 11 bits), got 0x{base_id:X}")
+        raise ConfigError(f"CAN base ID (bus.base_id) must be 0x000..0x"
+                          f"{MAX_STANDARD_ID + 1 - ID_SPAN:03X} (16 units x {UNIT_STRIDE} IDs "
+                          f"in 11 bits), got 0x{base_id:X}")
     overlap = canopen_overlap(base_id)
     if overlap is not None and not allow_canopen:
         raise ConfigError(
-            f"CAN base ID 0x{base_id:03X} puts unit frames at 0x{base_id:03X}-"
-            f"0x{base_id + ID_SPAN - 1:03X}, inside the CANopen predefined connection set "
-            f"({overlap}); use e.g. 0x{DEFAULT_BASE_ID:03X}, or allow the overlap on a bus "
-            "without CANopen devices")
+            f"CAN base ID 0x{base_id:03X} (bus.base_id) puts unit frames at "
+            f"0x{base_id:03X}-0x{base_id + ID_SPAN - 1:03X}, inside the CANopen predefined "
+            f"connection set ({overlap}); use e.g. 0x{DEFAULT_BASE_ID:03X}, or set "
+            "bus.allow_canopen_ids on a bus without CANopen devices")
     return base_id
 
 
