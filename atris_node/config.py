@@ -63,7 +63,7 @@ PARAMS: tuple[Param, ...] = (
       in_range(0, 2**64 - 1)),
     P("unit.name_file", str, "", "file that keeps a random NAME across restarts (empty = "
       "none)"),
-    P("unit.unit_id", int, 0, "CAN ID block 0x500 + 0x10 * unit_id", in_range(0, 15)),
+    P("unit.unit_id", int, 0, "CAN ID block bus.base_id + 4 * unit_id", in_range(0, 15)),
     P("unit.label", str, "front", "human-readable unit name"),
     P("driver.name", str, "sim", "camera/projector backend", one_of("sim", "depthai", "replay")),
     P("driver.scene", str, "indoor_lab", "simulator scene: shipped name or TOML path"),
@@ -113,6 +113,11 @@ PARAMS: tuple[Param, ...] = (
     P("bus.channel", str, "atris", "python-can channel"),
     P("bus.bitrate", int, 500000, "bit rate, bit/s", in_range(10000, 8000000)),
     P("bus.fd", bool, False, "CAN FD frames"),
+    P("bus.base_id", int, 0x680, "first unit frame ID (16 units x 4 IDs, so 0..0x7C0); "
+      "outside the CANopen predefined connection set unless bus.allow_canopen_ids",
+      in_range(0, 0x7C0)),
+    P("bus.allow_canopen_ids", bool, False, "allow a bus.base_id inside the CANopen "
+      "predefined connection set (a bus without CANopen devices)"),
     P("bus.protocol", str, "atris", "atris frames (DBC) or canopen", one_of("atris", "canopen")),
     P("bus.node_id", int, 0x20, "CANopen node id", in_range(1, 127)),
     P("publish.period_s", float, 0.05, "cycle period, s", in_range(0.01, 1.0)),

@@ -12,6 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from atris_node.bus.can import e2e, payloads
+from atris_node.bus.can.dbc import unit_cycle_ms
 from atris_node.bus.can.frames import FrameCodec, dbc_text, e2e_data_id, load_database
 from atris_node.bus.can.ids import FrameKind, frame_id, message_name, unit_of
 from atris_node.errors import ConfigError, FrameDecodeError
@@ -37,9 +38,9 @@ def _protected(data_id: int, body: str) -> bytes:
 
 def test_ids_blocks_do_not_overlap() -> None:
     ids = {frame_id(u, k) for u in range(16) for k in FrameKind}
-    assert len(ids) == 64 and min(ids) == 0x500 and max(ids) == 0x5F3
-    assert unit_of(0x532) == (3, FrameKind.NEAREST)
-    assert unit_of(0x534) is None and unit_of(0x600) is None
+    assert len(ids) == 64 and min(ids) == 0x680 and max(ids) == 0x6BF
+    assert unit_of(0x68E) == (3, FrameKind.NEAREST)
+    assert unit_of(0x67F) is None and unit_of(0x6C0) is None
     with pytest.raises(ConfigError, match=r"0\.\.15"):
         frame_id(16, FrameKind.STATUS)
 
@@ -52,7 +53,7 @@ def test_dbc_lists_every_unit_with_the_same_layout() -> None:
             reference = db.get_message_by_name(message_name(0, kind))
             assert message.frame_id == frame_id(unit, kind)
             assert e2e_data_id(message) == message.frame_id
-            assert message.cycle_time == 50 and message.length == 8
+            assert message.cycle_time == unit_cycle_ms(kind) and message.length == 8
             layout = [(s.name, s.start, s.length, s.scale, s.is_signed) for s in message.signals]
             assert layout == [(s.name, s.start, s.length, s.scale, s.is_signed)
                               for s in reference.signals]
@@ -64,15 +65,15 @@ def test_status_frame_bytes() -> None:
     signals = payloads.status_signals(STATUS, faults, 0.05)
     msg = FrameCodec().encode("Atris2_Status", signals, counter=4, scaling=False)
     # State 2 | counter 4, faults 0x05, row 3, N 16, 480.0 Hz = 4800 = 0x12C0, age 5
-    assert msg.arbitration_id == 0x520 and not msg.is_extended_id
-    assert bytes(msg.data) == _protected(0x520, "24 05 03 10 C0 12 05")
+    assert msg.arbitration_id == 0x688 and not msg.is_extended_id
+    assert bytes(msg.data) == _protected(0x688, "24 05 03 10 C0 12 05")
 
 
 def test_quality_frame_bytes() -> None:
     signals = payloads.quality_signals(STATUS, 8)
     msg = FrameCodec().encode("Atris2_Quality", signals, counter=0, scaling=False)
     # SectorCount-1 = 7, counter 0x1234, ambient 25 % = 50, 1 % = 2, 50 %, 3
-    assert bytes(msg.data) == _protected(0x521, "70 34 12 32 02 32 03")
+    assert bytes(msg.data) == _protected(0x689, "70 34 12 32 02 32 03")
 
 
 def test_sectors_frame_bytes() -> None:
@@ -83,8 +84,8 @@ def test_sectors_frame_bytes() -> None:
     codec = FrameCodec()
     data = [bytes(codec.encode("Atris0_Sectors", f, i, scaling=False).data)
             for i, f in enumerate(frames)]
-    assert data[0] == _protected(0x503, "00 D2 04 A0 FE FF 64")
-    assert data[1] == _protected(0x503, "21 FF FF 00 FD FF 00")
+    assert data[0] == _protected(0x683, "00 D2 04 A0 FE FF 64")
+    assert data[1] == _protected(0x683, "21 FF FF 00 FD FF 00")
 
 
 def test_nearest_frame_bytes() -> None:
@@ -94,7 +95,7 @@ def test_nearest_frame_bytes() -> None:
     signals = payloads.nearest_signals(measurement, usable=True)
     msg = FrameCodec().encode("Atris1_Nearest", signals, counter=14, scaling=False)
     # valid, 2500 mm, -1250 (0xFB1E), 10 = 2.0 m/s, TTC not available
-    assert bytes(msg.data) == _protected(0x512, "1E C4 09 1E FB 0A FF")
+    assert bytes(msg.data) == _protected(0x686, "1E C4 09 1E FB 0A FF")
 
 
 def test_unusable_data_is_invalid_never_a_distance() -> None:
@@ -142,8 +143,8 @@ def test_decoder_rejections() -> None:
     with pytest.raises(FrameDecodeError, match="0x7FF is not in the CAN database"):
         codec.decode(0x7FF, bytes(8))
     with pytest.raises(FrameDecodeError, match="5 data bytes"):
-        codec.decode(0x500, bytes(5))
-    assert codec.decode(0x500, bytes(8)).crc_ok is False
+        codec.decode(0x680, bytes(5))
+    assert codec.decode(0x680, bytes(8)).crc_ok is False
 
 
 @given(st.integers(0, 0x1FFFFFFF), st.binary(max_size=64), st.booleans())
@@ -165,7 +166,7 @@ def test_fuzz_decode_unit_frames(arbitration_id: int, data: bytes) -> None:
 def test_atris_dbc_prints_the_shipped_file() -> None:
     out = subprocess.run([sys.executable, "-m", "atris_node", "dbc"], capture_output=True,
                          text=True, check=True).stdout
-    assert out == dbc_text() and "BO_ 1280 Atris0_Status: 8 Atris0" in out
+    assert out == dbc_text() and "BO_ 1664 Atris0_Status: 8 Atris0" in out
 
 
 floats = st.floats(allow_nan=True, allow_infinity=True)

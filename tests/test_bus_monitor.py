@@ -21,10 +21,8 @@ from atris_node.cli import main
 from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 
 EXTRA_MESSAGE = """
-BO_ 2566848512 Negotiation_Claim: 8 Atris0
+BO_ 2566879955 Other_Claim: 8 Atris0
  SG_ CodeRow : 0|8@1+ (1,0) [0|255] "" Controller
-
-BA_ "IdMask" BO_ 2566848512 536805376;
 """
 
 
@@ -88,12 +86,12 @@ def test_monitor_decodes_a_recorded_exchange(tmp_path: Path) -> None:
 def test_monitor_shows_non_unit_messages_generically() -> None:
     db = cantools.database.load_string(dbc_text() + EXTRA_MESSAGE, database_format="dbc")
     monitor = BusMonitor(FrameCodec(db))
-    for identity in (0x0000, 0x7AD3):
-        monitor.feed(can.Message(arbitration_id=0x18FF0000 | identity, is_extended_id=True,
+    for _ in range(2):
+        monitor.feed(can.Message(arbitration_id=0x18FF7AD3, is_extended_id=True,
                                  data=bytes([7, 0, 0, 0, 0, 0, 0, 0])))
-    monitor.feed(can.Message(arbitration_id=0x18FE0000, is_extended_id=True, data=bytes(8)))
+    monitor.feed(can.Message(arbitration_id=0x18FF0000, is_extended_id=True, data=bytes(8)))
     snapshot = monitor.snapshot()
-    claim = snapshot["others"]["Negotiation_Claim"]
+    claim = snapshot["others"]["Other_Claim"]
     assert claim["last"] == {"CodeRow": 7} and claim["count"] == 2 and claim["id"] == "0x18FF7AD3"
     assert snapshot["unknown_frames"] == 1
 

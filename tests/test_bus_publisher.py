@@ -104,7 +104,7 @@ def test_counters_run_in_sequence(channel: str, listener: can.BusABC) -> None:
         publisher.stop()
     checker = E2EChecker(frame_id(5, FrameKind.SECTORS))
     states = [checker.check(bytes(m.data), 0.0) for m in messages
-              if m is not None and m.arbitration_id == 0x553]
+              if m is not None and m.arbitration_id == frame_id(5, FrameKind.SECTORS)]
     assert len(states) > 20 and all(s.valid for s in states)
 
 
@@ -117,7 +117,7 @@ def test_immediate_send_on_new_measurement(channel: str, listener: can.BusABC) -
         msg = listener.recv(timeout=0.5)
         publisher.stop()
     assert msg is not None and time.monotonic() - start < 0.5
-    assert msg.arbitration_id == 0x520
+    assert msg.arbitration_id == frame_id(2, FrameKind.STATUS)
 
 
 def test_fresh_data_is_valid(channel: str, listener: can.BusABC) -> None:

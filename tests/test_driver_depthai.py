@@ -444,6 +444,7 @@ def test_feature_a_frames_age_is_its_exposure_time_not_its_arrival(
     (and the future-stamped frame's too): two of the three cases failed.
     """
     from atris_node.bus.can.frames import FrameCodec
+    from atris_node.bus.can.ids import FrameKind, frame_id
     from atris_node.bus.can.publisher import Publisher
     from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 
@@ -457,5 +458,6 @@ def test_feature_a_frames_age_is_its_exposure_time_not_its_arrival(
         frames = Publisher(bus, 0, max_age_s=0.25).compose(measurement, status,
                                                            time.monotonic())
     codec = FrameCodec()
-    sector = next(codec.decode_message(m) for m in frames if m.arbitration_id == 0x503)
+    sectors_id = frame_id(0, FrameKind.SECTORS)
+    sector = next(codec.decode_message(m) for m in frames if m.arbitration_id == sectors_id)
     assert isinstance(sector.signals["Distance0"], float) is valid

@@ -30,9 +30,9 @@ CODEC = FrameCodec()
 FAST = settings(max_examples=2000, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow])
 UNIT_IDS = [frame_id(u, k) for u in range(16) for k in FrameKind]
-NEGOTIATION_IDS = [nf.make_id(kind, nf.Identity(fold, unit), field)
-                   for kind in nf.FrameKind for fold in (0, 0x3FF) for unit in (0, 15)
-                   for field in (0, 1, 2, 127)]
+NEGOTIATION_IDS = [nf.make_id(kind, nf.Identity(unit), field) | reserved
+                   for kind in nf.FrameKind for reserved in (0, nf.RESERVED_MASK)
+                   for unit in (0, 15) for field in (0, 1, 2, 127)]
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -24,8 +24,9 @@ EXAMPLES = 300
 COUNTS: collections.Counter[str] = collections.Counter()
 
 negotiation_ids = st.builds(
-    lambda kind, fold, unit, field: nf.make_id(kind, nf.Identity(fold, unit), field),
-    st.sampled_from(list(nf.FrameKind)), st.integers(0, 0x3FF), st.integers(0, 15),
+    lambda kind, reserved, unit, field: nf.make_id(kind, nf.Identity(unit), field) | reserved,
+    st.sampled_from(list(nf.FrameKind)), st.sampled_from([0, 0x10, nf.RESERVED_MASK]),
+    st.integers(0, 15),
     st.integers(0, nf.MAX_FIELD))
 unit_ids = st.builds(frame_id, st.integers(0, 15), st.sampled_from(list(FrameKind)))
 frames = st.builds(

@@ -30,7 +30,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "demod": {"ground"},
     "pipeline": {"ground", "demod"},
     "adaptive": {"ground", "demod"},
-    "bus.can": {"ground"},
+    "bus.can": {"ground", "bus.negotiation"},  # the DBC describes the negotiation frames
     "bus.canopen": {"ground", "bus.can"},
     "bus.negotiation": {"ground"},
     "sim": {"ground", "pipeline"},

@@ -229,7 +229,7 @@ def test_babbling_and_malformed_claimants_neither_crash_nor_starve_units(make_fl
     fleet.start_all(spread_s=0.01)
     babbler = ShimBus(fleet.channel, fleet.clock)
     rows = plan_code_rows(PLAN)
-    other = Identity(0x2BC, 6)
+    other = Identity(6)
     junk = [(make_id(FrameKind.CLAIM, other, 3), b"\x01"),  # CLAIM with 1 byte
             (make_id(FrameKind.CLAIM, other, 1), bytes(8)),  # CLAIM of row 1
             (make_id(FrameKind.PLAN, other), bytes([16, 7, 0, 1, 0, 0, 0, 0])),  # bad mode
@@ -239,7 +239,7 @@ def test_babbling_and_malformed_claimants_neither_crash_nor_starve_units(make_fl
 
     def babble(step: int) -> None:
         row = rows[step % len(rows)]
-        can_id = make_id(FrameKind.CLAIM, Identity(1, 5), row)  # NAME 1, the lowest
+        can_id = make_id(FrameKind.CLAIM, Identity(5), row)  # NAME 1, the lowest
         babbler.send(can.Message(arbitration_id=can_id, data=(1).to_bytes(8, "little"),
                                  is_extended_id=True))
         bad_id, bad_data = junk[step % len(junk)]

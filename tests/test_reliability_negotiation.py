@@ -397,7 +397,7 @@ def test_a_full_peer_table_evicts_what_matters_least_and_never_a_rows_owner() ->
     """Checked by making ``PeerTable._make_room`` evict nothing: the new identities were
     dropped (``accept`` returned None) and the assert in the loop failed."""
     table = PeerTable(max_peers=4)
-    ids = [Identity(k, 1) for k in range(8)]
+    ids = [Identity(k) for k in range(8)]
 
     def heard(k: int, now: float, name: int | None = None, row: int | None = None) -> None:
         peer = table.accept(ids[k], now)

@@ -30,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("atris_node.cli.replay", "run the pipeline on recorded sub-frames"),
     "calib": ("atris_node.cli.calib", "calibration: intrinsics, laser planes, verification"),
     "bench": ("atris_node.cli.bench", "benchmarks (demod, sim, accuracy, latency, adaptive)"),
-    "dbc": ("atris_node.cli.dbc", "print the shipped CAN database (DBC)"),
+    "dbc": ("atris_node.cli.dbc", "print the CAN database (DBC), or regenerate the shipped one"),
     "eds": ("atris_node.cli.eds", "print the shipped CANopen EDS"),
     "config": ("atris_node.cli.config", "show the effective configuration"),
     "soak": ("atris_node.cli.soak", "run the simulated fleet and report resource use"),

@@ -16,6 +16,7 @@ import canopen
 from can.typechecking import CanFilter
 
 from atris_node.bus.can.config import BusConfig
+from atris_node.bus.can.ids import check_base_id
 from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
 from atris_node.bus.negotiation import name as negotiation_name
@@ -167,15 +168,18 @@ def make_bus_services(config: Config, bus: can.BusABC) -> BusServices:
 
 def make_output(config: Config, bus: can.BusABC, services: BusServices,
                 clock: Callable[[], float]) -> Publisher | CanopenDevice:
-    """The frames of this unit: the DBC cycle publisher, or a CANopen slave."""
+    """The frames of this unit: the DBC cycle publisher (its ``bus.base_id`` checked
+    against the CANopen predefined connection set), or a CANopen slave."""
     if services.network is not None:
         return CanopenDevice(services.network, config["bus.node_id"], clock=clock,
                              settings=canopen_settings(config),
                              on_sync_id=lambda sync_id: bus.set_filters(
                                  receive_filters(config, sync_id)))
+    check_base_id(config["bus.base_id"], config["bus.allow_canopen_ids"])
     publisher = Publisher(bus, config["unit.unit_id"], period_s=config["publish.period_s"],
                           max_age_s=config["publish.max_age_s"], clock=clock,
-                          sector_count=config["pipeline.sector_count"], fd=config["bus.fd"])
+                          sector_count=config["pipeline.sector_count"], fd=config["bus.fd"],
+                          base_id=config["bus.base_id"])
     services.notifier.add_listener(publisher.health)
     return publisher
 

@@ -35,6 +35,8 @@ import can
 import pytest
 from vcan_support import summary_ms
 
+from atris_node.bus.can.ids import FrameKind, frame_id
+
 pytestmark = pytest.mark.vcan
 
 BUS_BITRATE = 500_000
@@ -47,7 +49,7 @@ PERIOD_S = 0.05
 TOLERANCE_S = PERIOD_S / 4
 ENCODE_SLACK_S = 0.010
 MIN_FRAMES_PER_S = 500.0
-STATUS_ID = 0x500 + 0x10 * 5
+STATUS_ID = frame_id(5, FrameKind.STATUS)
 DEADLINE_MISS_BIT = 0x08  # byte 2, bit 3 of the Status frame (Fault_DeadlineMiss)
 
 

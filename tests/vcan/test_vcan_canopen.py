@@ -20,6 +20,8 @@ from roles import sector_distance_m
 from unit_frames import DBC_PATH, check_and_decode, listen
 from vcan_support import REPO_ROOT, summary_ms
 
+from atris_node.bus.can.ids import FrameKind, frame_id
+
 pytestmark = pytest.mark.vcan
 
 EDS_PATH = REPO_ROOT / "atris_node" / "bus" / "canopen" / "atris.eds"
@@ -86,7 +88,8 @@ def test_canopen_master_runs_a_unit_next_to_dbc_frames(spawn: Any, record_proper
     check_canopen_frames(frames, record_property)
     db = cantools.database.load_file(DBC_PATH)
     receivers: dict[int, P01Receiver] = {}
-    dbc_frames = [f for f in frames if 0x530 <= f.arbitration_id <= 0x53F]
+    block = frame_id(3, FrameKind.STATUS), frame_id(3, FrameKind.SECTORS)
+    dbc_frames = [f for f in frames if block[0] <= f.arbitration_id <= block[1]]
     assert len(check_and_decode(db, dbc_frames, receivers)) > 100
     record_property("dbc_unit_e2e_timeouts", sum(r.timeouts for r in receivers.values()))
 

@@ -36,6 +36,8 @@ from test_load import cangen_babblers
 from test_vcan_negotiation import strobe_intervals, wait_owned
 from unit_frames import DBC_PATH, Received, check_and_decode, listen
 
+from atris_node.bus.can.ids import FrameKind, frame_id
+
 pytestmark = pytest.mark.vcan
 
 REANNOUNCE_S = 1.0
@@ -121,9 +123,9 @@ def test_a_babbling_node_makes_no_unit_share_a_code_or_publish_stale_distances(
     units = [spawn("atris", *run_args(uid)) for uid in UNIT_IDS]
     for unit in units:
         unit.wait_for("ready")
-    ids = [0x500 + 0x10 * uid for uid in UNIT_IDS]
+    ids = [frame_id(uid, FrameKind.STATUS) for uid in UNIT_IDS]
     with can.Bus(interface="socketcan", channel="vcan0", can_filters=[
-            {"can_id": i, "can_mask": 0x7F0, "extended": False} for i in ids]) as bus, \
+            {"can_id": i, "can_mask": 0x7FC, "extended": False} for i in ids]) as bus, \
             cangen_babblers():
         frames = listen(bus, RUN_S - 4.0)
     results = [unit.wait_for("done", 120.0) for unit in units]

@@ -15,6 +15,8 @@ import pytest
 from e2e_reference import P01Receiver
 from unit_frames import DBC_PATH, Received, check_and_decode, listen
 
+from atris_node.bus.can.ids import FrameKind, frame_id
+
 pytestmark = pytest.mark.vcan
 
 UNIT_IDS = (6, 7)
@@ -43,7 +45,8 @@ def test_two_atris_run_units_negotiate_and_publish(spawn: Any, record_property: 
     for unit in units:
         unit.wait_for("ready")
     with can.Bus(interface="socketcan", channel="vcan0",
-                 can_filters=[{"can_id": 0x560, "can_mask": 0x7E0, "extended": False}]) as bus:
+                 can_filters=[{"can_id": frame_id(6, FrameKind.STATUS), "can_mask": 0x7F8,
+                               "extended": False}]) as bus:
         frames = listen(bus, RUN_S - 2.0)
     results = [unit.wait_for("done", 120.0) for unit in units]
     assert [r["exit_code"] for r in results] == [0, 0]

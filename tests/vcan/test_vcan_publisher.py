@@ -18,6 +18,8 @@ from roles import sector_distance_m
 from unit_frames import DBC_PATH, Received, check_and_decode, cycles, listen
 from vcan_support import summary_ms
 
+from atris_node.bus.can.ids import FrameKind, frame_id
+
 pytestmark = pytest.mark.vcan
 
 STATE_RUNNING = 2
@@ -31,9 +33,9 @@ def running_cycles(groups: list[list[Received]]) -> list[list[Received]]:
 
 
 def unit_bus(unit_id: int) -> can.BusABC:
-    block = 0x500 + 0x10 * unit_id
+    block = frame_id(unit_id, FrameKind.STATUS)
     return can.Bus(interface="socketcan", channel="vcan0",
-                   can_filters=[{"can_id": block, "can_mask": 0x7F0, "extended": False}])
+                   can_filters=[{"can_id": block, "can_mask": 0x7FC, "extended": False}])
 
 
 def test_reference_crc_is_sae_j1850() -> None:
@@ -127,7 +129,7 @@ def test_restarted_unit_comes_back_with_a_fresh_e2e_sequence(
     received = check_and_decode(db, frames, receivers)
     before = [f for f in received if f.timestamp < killed_at]
     after = [f for f in received if f.timestamp >= killed_at]
-    status = receivers[0x550]
+    status = receivers[frame_id(5, FrameKind.STATUS)]
     assert status.timeouts >= 1 and status.verdicts.count("initial") == status.timeouts + 1
     resumed = [f for f in after if f.name == "Atris5_Status"]
     assert resumed[0].counter == 0

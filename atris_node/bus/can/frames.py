@@ -1,11 +1,13 @@
-"""Encode and decode frames through cantools with the shipped DBC, generic over messages.
+"""Encode and decode frames through cantools with the CAN database, generic over messages.
 
-Messages are looked up by name (encode) or by arbitration ID (decode), so messages added
-to ``atris.dbc`` (the code-negotiation frames) work without code here. A message with an
+The database of the default base ID is the shipped ``atris.dbc``; for another base
+(the ``bus.base_id`` setting) it is generated from the same frame table
+(:mod:`atris_node.bus.can.dbc`), so this codec is the one place that maps IDs to frames.
+
+Messages are looked up by name (encode) or by exact arbitration ID (decode), as any DBC
+tool does, so messages added to the frame table work without code here. A message with an
 ``E2EDataID`` attribute is E2E protected (:mod:`atris_node.bus.can.e2e`): its ``CRC`` and
-``Counter`` signals are filled in by :meth:`FrameCodec.encode`. A message with a non-zero
-``IdMask`` attribute stands for every frame whose ID ANDed with the mask equals the
-message's ID (frames that carry the sender's identity in the low ID bits).
+``Counter`` signals are filled in by :meth:`FrameCodec.encode`.
 """
 
 from __future__ import annotations
@@ -15,31 +17,41 @@ import importlib.resources
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import can
 import cantools
 from cantools.database.can import Database, Message
 
 from atris_node.bus.can import e2e
+from atris_node.bus.can.dbc import generate_text
+from atris_node.bus.can.ids import DEFAULT_BASE_ID, check_base_id
 from atris_node.errors import FrameDecodeError
 
 logger = logging.getLogger(__name__)
 
 DBC_NAME = "atris.dbc"
 E2E_ATTRIBUTE = "E2EDataID"
-MASK_ATTRIBUTE = "IdMask"
 SignalValue = int | float | str
 
 
+def dbc_path() -> Path:
+    """Path of the shipped DBC (package data ``atris_node/bus/can/atris.dbc``)."""
+    return Path(str(importlib.resources.files("atris_node.bus.can").joinpath(DBC_NAME)))
+
+
 def dbc_text() -> str:
-    """Text of the shipped DBC (package data ``atris_node/bus/can/atris.dbc``)."""
-    return importlib.resources.files("atris_node.bus.can").joinpath(DBC_NAME).read_text("utf-8")
+    """Text of the shipped DBC."""
+    return dbc_path().read_text("utf-8")
 
 
 @functools.cache
-def load_database() -> Database:
-    """The shipped DBC, parsed once (strict: overlapping signals are an error)."""
-    db = cantools.database.load_string(dbc_text(), database_format="dbc")
+def load_database(base_id: int = DEFAULT_BASE_ID) -> Database:
+    """The CAN database for unit frames from ``base_id``, made once per base: the shipped
+    DBC (strict: overlapping signals are an error) for the default base, else generated."""
+    text = dbc_text() if base_id == DEFAULT_BASE_ID else generate_text(
+        check_base_id(base_id, allow_canopen=True))
+    db = cantools.database.load_string(text, database_format="dbc")
     assert isinstance(db, Database)
     return db
 
@@ -53,11 +65,6 @@ def _attribute(message: Message, name: str) -> int | None:
 def e2e_data_id(message: Message) -> int | None:
     """E2E data ID of ``message`` from its DBC attribute, or None when unprotected."""
     return _attribute(message, E2E_ATTRIBUTE)
-
-
-def id_mask(message: Message) -> int:
-    """``IdMask`` attribute of ``message``; 0 means its ID must match exactly."""
-    return _attribute(message, MASK_ATTRIBUTE) or 0
 
 
 @dataclass(frozen=True)
@@ -78,12 +85,13 @@ class DecodedFrame:
 
 
 class FrameCodec:
-    """Encoder/decoder over one cantools database (by default the shipped DBC)."""
+    """Encoder/decoder over one cantools database: ``database``, else the one of
+    ``base_id`` (:func:`load_database`; the shipped DBC for the default base)."""
 
-    def __init__(self, database: Database | None = None) -> None:
-        self.database = database if database is not None else load_database()
+    def __init__(self, database: Database | None = None,
+                 base_id: int = DEFAULT_BASE_ID) -> None:
+        self.database = database if database is not None else load_database(base_id)
         self._by_id = {(m.frame_id, m.is_extended_frame): m for m in self.database.messages}
-        self._masked = [(id_mask(m), m) for m in self.database.messages if id_mask(m)]
 
     def message(self, name: str) -> Message:
         """The DBC message called ``name``; FrameDecodeError when there is none."""
@@ -131,14 +139,7 @@ class FrameCodec:
         return self.decode(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
 
     def _lookup(self, arbitration_id: int, is_extended_id: bool) -> Message | None:
-        message = self._by_id.get((arbitration_id, is_extended_id))
-        if message is not None:
-            return message
-        for mask, candidate in self._masked:
-            if (candidate.is_extended_frame == is_extended_id
-                    and arbitration_id & mask == candidate.frame_id):
-                return candidate
-        return None
+        return self._by_id.get((arbitration_id, is_extended_id))
 
     @staticmethod
     def _encode(message: Message, values: dict[str, SignalValue], scaling: bool) -> bytes:

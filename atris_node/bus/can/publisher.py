@@ -31,7 +31,7 @@ from atris_node.bus.can import payloads
 from atris_node.bus.can.config import BusHealth
 from atris_node.bus.can.e2e import COUNTER_MODULO
 from atris_node.bus.can.frames import FrameCodec
-from atris_node.bus.can.ids import FrameKind, message_name
+from atris_node.bus.can.ids import DEFAULT_BASE_ID, FrameKind, message_name
 from atris_node.errors import ConfigError, NodeFaultError
 from atris_node.types import FaultBits, Measurement, UnitState, UnitStatus
 
@@ -57,7 +57,7 @@ class Publisher:
 
     Args:
         bus: an open python-can bus (the publisher does not shut it down).
-        unit_id: 0..15, selects the ID block ``0x500 + 0x10 * unit_id``.
+        unit_id: 0..15, selects the ID block ``base_id + 4 * unit_id``.
         period_s: cycle period, 0.01..1.0 s.
         max_age_s: data older than this at send time is sent as invalid, s.
         clock: monotonic clock in seconds, the clock of ``Measurement.newest_time_s``.
@@ -66,12 +66,15 @@ class Publisher:
             (default a quarter period).
         fd: send CAN FD frames (same 8-byte payloads, bit-rate switch on).
         health: error-frame listener of the bus, if the owner runs a Notifier.
+        base_id: first unit frame ID of the fleet (:func:`~atris_node.bus.can.ids.check_base_id`;
+            the caller decides whether CANopen IDs are allowed).
     """
 
     def __init__(self, bus: can.BusABC, unit_id: int, period_s: float = 0.05,
                  max_age_s: float = 0.2, clock: Callable[[], float] = time.monotonic, *,
                  sector_count: int = 8, tolerance_s: float | None = None, fd: bool = False,
-                 backoff_cap_s: float = 1.0, health: BusHealth | None = None) -> None:
+                 backoff_cap_s: float = 1.0, health: BusHealth | None = None,
+                 base_id: int = DEFAULT_BASE_ID) -> None:
         if not MIN_PERIOD_S <= period_s <= 1.0:
             raise ConfigError(f"publish period must be 0.01..1.0 s, got {period_s}")
         if not max_age_s > 0.0:
@@ -83,7 +86,7 @@ class Publisher:
         self.stats = PublisherStats()
         self._names = {kind: message_name(unit_id, kind) for kind in FrameKind}
         self._sector_count = payloads.check_sector_count(sector_count)
-        self._codec = FrameCodec()
+        self._codec = FrameCodec(base_id=base_id)
         self._counters = dict.fromkeys(self._names.values(), 0)
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)

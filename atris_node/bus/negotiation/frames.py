@@ -7,19 +7,21 @@ Identifier (29 bits, extended frame)::
     bits 23..21  kind: REQUEST 0, CLAIM 1, CANNOT_CLAIM 2, PLAN 3, SYNC 4
     bits 20..14  field: the claimed 1-based Walsh row in CLAIM; 1 in a CANNOT_CLAIM sent
                  by a unit that stops (leaving); 0 otherwise
-    bits 13..4   NAME fold: the 64-bit NAME XOR-folded to 10 bits
-    bits  3..0   unit_id of the sender
+    bits 13..4   0 (reserved; an identifier with any of them set is no negotiation frame)
+    bits  3..0   unit_id of the sender: its identity
 
-The low 14 bits are the sender's identity, so two units claiming at the same instant
-never send the same identifier (a real bus would turn that into a bit error). The DBC
-describes each kind at its base identifier (field and identity bits zero); a receiver
-masks the identifier with :data:`KIND_MASK` to find the message. Payloads are
-little-endian, as J1939 puts the NAME on the wire.
+unit_ids are unique per bus by configuration (the unit frames already require it), so two
+units claiming at the same instant never send the same identifier (a real bus would turn
+that into a bit error), and a second unit with our unit_id shows as a foreign frame with
+our identity. With four identity bits every identifier a unit can send is one message of
+the DBC (:data:`FIELDS`: 131 per unit, 2096 in all), so stock tools decode negotiation
+frames by their identifier alone. Payloads are little-endian, as J1939 puts the NAME on
+the wire.
 
 Example:
     >>> frame = encode_claim(0x1122334455667788, unit_id=3, code_row=5)
     >>> hex(frame.can_id), frame.data.hex()
-    ('0x1f214283', '8877665544332211')
+    ('0x1f214003', '8877665544332211')
 """
 
 from __future__ import annotations
@@ -35,10 +37,11 @@ PREFIX_BITS = 0x1F000000
 PREFIX_MASK = 0x1F000000
 KIND_SHIFT = 21
 FIELD_SHIFT = 14
-FOLD_BITS = 10
 KIND_MASK = 0x1FE00000
 FIELD_MASK = 0x001FC000
-IDENTITY_MASK = 0x00003FFF
+RESERVED_MASK = 0x00003FF0
+IDENTITY_MASK = 0x0000000F
+MAX_UNIT_ID = 15
 MAX_FIELD = 0x7F
 MAX_NAME = 2**64 - 1
 
@@ -58,7 +61,7 @@ PLAN_FLAGS = PLAN_FLAG_PROPOSAL | PLAN_FLAG_CONFLICT | PLAN_FLAG_ESTABLISHED
 
 
 class FrameKind(enum.IntEnum):
-    """Kind bits of a negotiation identifier; the DBC message is ``Negotiation_<Kind>``."""
+    """Kind bits of a negotiation identifier; DBC messages ``Negotiation<unit>_<Kind>...``."""
 
     REQUEST = 0
     CLAIM = 1
@@ -80,17 +83,26 @@ class RawFrame:
     data: bytes
 
 
+#: the field values each kind is sent with: one identifier per unit and value
+FIELDS: dict[FrameKind, tuple[int, ...]] = {
+    FrameKind.REQUEST: (0,),
+    FrameKind.CLAIM: tuple(range(2, MAX_FIELD + 1)),
+    FrameKind.CANNOT_CLAIM: (0, LEAVING),
+    FrameKind.PLAN: (0,),
+    FrameKind.SYNC: (0,),
+}
+
+
 @dataclass(frozen=True)
 class Identity:
-    """Sender identity from the identifier's low 14 bits."""
+    """Sender identity from the identifier's low 4 bits: its unit_id."""
 
-    name_fold: int
     unit_id: int
 
     @property
     def bits(self) -> int:
-        """The 14 identity bits."""
-        return (self.name_fold << 4) | self.unit_id
+        """The identity bits of the identifier."""
+        return self.unit_id
 
 
 @dataclass(frozen=True)
@@ -113,21 +125,13 @@ class Header:
     identity: Identity
 
 
-def name_fold(name: int) -> int:
-    """The 64-bit NAME XOR-folded to the 10 NAME bits of the identifier."""
-    fold = 0
-    for shift in range(0, 64, FOLD_BITS):
-        fold ^= (name >> shift) & ((1 << FOLD_BITS) - 1)
-    return fold
-
-
 def identity_of(name: int, unit_id: int) -> Identity:
     """The identity a unit puts in its identifiers; checks NAME and unit_id ranges."""
     if not 0 <= name <= MAX_NAME:
         raise ConfigError(f"NAME must be a 64-bit unsigned integer, got {name}")
-    if not 0 <= unit_id <= 15:
-        raise ConfigError(f"unit_id must be 0..15, got {unit_id}")
-    return Identity(name_fold(name), unit_id)
+    if not 0 <= unit_id <= MAX_UNIT_ID:
+        raise ConfigError(f"unit_id must be 0..{MAX_UNIT_ID}, got {unit_id}")
+    return Identity(unit_id)
 
 
 def make_id(kind: FrameKind, identity: Identity, field: int = 0) -> int:
@@ -139,12 +143,12 @@ def make_id(kind: FrameKind, identity: Identity, field: int = 0) -> int:
 
 def parse_id(can_id: int) -> Header | None:
     """Split a 29-bit identifier; None when it is not a negotiation frame."""
-    if can_id & ~0x1FFFFFFF or can_id & PREFIX_MASK != PREFIX_BITS:
+    if can_id & ~0x1FFFFFFF or can_id & PREFIX_MASK != PREFIX_BITS or can_id & RESERVED_MASK:
         return None
     kind_value = (can_id >> KIND_SHIFT) & 0x7
     if kind_value not in FrameKind._value2member_map_:
         return None
-    identity = Identity((can_id >> 4) & ((1 << FOLD_BITS) - 1), can_id & 0xF)
+    identity = Identity(can_id & IDENTITY_MASK)
     return Header(FrameKind(kind_value), (can_id & FIELD_MASK) >> FIELD_SHIFT, identity)
 
 
