@@ -87,7 +87,8 @@ def _cycles(count: int, start_s: float = 1000.0) -> list[can.Message]:
         publisher = Publisher(bus, UNIT_ID, period_s=PERIOD_S, max_age_s=1e9)
         for cycle in range(count):
             now = start_s + cycle * PERIOD_S
-            request = codec.encode("Negotiation_Request", {"Name": 0x0A70_0000_0000_0000 + cycle})
+            request = codec.encode(f"Negotiation{UNIT_ID}_Request",
+                                   {"Name": 0x0A70_0000_0000_0000 + cycle})
             for msg in [*publisher.compose(_measurement(2.0), _status(3), now), request]:
                 msg.timestamp = now
                 frames.append(msg)
@@ -200,7 +201,7 @@ def test_monitor_replays_a_log_in_its_own_time(suffix: str, tmp_path: Path,
     assert unit["rate_hz"] == pytest.approx(per_cycle / PERIOD_S, rel=0.1)
     assert unit["frames"] == 60 * per_cycle and unit["code_row"] == 3
     assert {e["state"] for e in unit["e2e"].values()} == {"ok"}
-    assert summary["others"]["Negotiation_Request"]["count"] == 60
+    assert summary["others"][f"Negotiation{UNIT_ID}_Request"]["count"] == 60
 
 
 def test_monitor_refuses_to_write_over_a_log(tmp_path: Path,

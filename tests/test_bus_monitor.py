@@ -118,3 +118,28 @@ def test_atris_monitor_log_is_read_by_cantools_decode(
                              check=True, timeout=60).stdout
     assert "Atris7_Status(" in decoded and "State: RUNNING" in decoded
     assert "Atris7_Sectors(" in decoded and "Distance0: 2.0 m" in decoded
+
+
+def test_feature_monitor_follows_the_units_base_id() -> None:
+    """A unit publishing from another ``bus.base_id`` is a unit to a monitor told that base
+    (``atris monitor --base-id``) and unknown frames to one on the default base.
+
+    Checked by making BusMonitor ignore its base (``unit_of`` on the default base): the
+    monitor told base 0x100 saw no unit and the test failed."""
+    frames = Publisher(can.Bus(interface="virtual", channel=f"b-{uuid.uuid4().hex}"), 2,
+                       base_id=0x100).compose(_measurement(1.0), _status(3), time.monotonic())
+    told, default = BusMonitor(base_id=0x100), BusMonitor()
+    for msg in frames:
+        told.feed(msg)
+        default.feed(msg)
+    assert set(told.snapshot()["units"]) == {"2"}
+    assert told.snapshot()["units"]["2"]["code_row"] == 3
+    assert default.snapshot()["units"] == {} and default.snapshot()["unknown_frames"] == len(
+        frames)
+
+
+def test_exception_monitor_refuses_a_base_id_out_of_range(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["monitor", "--base-id", "0x7F0", "--replay", "x.log"])
+    assert exit_info.value.code == 2 and "base ID" in capsys.readouterr().err

@@ -79,3 +79,33 @@ def test_feature_invalid_fraction_rises_at_most_five_points() -> None:
 @pytest.mark.parametrize("name", _scenes(stress_scenes()))
 def test_feature_stress_scene_never_wrong(name: str) -> None:
     _assert_never_wrong(_row(name))
+
+
+def test_feature_fan_split_separates_near_parallel_sheets() -> None:
+    """``--groups 2`` (docs/pipeline.md, "Splitting the fan"): with every other line on its
+    own code the two sheets at 89.9° and 90.1° no longer merge into one stripe, and the
+    sectors the whole fan leaves INVALID are measured, still never wrong."""
+    whole, split = score_scene("near_parallel_sheets", 2).row(), score_scene(
+        "near_parallel_sheets", 2, groups=2).row()
+    assert whole["invalid_fraction"] == 1.0
+    assert split["invalid_fraction"] <= 0.25 and split["accurate_fraction"] >= 0.95
+    assert split["near_phantom"] == split["far"] == split["false_free"] == 0
+
+
+def test_feature_fan_split_publishes_conservatively() -> None:
+    """A sector is INVALID when any group says so, else the nearest VALID, else NO_RETURN.
+
+    Checked by combining with "the nearest VALID of any group" instead: the first
+    assertion failed (VALID 4.0 m where group 0 was INVALID)."""
+    from atris_node.bench.safety import _combined
+    from atris_node.types import SectorDistance, SectorState
+
+    def sector(state: SectorState, distance_m: float | None = None) -> SectorDistance:
+        return SectorDistance(0, 0.0, state, distance_m)
+
+    invalid, free = sector(SectorState.INVALID), sector(SectorState.NO_RETURN)
+    assert _combined([(invalid,), (sector(SectorState.VALID, 4.0),)])[0] is invalid
+    assert _combined([(sector(SectorState.VALID, 4.0),), (sector(SectorState.VALID, 3.0),)]
+                     )[0].distance_m == 3.0
+    assert _combined([(free,), (sector(SectorState.VALID, 5.0),)])[0].distance_m == 5.0
+    assert _combined([(free,), (free,)])[0] is free

@@ -22,6 +22,7 @@ from typing import Any
 import can
 
 from atris_node.bus.can.config import open_bus
+from atris_node.bus.can.ids import DEFAULT_BASE_ID
 from atris_node.bus.can.logfile import check_log_target, open_log_writer
 from atris_node.bus.can.monitor import BusMonitor, BusTap, e2e_errors_by_unit
 from atris_node.node.fleetview import fleet_table
@@ -80,7 +81,8 @@ def run_launch(spec: LaunchSpec, duration_s: float, log: str | None = None,
                overwrite: bool = False) -> dict[str, Any]:
     """Run ``spec`` for ``duration_s`` seconds; return the summary object. With ``log``
     every frame is also written there (an existing file only if ``overwrite``)."""
-    monitor = BusMonitor(e2e_timeout_s=0.5)
+    base_id = int(spec.units[0]["bus.base_id"]) if spec.units else DEFAULT_BASE_ID
+    monitor = BusMonitor(e2e_timeout_s=0.5, base_id=base_id)
     stop = threading.Event()
     with _monitor_bus(spec) as bus:
         listeners: list[can.Listener] = [monitor]

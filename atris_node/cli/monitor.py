@@ -21,9 +21,10 @@ from typing import Any
 import can
 
 from atris_node.bus.can.config import BusConfig, open_bus
+from atris_node.bus.can.ids import DEFAULT_BASE_ID, check_base_id
 from atris_node.bus.can.logfile import check_log_target, open_log_writer, read_log
 from atris_node.bus.can.monitor import BusMonitor, BusTap, render_table
-from atris_node.errors import UsageError
+from atris_node.errors import ConfigError, UsageError
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "$CAN_BITRATE, $CAN_CONFIG, python-can config file, else 500000 "
                         "where the interface has one)")
     parser.add_argument("--fd", action="store_true", default=None, help="CAN FD")
+    parser.add_argument("--base-id", type=_base_id, default=DEFAULT_BASE_ID, metavar="ID",
+                        help="first ID of the units' frames, as their bus.base_id "
+                        f"(default {DEFAULT_BASE_ID:#x})")
     parser.add_argument("--replay", metavar="FILE", help="read a recorded log (any python-can "
                         "format: .asc, .blf, .csv, .db, .log, .trc...) instead of a bus")
     parser.add_argument("--duration", type=float, help="stop after S seconds")
@@ -60,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
             verb = "applies" if len(given) == 1 else "apply"
             raise UsageError(f"--replay reads a log file; {', '.join(given)} {verb} only to "
                              "a live bus (to convert a log, use python -m can.logconvert)")
-        summary = replay(args.replay)
+        summary = replay(args.replay, args.base_id)
     else:
         if args.log:
             check_log_target(args.log, args.overwrite)
@@ -72,10 +76,22 @@ def run(args: argparse.Namespace) -> int:
     return 1 if summary.get("frames_not_taken") else 0
 
 
-def replay(path: str) -> dict[str, Any]:
+def _base_id(text: str) -> int:
+    """``--base-id``: an ID in decimal or 0x hex, checked as bus.base_id is."""
+    try:
+        value = int(text, 0)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from exc
+    try:
+        return check_base_id(value, allow_canopen=True)
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
+def replay(path: str, base_id: int = DEFAULT_BASE_ID) -> dict[str, Any]:
     """Feed every frame of the log at ``path`` to a BusMonitor; its snapshot at the log's
     last frame (ages and rates in the log's time, not the time of the replay)."""
-    monitor, frames = BusMonitor(), 0
+    monitor, frames = BusMonitor(base_id=base_id), 0
     for msg in read_log(path):
         monitor.feed(msg)
         frames += 1
@@ -87,7 +103,7 @@ def replay(path: str) -> dict[str, Any]:
 def watch_bus(args: argparse.Namespace) -> dict[str, Any]:
     """Watch the live bus the options name; the snapshot at the end, at wall time."""
     config = BusConfig(args.interface, args.channel, args.bitrate, args.fd)
-    monitor = BusMonitor()
+    monitor = BusMonitor(base_id=args.base_id)
     with open_bus(config, receive_own_messages=False) as bus:
         listeners: list[can.Listener] = [monitor]
         if args.log:

@@ -63,11 +63,11 @@ class CycleWatch(can.Listener):
     them lack the DeadlineMiss bit. ``limits`` maps a Status frame's name to the largest
     gap, s, its unit's cycles may have (period + tolerance)."""
 
-    def __init__(self, limits: dict[str, float]) -> None:
+    def __init__(self, limits: dict[str, float], base_id: int) -> None:
         self.limits = limits
         self.late = 0
         self.unflagged = 0
-        self._codec = FrameCodec()
+        self._codec = FrameCodec(base_id=base_id)
         self._last: dict[str, float] = {}
 
     def on_message_received(self, msg: can.Message) -> None:
@@ -125,14 +125,14 @@ def soak(minutes: float, spec: LaunchSpec | None = None) -> SoakReport:
 def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
     total_s = minutes * 60.0
     warmup_s = min(total_s * WARMUP_FRACTION, WARMUP_MAX_S)
-    monitor = BusMonitor(e2e_timeout_s=1.0)
+    monitor = BusMonitor(e2e_timeout_s=1.0, base_id=int(spec.units[0]["bus.base_id"]))
     fleet = FleetRun(spec)
     with open_bus(spec.units[0]) as bus:  # the units' bus, opened as they open it
         notifier = can.Notifier(bus, [monitor], timeout=0.1)
         try:
             fleet.start()
             _run_phase(fleet, warmup_s)
-            watch = CycleWatch(_status_limits(fleet))
+            watch = CycleWatch(_status_limits(fleet), monitor.base_id)
             notifier.add_listener(watch)
             rss0, threads0 = _rss_mb(), threading.active_count()
             cycles0, misses0 = _publisher_totals(fleet)

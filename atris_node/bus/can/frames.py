@@ -24,7 +24,7 @@ import cantools
 from cantools.database.can import Database, Message
 
 from atris_node.bus.can import e2e
-from atris_node.bus.can.dbc import generate_text
+from atris_node.bus.can.dbc import build_database
 from atris_node.bus.can.ids import DEFAULT_BASE_ID, check_base_id
 from atris_node.errors import FrameDecodeError
 
@@ -47,13 +47,11 @@ def dbc_text() -> str:
 
 @functools.cache
 def load_database(base_id: int = DEFAULT_BASE_ID) -> Database:
-    """The CAN database for unit frames from ``base_id``, made once per base: the shipped
-    DBC (strict: overlapping signals are an error) for the default base, else generated."""
-    text = dbc_text() if base_id == DEFAULT_BASE_ID else generate_text(
-        check_base_id(base_id, allow_canopen=True))
-    db = cantools.database.load_string(text, database_format="dbc")
-    assert isinstance(db, Database)
-    return db
+    """The CAN database for unit frames from ``base_id``, made once per base from the frame
+    table (strict: overlapping signals are an error). For the default base it is the
+    shipped DBC (a test holds the file equal to the generated text); building the objects
+    takes about a fifth of the time parsing the 2160-message text does."""
+    return build_database(check_base_id(base_id, allow_canopen=True))
 
 
 def _attribute(message: Message, name: str) -> int | None:

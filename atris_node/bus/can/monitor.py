@@ -22,7 +22,7 @@ import can
 
 from atris_node.bus.can.e2e import E2EChecker, E2EState
 from atris_node.bus.can.frames import DecodedFrame, FrameCodec
-from atris_node.bus.can.ids import FrameKind, unit_of
+from atris_node.bus.can.ids import DEFAULT_BASE_ID, FrameKind, unit_of
 from atris_node.errors import FrameDecodeError
 
 logger = logging.getLogger(__name__)
@@ -53,8 +53,10 @@ class OtherView:
 class BusMonitor(can.Listener):
     """Aggregate decoded frames; feed it with :meth:`feed` or as a Notifier listener."""
 
-    def __init__(self, codec: FrameCodec | None = None, e2e_timeout_s: float = 0.2) -> None:
-        self.codec = codec or FrameCodec()
+    def __init__(self, codec: FrameCodec | None = None, e2e_timeout_s: float = 0.2,
+                 base_id: int = DEFAULT_BASE_ID) -> None:
+        self.base_id = base_id  # the units' ID block starts here (bus.base_id)
+        self.codec = codec or FrameCodec(base_id=base_id)
         self.e2e_timeout_s = e2e_timeout_s
         self.units: dict[int, UnitView] = {}
         self.others: dict[str, OtherView] = {}
@@ -95,7 +97,7 @@ class BusMonitor(can.Listener):
         self.last_e2e[frame.arbitration_id] = checker.check(data, time_s)
 
     def _keep(self, frame: DecodedFrame, time_s: float) -> None:
-        owner = None if frame.is_extended_id else unit_of(frame.arbitration_id)
+        owner = None if frame.is_extended_id else unit_of(frame.arbitration_id, self.base_id)
         if owner is None:
             other = self.others.setdefault(frame.name, OtherView())
             other.count, other.arbitration_id, other.last = (
@@ -160,7 +162,7 @@ class BusMonitor(can.Listener):
     def _e2e_summary(self, unit_id: int, now: float) -> dict[str, Any]:
         summary = {}
         for arbitration_id, checker in sorted(self.checkers.items()):
-            owner = unit_of(arbitration_id)
+            owner = unit_of(arbitration_id, self.base_id)
             if owner is None or owner[0] != unit_id:
                 continue
             state = checker.poll(now) or self.last_e2e[arbitration_id]
@@ -280,7 +282,7 @@ def e2e_errors_by_unit(monitor: BusMonitor) -> dict[int, int]:
     """Frames whose E2E check failed (wrong CRC, skipped or repeated), per unit id."""
     errors: dict[int, int] = {}
     for arbitration_id, checker in monitor.checkers.items():
-        owner = unit_of(arbitration_id)
+        owner = unit_of(arbitration_id, monitor.base_id)
         if owner is None:
             continue
         counts = checker.counts or {}
