@@ -531,3 +531,26 @@ def test_a_unit_that_hung_claims_its_row_again_before_it_strobes(make_fleet):  #
     assert fleet.units[hung].may_strobe and fleet.units[hung].code_row == row
     assert not fleet.units[waiting].may_strobe  # the lower NAME took its row back
     assert_safe(fleet, 10.0)
+
+
+def test_a_new_leader_shrinks_the_plan_its_predecessor_grew(make_fleet):  # type: ignore[no-untyped-def]
+    """Five units need N = 32 (four codes at N = 16): the leader grows the plan and says so
+    in its PLAN frames (Flag_Grown). When it and another unit leave, three units are left:
+    the next lowest NAME, which never grew anything itself, takes the growth over and the
+    fleet goes back to N = 16, the smallest N that fits.
+
+    Checked by removing the protection once (``PlanAgreement._inherit_growth`` returning at
+    once): the fleet stayed at N = 32 after both had left and the test failed."""
+    fleet = make_fleet(NAMES[:5], max_code_length=32)
+    fleet.start_all(spread_s=0.01)
+    fleet.run_until(2.0)
+    assert all(u.plan.code_length == 32 for u in fleet.units)
+    order = sorted(range(5), key=lambda i: fleet.units[i].name)
+    fleet.stop(order[0], 2.0)  # the leader that grew the plan
+    fleet.stop(order[-1], 2.0)
+    fleet.run_until(8.0)
+    left = [fleet.units[i] for i in order[1:-1]]
+    assert [u.plan.code_length for u in left] == [16, 16, 16]
+    assert left[0].agreement.growths == [(Plan(32, 480.0), PLAN)]
+    assert len({u.code_row for u in left}) == 3 and all(u.may_strobe for u in left)
+    assert_safe(fleet, 8.0)

@@ -44,6 +44,9 @@ def test_plan_frame_bytes():
     assert frame.can_id == 0x1F600002
     assert frame.data == bytes([16, 1, 0x06, 0x5A]) + (480_000).to_bytes(4, "little")
     assert nf.decode_plan(frame.data) == announcement
+    grown = nf.encode_plan(NAME, 2, nf.PlanAnnouncement(Plan(32, 480.0), False, False, 1,
+                                                         established=True, grown=True))
+    assert grown.data[2] == 0x0C and nf.decode_plan(grown.data).grown
 
 
 def test_sync_frame_bytes():
@@ -166,7 +169,7 @@ STRUCT_SIGNALS = {
     nf.FrameKind.SYNC: (nf.SYNC_STRUCT, ("Counter", "CodeLength", None, "CodePeriod")),
 }
 PLAN_FLAGS = (("Flag_Proposal", nf.PLAN_FLAG_PROPOSAL), ("Flag_Conflict", nf.PLAN_FLAG_CONFLICT),
-              ("Flag_Established", nf.PLAN_FLAG_ESTABLISHED))
+              ("Flag_Established", nf.PLAN_FLAG_ESTABLISHED), ("Flag_Grown", nf.PLAN_FLAG_GROWN))
 
 
 def _raw_signals(kind: nf.FrameKind, fields: tuple[int, ...]) -> dict[str, int]:

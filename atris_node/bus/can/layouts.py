@@ -135,6 +135,8 @@ PLAN = MessageSpec("Plan", "Code negotiation: the plan the sender uses (the lowe
     S("Flag_Conflict", 17, 1, 0, 1, "the sender cannot adopt the plan of the lowest NAME"),
     S("Flag_Established", 18, 1, 0, 1, "the sender owns a code under this plan; a joining "
       "unit adopts it"),
+    S("Flag_Grown", 19, 1, 0, 1, "the leader grew N to fit the units; whoever leads goes "
+      "back to the smallest N that fits once they are gone"),
     S("Nonce", 24, 8, 0, 255, "random per start of the sender; tells its own echo from a "
       "unit with the same identity"),
     S("ChipRate", 32, 32, 0, 4294967.295, "chip (sub-frame) rate in millihertz steps",

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from atris_node.bus.negotiation import choice
@@ -52,10 +53,12 @@ class PlanAgreement:
         self.plan = plan
         self.conflict = False
         self._growth: tuple[Plan, Plan] | None = None  # (plan grown from, grown plan)
+        self._grown_by_leader: Plan | None = None  # the leader announced it grew this plan
 
     def reset(self) -> None:
         """Back to the configured plan (a start)."""
         self.plan, self.conflict, self._growth = self.configured_plan, False, None
+        self._grown_by_leader = None
 
     def adoptable(self, plan: Plan) -> bool:
         """True when this unit can run ``plan`` (N, sync capability, the caller's check)."""
@@ -84,7 +87,9 @@ class PlanAgreement:
         """Adopt the plan of the lowest NAME heard (or retry our own after a conflict)."""
         winner = choice.plan_leader(self._unit.peers.named(), self._unit.name)
         if winner is not None:
-            self.adopt_or_conflict(winner, now)
+            assert winner.plan is not None
+            self._grown_by_leader = winner.plan if winner.grown else None
+            self.adopt_or_conflict(winner.plan, now)
         elif self.conflict:
             self.adopt_or_conflict(self.plan, now)
 
@@ -126,12 +131,23 @@ class PlanAgreement:
         if not unit._listening:
             unit.contest.choose(now, prefer=previous_row)
 
+    def _inherit_growth(self) -> None:
+        """A new leader whose plan the former leader had grown for the units takes that
+        growth over, from its own configured N: the fleet goes back to the smallest N that
+        fits once the extra units are gone, whoever leads it by then."""
+        if self._growth is None and self._grown_by_leader == self.plan:
+            length = min(self.configured_plan.code_length, self.plan.code_length)
+            self._growth = (replace(self.plan, code_length=length), self.plan)
+            self._grown_by_leader = None
+
     def frame(self, plan: Plan | None = None, proposal: bool = False) -> nf.RawFrame:
-        """Our PLAN frame: the plan in use, or a ``proposal`` of ``plan`` to the leader."""
+        """Our PLAN frame: the plan in use (flagged grown while it is one this unit grew to
+        fit the units), or a ``proposal`` of ``plan`` to the leader."""
         unit = self._unit
         owned = unit.state is NegotiationState.OWNED
+        grown = (not proposal and self._growth is not None and self.plan == self._growth[1])
         announcement = nf.PlanAnnouncement(plan or self.plan, proposal, self.conflict,
-                                           unit._nonce, owned and not proposal)
+                                           unit._nonce, owned and not proposal, grown)
         return nf.encode_plan(unit.name, unit.unit_id, announcement)
 
     def maybe_grow(self, now: float) -> None:
@@ -153,6 +169,7 @@ class PlanAgreement:
         self.adopt(fitted, now)
 
     def _fitted(self, units: int) -> Plan | None:
+        self._inherit_growth()
         if units > capacity(self.plan) and self.plan.code_length < self.max_code_length:
             return grow_to_fit(self.plan, units, self.max_code_length)
         if self._growth is not None and self.plan == self._growth[1]:

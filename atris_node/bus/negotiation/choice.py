@@ -50,13 +50,12 @@ def leader_peer(peers: list[Peer], plan: Plan, name: int) -> Peer | None:
     return lowest if lowest is not None and (lowest.name or 0) < name else None
 
 
-def plan_leader(peers: list[Peer], name: int) -> Plan | None:
-    """The plan of the lowest NAME below ``name`` that announced one and is not in
-    conflict, or None."""
+def plan_leader(peers: list[Peer], name: int) -> Peer | None:
+    """The lowest NAME below ``name`` that announced a plan and is not in conflict (whose
+    plan wins), or None."""
     candidates = [p for p in peers
                   if p.plan is not None and not p.conflict and (p.name or 0) < name]
-    winner = min(candidates, key=lambda p: p.name or 0, default=None)
-    return None if winner is None else winner.plan
+    return min(candidates, key=lambda p: p.name or 0, default=None)
 
 
 def running_plan(peers: list[Peer]) -> Plan | None:

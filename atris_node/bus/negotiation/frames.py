@@ -57,7 +57,8 @@ LEAVING = 1
 PLAN_FLAG_PROPOSAL = 0x01  # a request for this plan, addressed to the lowest NAME
 PLAN_FLAG_CONFLICT = 0x02  # the sender cannot adopt the winning plan
 PLAN_FLAG_ESTABLISHED = 0x04  # the sender owns a code under this plan (a running fleet)
-PLAN_FLAGS = PLAN_FLAG_PROPOSAL | PLAN_FLAG_CONFLICT | PLAN_FLAG_ESTABLISHED
+PLAN_FLAG_GROWN = 0x08  # the leader grew N to fit the units: shrink it when they are gone
+PLAN_FLAGS = PLAN_FLAG_PROPOSAL | PLAN_FLAG_CONFLICT | PLAN_FLAG_ESTABLISHED | PLAN_FLAG_GROWN
 
 
 class FrameKind(enum.IntEnum):
@@ -114,6 +115,7 @@ class PlanAnnouncement:
     conflict: bool
     nonce: int
     established: bool = False
+    grown: bool = False
 
 
 @dataclass(frozen=True)
@@ -182,7 +184,8 @@ def encode_plan(name: int, unit_id: int, announcement: PlanAnnouncement) -> RawF
     plan = announcement.plan
     flags = ((PLAN_FLAG_PROPOSAL if announcement.proposal else 0)
              | (PLAN_FLAG_CONFLICT if announcement.conflict else 0)
-             | (PLAN_FLAG_ESTABLISHED if announcement.established else 0))
+             | (PLAN_FLAG_ESTABLISHED if announcement.established else 0)
+             | (PLAN_FLAG_GROWN if announcement.grown else 0))
     data = PLAN_STRUCT.pack(plan.code_length, MODES.index(plan.mode), flags,
                             announcement.nonce & 0xFF, plan.chip_rate_mhz)
     return RawFrame(make_id(FrameKind.PLAN, identity_of(name, unit_id)), data)
@@ -217,7 +220,7 @@ def decode_plan(data: bytes) -> PlanAnnouncement:
         raise FrameDecodeError(f"PLAN payload is not a valid plan: {exc}") from exc
     return PlanAnnouncement(plan, bool(flags & PLAN_FLAG_PROPOSAL),
                             bool(flags & PLAN_FLAG_CONFLICT), nonce,
-                            bool(flags & PLAN_FLAG_ESTABLISHED))
+                            bool(flags & PLAN_FLAG_ESTABLISHED), bool(flags & PLAN_FLAG_GROWN))
 
 
 def decode_sync(data: bytes) -> tuple[int, int, int]:

@@ -159,7 +159,7 @@ class Inbox:
         if peer.plan != announcement.plan:
             peer.code_row = None  # its claims were for its previous plan
         peer.plan, peer.conflict = announcement.plan, announcement.conflict
-        peer.established = announcement.established
+        peer.established, peer.grown = announcement.established, announcement.grown
         if peer.nonce is not None and peer.nonce != announcement.nonce and peer.name:
             logger.info("unit %s restarted", peer.label())
         peer.nonce = announcement.nonce

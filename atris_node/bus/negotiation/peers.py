@@ -35,6 +35,7 @@ class Peer:
         cannot_claim: it said it has no code.
         conflict: it cannot adopt the winning plan (it claims nothing in ours).
         established: it owns a code under its plan (a running fleet a joiner adopts).
+        grown: its plan is one it grew to fit the units (a leader's; see agreement).
         nonce: the random instance number in its PLAN frames.
         quarantined_until_s: frames before this time are dropped (babbling).
         recent_s / changes_s: receipt times of its frames / of its claim and plan changes
@@ -49,6 +50,7 @@ class Peer:
     cannot_claim: bool = False
     conflict: bool = False
     established: bool = False
+    grown: bool = False
     nonce: int | None = None
     quarantined_until_s: float = 0.0
     recent_s: deque[float] = field(default_factory=deque)
