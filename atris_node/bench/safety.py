@@ -148,7 +148,7 @@ def over_window(truths: list[tuple[float | None, ...]]) -> tuple[Truth, ...]:
     return tuple(out)
 
 
-def score_scene(name: str, maps: int = MAPS, groups: int = 1) -> SceneScore:
+def score_scene(name: str, maps: int = MAPS, groups: int = 1, seed: int = 1) -> SceneScore:
     """Render ``maps`` maps of scene ``name`` (unit 0, its own code), run the pipeline the
     node would run on them, and score every sector-frame (``groups``: see the module
     docstring)."""
@@ -157,7 +157,7 @@ def score_scene(name: str, maps: int = MAPS, groups: int = 1) -> SceneScore:
     scene = load_scene(name)
     config = PipelineConfig(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad))
     whole = Simulator(scene, chips=walsh_chips(scene.code_length, scene.code_row), seed=1)
-    runs = [_measure(_group(scene, g, groups), maps, config, seed=1 + g)
+    runs = [_measure(_group(scene, g, groups), maps, config, seed=seed + g)
             for g in range(groups)]
     score = SceneScore(name)
     for per_group in zip(*runs, strict=True):
@@ -230,6 +230,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene names (default: every shipped scene)")
     parser.add_argument("--stress", action="store_true", help="also every stress scene")
     parser.add_argument("--maps", type=int, default=MAPS, help=f"maps per scene ({MAPS})")
+    parser.add_argument("--seed", type=int, default=1, help="noise seed of the renders (1)")
     parser.add_argument("--groups", type=int, default=1,
                         help="split the fan into G groups of lines on their own codes (1)")
 
@@ -249,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
     names = list(args.scenes or shipped_scenes()) + (stress_scenes() if args.stress else [])
     rows = []
     for name in names:
-        rows.append(score_scene(name, args.maps, args.groups).row())
+        rows.append(score_scene(name, args.maps, args.groups, args.seed).row())
         if not args.json:
             print(_text(rows[-1]), flush=True)
     if args.json:
