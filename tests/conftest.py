@@ -84,3 +84,16 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     if collection_path.name == "vcan" and "not vcan" in str(config.getoption("markexpr")):
         return True
     return None
+
+
+@pytest.fixture
+def pair() -> Iterator[Any]:
+    """A canopen master and the CANopen device on one virtual bus (tests/canopen_pair.py),
+    closed after the test."""
+    from canopen_pair import Pair
+
+    p = Pair()
+    try:
+        yield p
+    finally:
+        p.close()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 
 import canopen
 import pytest
@@ -14,15 +13,6 @@ from canopen_pair import sync_and_read as _sync_and_read
 
 from atris_node.bus.canopen.device import CanopenDevice, eds_path, eds_text
 from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
-
-
-@pytest.fixture
-def pair() -> Iterator[Pair]:
-    p = Pair()
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def test_master_configures_starts_and_receives_tpdos(pair: Pair) -> None:

@@ -16,40 +16,19 @@ import can
 import pytest
 from can.io.logger import MESSAGE_WRITERS
 from can.io.player import MESSAGE_READERS
+from unit_frames import measurement, status, two_units
 
 from atris_node.bus.can.frames import FrameCodec
 from atris_node.bus.can.logfile import missing_package, open_log_writer
 from atris_node.bus.can.monitor import BusTap
 from atris_node.bus.can.publisher import Publisher
 from atris_node.cli import main
-from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 
 #: exit code of a usage error (as argparse's)
 USAGE = 2
 UNIT_ID = 6
 PERIOD_S = 0.05
 
-TWO_UNITS = """
-[launch]
-name = "pair"
-mode = "threads"
-
-[bus]
-interface = "virtual"
-channel = "{channel}"
-
-[defaults]
-driver = {{ name = "sim", scene = "indoor_lab" }}
-code = {{ length = 8 }}
-negotiation = {{ window_s = 0.1 }}
-
-[[unit]]
-unit = {{ label = "a", unit_id = 0, name = 0x100 }}
-
-[[unit]]
-unit = {{ label = "b", unit_id = 1, name = 0x200 }}
-driver = {{ seed = 5 }}
-"""
 
 
 def _format(suffix: str) -> pytest.ParameterSet:
@@ -67,15 +46,6 @@ def _key(msg: can.Message) -> tuple[int, bool, int, bytes]:
     return msg.arbitration_id, msg.is_extended_id, msg.dlc, bytes(msg.data)
 
 
-def _status(row: int) -> UnitStatus:
-    return UnitStatus(UnitState.RUNNING, code_row=row, code_length=16, chip_rate_hz=480.0,
-                      measurement_counter=0)
-
-
-def _measurement(distance_m: float) -> Measurement:
-    sectors = tuple(SectorDistance(i, 0.0, SectorState.VALID, distance_m + i, 0.5)
-                    for i in range(4))
-    return Measurement(1, sectors, time.monotonic(), 1, nearest=sectors[0])
 
 
 def _cycles(count: int, start_s: float = 1000.0) -> list[can.Message]:
@@ -89,7 +59,7 @@ def _cycles(count: int, start_s: float = 1000.0) -> list[can.Message]:
             now = start_s + cycle * PERIOD_S
             request = codec.encode(f"Negotiation{UNIT_ID}_Request",
                                    {"Name": 0x0A70_0000_0000_0000 + cycle})
-            for msg in [*publisher.compose(_measurement(2.0), _status(3), now), request]:
+            for msg in [*publisher.compose(measurement(2.0), status(3), now), request]:
                 msg.timestamp = now
                 frames.append(msg)
     return frames
@@ -163,7 +133,7 @@ def test_launch_log_holds_every_frame(suffix: str, tmp_path: Path,
     failed with 'I/O operation on closed file'."""
     channel = f"launch-log-{uuid.uuid4().hex}"
     spec, log = tmp_path / "pair.toml", tmp_path / f"launch{suffix}"
-    spec.write_text(TWO_UNITS.format(channel=channel))
+    spec.write_text(two_units(channel))
     with can.Bus(interface="virtual", channel=channel) as listener:
         code = main(["launch", str(spec), "--duration", "1", "--json", "--log", str(log)])
         received = []
@@ -231,7 +201,7 @@ def test_launch_refuses_to_write_over_a_log(tmp_path: Path,
     """Same for ``atris launch --log``, refused before any unit starts. Checked by
     removing the check in the launch command: the launch ran and replaced the file."""
     spec, log = tmp_path / "pair.toml", tmp_path / "fleet.asc"
-    spec.write_text(TWO_UNITS.format(channel=f"launch-refused-{uuid.uuid4().hex}"))
+    spec.write_text(two_units(f"launch-refused-{uuid.uuid4().hex}"))
     _write_log(log, _cycles(20))
     before = log.read_bytes()
     assert main(["launch", str(spec), "--duration", "1", "--log", str(log)]) == USAGE

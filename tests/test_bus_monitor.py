@@ -12,13 +12,13 @@ from pathlib import Path
 import can
 import cantools
 import pytest
+from unit_frames import measurement, status
 
 from atris_node.bus.can.frames import FrameCodec, dbc_text
 from atris_node.bus.can.ids import unit_of
 from atris_node.bus.can.monitor import BusMonitor, render_table
 from atris_node.bus.can.publisher import Publisher
 from atris_node.cli import main
-from atris_node.types import Measurement, SectorDistance, SectorState, UnitState, UnitStatus
 
 EXTRA_MESSAGE = """
 BO_ 2566879955 Other_Claim: 8 Atris0
@@ -26,15 +26,6 @@ BO_ 2566879955 Other_Claim: 8 Atris0
 """
 
 
-def _status(row: int) -> UnitStatus:
-    return UnitStatus(UnitState.RUNNING, code_row=row, code_length=16, chip_rate_hz=480.0,
-                      measurement_counter=0)
-
-
-def _measurement(distance_m: float) -> Measurement:
-    sectors = tuple(SectorDistance(i, 0.0, SectorState.VALID, distance_m + i, 0.5)
-                    for i in range(4))
-    return Measurement(1, sectors, time.monotonic(), 1, nearest=sectors[0])
 
 
 def _record(path: Path, channel: str, duration_s: float) -> None:
@@ -46,7 +37,7 @@ def _record(path: Path, channel: str, duration_s: float) -> None:
         notifier = can.Notifier(rx, [logger], timeout=0.05)
         publishers = [Publisher(tx, unit, period_s=0.02, max_age_s=5.0) for unit in (1, 4)]
         for unit, publisher in zip((1, 4), publishers, strict=True):
-            publisher.update(_measurement(unit), _status(unit + 1))
+            publisher.update(measurement(unit), status(unit + 1))
             publisher.start()
         time.sleep(duration_s)
         notifier.stop()
@@ -101,7 +92,7 @@ def test_atris_monitor_log_is_read_by_cantools_decode(
     channel, log = f"cli-{uuid.uuid4().hex}", tmp_path / "monitor.log"
     with can.Bus(interface="virtual", channel=channel) as tx:
         publisher = Publisher(tx, 7, period_s=0.02)
-        publisher.update(_measurement(2.0), _status(9))
+        publisher.update(measurement(2.0), status(9))
         publisher.start()
         try:
             code = main(["monitor", "--interface", "virtual", "--channel", channel,
@@ -127,7 +118,7 @@ def test_feature_monitor_follows_the_units_base_id() -> None:
     Checked by making BusMonitor ignore its base (``unit_of`` on the default base): the
     monitor told base 0x100 saw no unit and the test failed."""
     frames = Publisher(can.Bus(interface="virtual", channel=f"b-{uuid.uuid4().hex}"), 2,
-                       base_id=0x100).compose(_measurement(1.0), _status(3), time.monotonic())
+                       base_id=0x100).compose(measurement(1.0), status(3), time.monotonic())
     told, default = BusMonitor(base_id=0x100), BusMonitor()
     for msg in frames:
         told.feed(msg)

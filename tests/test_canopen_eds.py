@@ -3,7 +3,6 @@ departure, and a canopen master finds the running device serving exactly the EDS
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import canopen
@@ -20,13 +19,6 @@ NOT_SERVED = (0x1002, 0x1003, 0x1006, 0x1010, 0x1011, 0x1012, 0x1016, 0x1200, 0x
               0x1600, 0x1804, 0x1A04, 0x2001, 0x2102, 0x2111, 0x6000)
 
 
-@pytest.fixture
-def pair() -> Iterator[Pair]:
-    p = Pair()
-    try:
-        yield p
-    finally:
-        p.close()
 
 
 def test_shipped_eds_conforms_and_loads() -> None:

@@ -12,35 +12,13 @@ from pathlib import Path
 
 import can
 import pytest
+from unit_frames import two_units
 
 from atris_node.cli import main
 from atris_node.codes import code_set
 from atris_node.errors import ConfigError
 from atris_node.node.launch import describe, load_launch
 from atris_node.node.runner import ProcessRun, escalate, unit_command
-
-TWO_UNITS = """
-[launch]
-name = "pair"
-mode = "threads"
-duration_s = 3.0
-
-[bus]
-interface = "virtual"
-channel = "{channel}"
-
-[defaults]
-driver = {{ name = "sim", scene = "indoor_lab" }}
-code = {{ length = 8 }}
-negotiation = {{ window_s = 0.1 }}
-
-[[unit]]
-unit = {{ label = "a", unit_id = 0, name = 0x100 }}
-
-[[unit]]
-unit = {{ label = "b", unit_id = 1, name = 0x200 }}
-driver = {{ seed = 5 }}
-"""
 
 
 @pytest.mark.parametrize("name", ["sim_fleet", "sim_soak", "vcan_pair", "oak_vehicle"])
@@ -144,7 +122,7 @@ def test_threaded_pair_negotiates_and_logs_every_frame(tmp_path: Path,
                                                         capsys: pytest.CaptureFixture[str],
                                                         request: pytest.FixtureRequest) -> None:
     path = tmp_path / "pair.toml"
-    path.write_text(TWO_UNITS.format(channel=f"launch-{request.node.name}"))
+    path.write_text(two_units(f"launch-{request.node.name}", duration_s=3.0))
     log = tmp_path / "bus.log"
     assert main(["launch", str(path), "--duration", "4", "--json", "--log", str(log),
                  "--quiet"]) == 0
