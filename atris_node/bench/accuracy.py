@@ -7,10 +7,14 @@ through the demodulator and each map through :class:`~atris_node.pipeline.chain.
 
 Each row (JSON fields relied on by other tools): ``config`` (object: ``code_length``,
 ``peak_method``, ``roi_bands``, ``resolution``, ``demod``), ``scene``, ``ms_per_frame``
-(demodulation per output map + pipeline, median), ``range_rmse_m`` (camera range of the
-valid samples against the simulator's true point of the same line and column; null when
-no sample), ``valid_fraction`` (valid points per line and column), plus ``demod_ms``,
-``pipeline_ms`` and ``median_abs_error_m``. Pipeline times are the best of three runs per
+(demodulation per output map + pipeline, median), ``range_rmse_m`` (camera range of every
+valid sample against the true surface in its column, whatever line it was given: a
+misidentified sample is an error, not skipped; see :func:`surface_errors`; null when no
+sample), ``no_surface_samples`` (valid samples where the truth sees no surface at all),
+``valid_fraction`` (valid points per line and column), the sector-frames scored as
+:mod:`atris_node.bench.safety` scores them (``sectors_valid``, ``near_phantom``, ``far``,
+``false_free``, ``invalid_fraction``), plus ``demod_ms``, ``pipeline_ms`` and
+``median_abs_error_m``. Pipeline times are the best of three runs per
 map; demodulation is timed once per sub-frame as it streams. ``--quick`` runs one scene,
 640x400, N = 16, block demodulation: a minute on a loaded machine.
 """
@@ -28,16 +32,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from atris_node import codes
+from atris_node.bench.safety import score_sector, within_range
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.pipeline.peaks import IDENTITY_MODES, PEAK_METHODS
 from atris_node.progress import progress
 from atris_node.sim import Simulator, Truth, load_scene, shipped_scenes
 from atris_node.sim.scene import Scene
-from atris_node.types import DistortionMap, SectorState
+from atris_node.types import DistortionMap
 
 logger = logging.getLogger(__name__)
 
@@ -129,24 +133,46 @@ def range_errors(result: PipelineResult, truth: Truth) -> np.ndarray:
                                                                             col[seen], 2])
 
 
-#: per-row counts of sector verdicts (see :func:`sector_verdicts`)
-SECTOR_COUNTS = ("sectors_valid", "sectors_too_near", "sectors_too_far")
+def surface_errors(result: PipelineResult, truth: Truth) -> tuple[np.ndarray, int]:
+    """(m,) camera-range errors (m) of the valid samples against the true surface in their
+    column, whatever line they were given, and how many valid samples have no surface.
+
+    A sample is compared with the true depth of the pixels within a row of its centre, the
+    one nearest to its own range: a stripe cut by a depth edge (a floor/wall corner) sits
+    between two surfaces and is right against either. A sample whose line identity is
+    wrong lies far from every one of them and counts in full; one where the truth sees no
+    surface in any of those rows (sky) counts in ``no_surface``.
+    """
+    s = result.samples
+    valid = result.valid
+    z = result.points_camera_m[:, 2]
+    row = np.rint(s.row_px[valid]).astype(np.int64)
+    col = s.col_px[valid].astype(np.int64)
+    height = truth.depth_m.shape[0]
+    near = np.stack([truth.depth_m[np.clip(row + d, 0, height - 1), col]
+                     for d in (-1, 0, 1)])  # (3, m)
+    diff = np.where(near > 0.0, z[None, :] - near, np.inf)
+    best = np.take_along_axis(diff, np.abs(diff).argmin(axis=0)[None, :], axis=0)[0]
+    found = np.isfinite(best)
+    return best[found], int((~found).sum())
 
 
-def sector_verdicts(result: PipelineResult, truth: Truth) -> npt.NDArray[np.int64]:
-    """(3,) VALID sectors, those nearer than the truth by more than 5 % + 5 cm (or with no
-    true obstacle: a phantom), and those farther by as much (a missed near obstacle)."""
-    out = np.zeros(3, dtype=np.int64)
-    for sector, true_m in zip(result.measurement.sectors, truth.sector_distance_m,
-                              strict=True):
-        if sector.state is not SectorState.VALID:
-            continue
-        out[0] += 1
-        if true_m is None or sector.distance_m < 0.95 * true_m - 0.05:
-            out[1] += 1
-        elif sector.distance_m > 1.05 * true_m + 0.05:
-            out[2] += 1
-    return out
+#: per-row counts of sector-frames, scored as atris_node.bench.safety scores them
+SECTOR_COUNTS = ("sectors_valid", "invalid", "near_phantom", "far", "false_free")
+
+
+def sector_counts(result: PipelineResult, truth: Truth, z_max_m: float) -> dict[str, int]:
+    """The sector-frames of one map scored against the truth (obstacles within
+    ``z_max_m``): VALID, INVALID, near phantom, far not covered, false free."""
+    sectors = result.measurement.sectors
+    known = within_range(truth.sector_distance_m, z_max_m)
+    counts = dict.fromkeys(SECTOR_COUNTS, 0)
+    for index in range(len(sectors)):
+        for name in score_sector(sectors, known, index):
+            key = "sectors_valid" if name == "valid" else name
+            if key in counts:
+                counts[key] += 1
+    return counts
 
 
 def _timed(pipe: Pipeline, dmap: DistortionMap) -> tuple[PipelineResult, float]:
@@ -169,22 +195,27 @@ def _pipeline_rows(sim: Simulator, maps: list[DistortionMap], truths: list[Truth
         config = PipelineConfig(peak_method=method, roi_bands=roi, identity=identity,
                                 stripe_sigma_px=STRIPE_SIGMA_PX * k)
         pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
-        times, errors, valid = [], [], []
-        verdicts = np.zeros(3, dtype=np.int64)
+        times, errors, valid, no_surface = [], [], [], 0
+        counts = dict.fromkeys(SECTOR_COUNTS, 0)
         for dmap, truth in zip(maps, truths, strict=True):
             result, ms = _timed(pipe, dmap)
             times.append(ms)
-            errors.append(range_errors(result, truth))
+            err, missing = surface_errors(result, truth)
+            errors.append(err)
+            no_surface += missing
             valid.append(result.diagnostics.valid_fraction)
-            verdicts += sector_verdicts(result, truth)
+            for key, n in sector_counts(result, truth, config.z_max_m).items():
+                counts[key] += n
         err = np.concatenate(errors)
+        frames = len(maps) * config.sector_count
         yield ({"peak_method": method, "roi_bands": roi, "identity": identity}, {
             "pipeline_ms": float(np.median(times)),
             "range_rmse_m": float(np.sqrt(np.mean(err**2))) if err.size else None,
             "median_abs_error_m": float(np.median(np.abs(err))) if err.size else None,
+            "no_surface_samples": no_surface,
             "valid_fraction": float(np.mean(valid)),
-            "sectors_valid": int(verdicts[0]), "sectors_too_near": int(verdicts[1]),
-            "sectors_too_far": int(verdicts[2])})
+            "invalid_fraction": round(counts["invalid"] / frames, 4) if frames else None,
+            **counts})
 
 
 def scene_rows(name: str, grid: Grid) -> Iterator[dict[str, Any]]:
@@ -198,7 +229,8 @@ def scene_rows(name: str, grid: Grid) -> Iterator[dict[str, Any]]:
             for demod in grid.demods:
                 maps, demod_ms = demodulate(sim, subs, demod)
                 layout = PipelineConfig().layout()
-                truths = [sim.truth(m.last_sequence, layout) for m in maps]
+                truths = [sim.truth((m.first_sequence + m.last_sequence) // 2, layout)
+                          for m in maps]
                 for config, measured in _pipeline_rows(sim, maps, truths, grid,
                                                        width / base.camera.width_px):
                     config.update(code_length=n, resolution=f"{width}x{height}", demod=demod)
@@ -268,9 +300,9 @@ def _line(row: dict[str, Any]) -> str:
     return (f"{row.get('scene', 'all'):26s} N={c['code_length']:<3d} {c['resolution']:9s} "
             f"{c['demod']:8s} {c['peak_method']:12s} roi={'on ' if c['roi_bands'] else 'off'} "
             f"{c.get('identity', 'greedy'):7s} {row['ms_per_frame']:8.2f} ms  "
-            f"rmse {rmse:>7s} m  valid {row['valid_fraction']:.3f}  sectors too near/far "
-            f"{row.get('sectors_too_near', 0)}/{row.get('sectors_too_far', 0)} of "
-            f"{row.get('sectors_valid', 0)}")
+            f"rmse {rmse:>7s} m  valid {row['valid_fraction']:.3f}  sectors phantom/far/"
+            f"false-free {row.get('near_phantom', 0)}/{row.get('far', 0)}/"
+            f"{row.get('false_free', 0)} of {row.get('sectors_valid', 0)} valid")
 
 
 def run(args: argparse.Namespace) -> int:
