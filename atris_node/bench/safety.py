@@ -1,5 +1,5 @@
-"""``atris bench safety [--scenes NAME ...] [--stress] [--maps N] [--json]``: every
-sector-frame scored against the simulator's truth.
+"""``atris bench safety [--scenes NAME ...] [--stress] [--maps N] [--seed S] [--groups G]
+[--json]``: every sector-frame scored against the simulator's truth.
 
 A sector-frame is the verdict of one sector in one map. With ``t`` the true distance of
 the nearest obstacle the lines reach in that sector (None when there is none within
