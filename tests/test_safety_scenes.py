@@ -109,3 +109,24 @@ def test_feature_fan_split_publishes_conservatively() -> None:
                      )[0].distance_m == 3.0
     assert _combined([(free,), (sector(SectorState.VALID, 5.0),)])[0].distance_m == 5.0
     assert _combined([(free,), (free,)])[0] is free
+
+
+def test_feature_a_phantom_is_judged_against_the_real_obstacle_at_any_range() -> None:
+    """The truth for the phantom check is the real obstacle wherever it stands; z_max only
+    decides whether NO_RETURN is false free. Before, an obstacle just beyond z_max counted
+    as none, so a good reading of it (9.54 m for 10.04 m, z_max 10 m) was a "near phantom":
+    that was most of the N = 32 "phantoms" of outdoor_medium_sun in `bench accuracy`.
+
+    Checked by cutting the truth at z_max again: the first assertion failed."""
+    from atris_node.bench.safety import score_sector
+    from atris_node.types import SectorDistance, SectorState
+
+    def one(state: SectorState, distance_m: float | None = None) -> tuple[SectorDistance]:
+        return (SectorDistance(0, 0.0, state, distance_m),)
+
+    beyond = (10.04,)
+    assert "near_phantom" not in score_sector(one(SectorState.VALID, 9.54), beyond, 0, 10.0)
+    assert "near_phantom" in score_sector(one(SectorState.VALID, 3.0), beyond, 0, 10.0)
+    assert "false_free" not in score_sector(one(SectorState.NO_RETURN), beyond, 0, 10.0)
+    assert "false_free" in score_sector(one(SectorState.NO_RETURN), (9.5,), 0, 10.0)
+    assert "near_phantom" in score_sector(one(SectorState.VALID, 5.0), (None,), 0, 10.0)

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from atris_node import codes
-from atris_node.bench.safety import score_sector, within_range
+from atris_node.bench.safety import score_sector
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.pipeline.peaks import IDENTITY_MODES, PEAK_METHODS
@@ -165,10 +165,9 @@ def sector_counts(result: PipelineResult, truth: Truth, z_max_m: float) -> dict[
     """The sector-frames of one map scored against the truth (obstacles within
     ``z_max_m``): VALID, INVALID, near phantom, far not covered, false free."""
     sectors = result.measurement.sectors
-    known = within_range(truth.sector_distance_m, z_max_m)
     counts = dict.fromkeys(SECTOR_COUNTS, 0)
     for index in range(len(sectors)):
-        for name in score_sector(sectors, known, index):
+        for name in score_sector(sectors, truth.sector_distance_m, index, z_max_m):
             key = "sectors_valid" if name == "valid" else name
             if key in counts:
                 counts[key] += 1

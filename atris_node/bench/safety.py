@@ -2,8 +2,8 @@
 [--json]``: every sector-frame scored against the simulator's truth.
 
 A sector-frame is the verdict of one sector in one map. With ``t`` the true distance of
-the nearest obstacle the lines reach in that sector (None when there is none within
-z_max) and ``d`` the reported distance (a map integrates its sub-frames, so where the
+the nearest obstacle the lines reach in that sector, at any range (None when the lines
+reach none) and ``d`` the reported distance (a map integrates its sub-frames, so where the
 scene moves ``t`` is the interval of the truths at the map's first, middle and last
 sub-frame, and ``d`` is compared with the nearer end when below it, the farther when
 above):
@@ -11,7 +11,7 @@ above):
 - ``near_phantom``: VALID with ``t`` None, or ``d < t - max(10 %, 20 cm)``;
 - ``far``: VALID with ``d > t + max(10 %, 20 cm)`` and no neighbouring sector VALID at
   ``t`` plus that tolerance or nearer (a farther-than-truth distance not covered);
-- ``false_free``: NO_RETURN while ``t`` is not None;
+- ``false_free``: NO_RETURN while ``t`` is within z_max;
 - ``accurate``: VALID within ``max(3 %, 5 cm)`` of ``t``;
 - ``invalid``: INVALID.
 
@@ -79,13 +79,17 @@ def _span(t: Truth) -> tuple[float, float] | None:
 
 
 def score_sector(sectors: tuple[SectorDistance, ...], truth: tuple[Truth, ...],
-                 index: int) -> list[str]:
-    """The counts one sector-frame adds to (names of :data:`COUNTS`)."""
+                 index: int, z_max_m: float = math.inf) -> list[str]:
+    """The counts one sector-frame adds to (names of :data:`COUNTS`). ``truth`` holds the
+    nearest obstacle at any range: only one within ``z_max_m`` makes NO_RETURN false free,
+    but a distance is a phantom only against the real obstacle, wherever it stands (an
+    object at 10.04 m read at 9.54 m, with z_max 10 m, is not one)."""
     sector, span = sectors[index], _span(truth[index])
     if sector.state is SectorState.INVALID:
         return ["invalid"]
     if sector.state is SectorState.NO_RETURN:
-        return ["no_return"] + (["false_free"] if span is not None else [])
+        in_range = span is not None and span[0] <= z_max_m
+        return ["no_return"] + (["false_free"] if in_range else [])
     d, out = sector.distance_m, ["valid"]
     if span is None or d < span[0] - phantom_tolerance_m(span[0]):
         return [*out, "near_phantom"]
@@ -114,10 +118,11 @@ class SceneScore:
     ambiguous: list[int] = field(default_factory=list)
     pipeline_ms: list[float] = field(default_factory=list)
 
-    def add(self, measurement: Measurement, truth: tuple[Truth, ...]) -> None:
+    def add(self, measurement: Measurement, truth: tuple[Truth, ...],
+            z_max_m: float = math.inf) -> None:
         self.maps += 1
         for i in range(len(measurement.sectors)):
-            for name in score_sector(measurement.sectors, truth, i):
+            for name in score_sector(measurement.sectors, truth, i, z_max_m):
                 self.counts[name] += 1
 
     def row(self) -> dict[str, Any]:
@@ -131,11 +136,6 @@ class SceneScore:
                                       if self.ambiguous else 0.0),
                 "pipeline_ms": (round(float(np.median(self.pipeline_ms)), 2)
                                 if self.pipeline_ms else None)}
-
-
-def within_range(truth: tuple[float | None, ...], z_max_m: float) -> tuple[float | None, ...]:
-    """The true distances with those beyond ``z_max_m`` as None (nothing to report)."""
-    return tuple(None if t is None or t > z_max_m else t for t in truth)
 
 
 def over_window(truths: list[tuple[float | None, ...]]) -> tuple[Truth, ...]:
@@ -163,7 +163,7 @@ def score_scene(name: str, maps: int = MAPS, groups: int = 1, seed: int = 1) -> 
     for per_group in zip(*runs, strict=True):
         measurement, _, _, span = per_group[0]
         sectors = _combined([m.sectors for m, _, _, _ in per_group])
-        score.add(replace(measurement, sectors=sectors), _truth(whole, span, config.z_max_m))
+        score.add(replace(measurement, sectors=sectors), _truth(whole, span), config.z_max_m)
         score.ambiguous.append(sum(a for _, a, _, _ in per_group))
         score.pipeline_ms.append(sum(ms for _, _, ms, _ in per_group))
     return score
@@ -215,13 +215,12 @@ def _combined(groups: list[tuple[SectorDistance, ...]]) -> tuple[SectorDistance,
     return tuple(out)
 
 
-def _truth(sim: Simulator, span: tuple[int, int], z_max_m: float) -> tuple[Truth, ...]:
+def _truth(sim: Simulator, span: tuple[int, int]) -> tuple[Truth, ...]:
     """The truth of a map of sub-frames ``span`` (first, last): at its middle sub-frame,
     or over its first, middle and last when the scene moves."""
     first, last = span
     instants = [first, (first + last) // 2, last] if sim.dynamic else [(first + last) // 2]
-    return over_window([within_range(sim.truth(i, LAYOUT).sector_distance_m, z_max_m)
-                        for i in instants])
+    return over_window([sim.truth(i, LAYOUT).sector_distance_m for i in instants])
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
