@@ -115,6 +115,7 @@ class Fleet:
         self.units: list[Negotiator] = []
         self._running: list[bool] = []
         self._events: list[_Event] = []
+        self._nonces = itertools.count()  # distinct per start, so no twin shares ours
         self._order = itertools.count()
         for i, name in enumerate(names):
             self.add(name, (plans or [plan] * len(names))[i], unit_id=i)
@@ -124,9 +125,12 @@ class Fleet:
         bus = ShimBus(self.channel, self.clock, self.echo)
         self.buses.append(bus)
         self.units.append(Negotiator(bus, name, plan, unit_id, clock=self.clock, poll_bus=True,
-                                     **self.negotiator_args))
+                                     nonce_source=self._next_nonce, **self.negotiator_args))
         self._running.append(False)
         return len(self.units) - 1
+
+    def _next_nonce(self) -> int:
+        return next(self._nonces) % 255 + 1
 
     def at(self, time_s: float, action: Callable[[], None]) -> None:
         """Run ``action`` at ``time_s`` (fake clock; never earlier than now)."""

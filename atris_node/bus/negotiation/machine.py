@@ -76,6 +76,8 @@ class Negotiator:
         notifier: a Notifier the node already runs on ``bus`` (one per bus); else one is made.
         poll_bus: read the bus inside :meth:`tick` instead (no thread; deterministic tests).
         on_change: called with ``(state, code_row, plan)`` after every change.
+        nonce_source: draws the random 1..255 instance number of each start (PLAN frames:
+            tells our echo from a unit with our identity); default ``secrets``.
     """
 
     def __init__(self, bus: can.BusABC, name: int, plan: Plan, unit_id: int,
@@ -87,7 +89,8 @@ class Negotiator:
                  max_misalignment_chips: float = 0.1,
                  notifier: can.Notifier | None = None, poll_bus: bool = False,
                  on_change: ChangeCallback | None = None,
-                 interference: InterferenceMonitor | None = None) -> None:
+                 interference: InterferenceMonitor | None = None,
+                 nonce_source: Callable[[], int] | None = None) -> None:
         self.name = name
         self.unit_id = unit_id
         self.identity = nf.identity_of(name, unit_id)
@@ -98,6 +101,7 @@ class Negotiator:
         self.agreement = PlanAgreement(self, replace(plan, mode=mode) if mode else plan,
                                        max_code_length, can_sync, can_adopt)
         self.on_change = on_change
+        self._draw_nonce = nonce_source or (lambda: secrets.randbelow(255) + 1)
         self.interference = interference or InterferenceMonitor()
         self.link = Link(bus, lambda msg: self.on_message(msg, self.clock()), self.store_error,
                          notifier, poll_bus)
@@ -133,7 +137,7 @@ class Negotiator:
         self._listening = False
         self.contest.reset()
         self.link.outbox.clear()
-        self._nonce = secrets.randbelow(255) + 1
+        self._nonce = self._draw_nonce()
         self._duplicate_until_s = -1e9
         self.sync.restart()
         self._error: BaseException | None = None
