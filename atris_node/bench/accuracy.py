@@ -13,10 +13,10 @@ misidentified sample is an error, not skipped; see :func:`surface_errors`; null 
 sample), ``no_surface_samples`` (valid samples where the truth sees no surface at all),
 ``valid_fraction`` (valid points per line and column), the sector-frames scored as
 :mod:`atris_node.bench.safety` scores them (``sectors_valid``, ``near_phantom``, ``far``,
-``false_free``, ``invalid_fraction``), plus ``demod_ms``, ``pipeline_ms`` and
-``median_abs_error_m``. Pipeline times are the best of three runs per
-map; demodulation is timed once per sub-frame as it streams. ``--quick`` runs one scene,
-640x400, N = 16, block demodulation: a minute on a loaded machine.
+``false_free``, ``invalid_fraction``; over the map's time where the scene moves), plus
+``demod_ms``, ``pipeline_ms`` and ``median_abs_error_m``. Pipeline times are the best of
+three runs per map; demodulation is timed once per sub-frame as it streams. ``--quick``
+runs one scene, 640x400, N = 16, block demodulation: a minute on a loaded machine.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from atris_node import codes
-from atris_node.bench.safety import score_sector
+from atris_node.bench.safety import Truth as SectorTruth
+from atris_node.bench.safety import score_sector, sector_truth
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.pipeline.peaks import IDENTITY_MODES, PEAK_METHODS
@@ -161,13 +162,15 @@ def surface_errors(result: PipelineResult, truth: Truth) -> tuple[np.ndarray, in
 SECTOR_COUNTS = ("sectors_valid", "invalid", "near_phantom", "far", "false_free")
 
 
-def sector_counts(result: PipelineResult, truth: Truth, z_max_m: float) -> dict[str, int]:
-    """The sector-frames of one map scored against the truth (obstacles within
-    ``z_max_m``): VALID, INVALID, near phantom, far not covered, false free."""
+def sector_counts(result: PipelineResult, truth: tuple[SectorTruth, ...],
+                  z_max_m: float) -> dict[str, int]:
+    """The sector-frames of one map scored against its sector truth (over the map's time
+    when the scene moves, :func:`atris_node.bench.safety.sector_truth`): VALID, INVALID,
+    near phantom, far not covered, false free."""
     sectors = result.measurement.sectors
     counts = dict.fromkeys(SECTOR_COUNTS, 0)
     for index in range(len(sectors)):
-        for name in score_sector(sectors, truth.sector_distance_m, index, z_max_m):
+        for name in score_sector(sectors, truth, index, z_max_m):
             key = "sectors_valid" if name == "valid" else name
             if key in counts:
                 counts[key] += 1
@@ -203,7 +206,9 @@ def _pipeline_rows(sim: Simulator, maps: list[DistortionMap], truths: list[Truth
             errors.append(err)
             no_surface += missing
             valid.append(result.diagnostics.valid_fraction)
-            for key, n in sector_counts(result, truth, config.z_max_m).items():
+            span = (dmap.first_sequence, dmap.last_sequence)
+            sectors = sector_truth(sim, span, config.layout())
+            for key, n in sector_counts(result, sectors, config.z_max_m).items():
                 counts[key] += n
         err = np.concatenate(errors)
         frames = len(maps) * config.sector_count

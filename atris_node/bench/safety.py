@@ -163,7 +163,7 @@ def score_scene(name: str, maps: int = MAPS, groups: int = 1, seed: int = 1) -> 
     for per_group in zip(*runs, strict=True):
         measurement, _, _, span = per_group[0]
         sectors = _combined([m.sectors for m, _, _, _ in per_group])
-        score.add(replace(measurement, sectors=sectors), _truth(whole, span), config.z_max_m)
+        score.add(replace(measurement, sectors=sectors), sector_truth(whole, span), config.z_max_m)
         score.ambiguous.append(sum(a for _, a, _, _ in per_group))
         score.pipeline_ms.append(sum(ms for _, _, ms, _ in per_group))
     return score
@@ -215,12 +215,13 @@ def _combined(groups: list[tuple[SectorDistance, ...]]) -> tuple[SectorDistance,
     return tuple(out)
 
 
-def _truth(sim: Simulator, span: tuple[int, int]) -> tuple[Truth, ...]:
-    """The truth of a map of sub-frames ``span`` (first, last): at its middle sub-frame,
-    or over its first, middle and last when the scene moves."""
+def sector_truth(sim: Simulator, span: tuple[int, int],
+                 layout: SectorLayout = LAYOUT) -> tuple[Truth, ...]:
+    """The sector truth of a map of sub-frames ``span`` (first, last): at its middle
+    sub-frame, or over its first, middle and last when the scene moves."""
     first, last = span
     instants = [first, (first + last) // 2, last] if sim.dynamic else [(first + last) // 2]
-    return over_window([sim.truth(i, LAYOUT).sector_distance_m for i in instants])
+    return over_window([sim.truth(i, layout).sector_distance_m for i in instants])
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
