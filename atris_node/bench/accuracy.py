@@ -191,24 +191,24 @@ def _timed(pipe: Pipeline, dmap: DistortionMap) -> tuple[PipelineResult, float]:
 
 
 def _pipeline_rows(sim: Simulator, maps: list[DistortionMap], truths: list[Truth],
-                   grid: Grid, k: float) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
-    """(config part, measurement part) per peak method, ROI setting and identity mode."""
+                   sectors: list[tuple[SectorTruth, ...]], grid: Grid, k: float
+                   ) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
+    """(config part, measurement part) per peak method, ROI setting and identity mode;
+    ``truths`` at each map's middle sub-frame, ``sectors`` over its time."""
     for method, roi, identity in itertools.product(grid.methods, grid.roi, grid.identities):
         config = PipelineConfig(peak_method=method, roi_bands=roi, identity=identity,
                                 stripe_sigma_px=STRIPE_SIGMA_PX * k)
         pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
         times, errors, valid, no_surface = [], [], [], 0
         counts = dict.fromkeys(SECTOR_COUNTS, 0)
-        for dmap, truth in zip(maps, truths, strict=True):
+        for dmap, truth, known in zip(maps, truths, sectors, strict=True):
             result, ms = _timed(pipe, dmap)
             times.append(ms)
             err, missing = surface_errors(result, truth)
             errors.append(err)
             no_surface += missing
             valid.append(result.diagnostics.valid_fraction)
-            span = (dmap.first_sequence, dmap.last_sequence)
-            sectors = sector_truth(sim, span, config.layout())
-            for key, n in sector_counts(result, sectors, config.z_max_m).items():
+            for key, n in sector_counts(result, known, config.z_max_m).items():
                 counts[key] += n
         err = np.concatenate(errors)
         frames = len(maps) * config.sector_count
@@ -235,7 +235,9 @@ def scene_rows(name: str, grid: Grid) -> Iterator[dict[str, Any]]:
                 layout = PipelineConfig().layout()
                 truths = [sim.truth((m.first_sequence + m.last_sequence) // 2, layout)
                           for m in maps]
-                for config, measured in _pipeline_rows(sim, maps, truths, grid,
+                sectors = [sector_truth(sim, (m.first_sequence, m.last_sequence), layout)
+                           for m in maps]
+                for config, measured in _pipeline_rows(sim, maps, truths, sectors, grid,
                                                        width / base.camera.width_px):
                     config.update(code_length=n, resolution=f"{width}x{height}", demod=demod)
                     yield {"config": config, "scene": name,
