@@ -1,10 +1,13 @@
 """The depthai backend, without hardware: simulated ImgFrames through a real dai.Pipeline.
 
-A ``dai.Pipeline(createImplicitDevice=False)`` holds two host nodes: ``SimulatedMono``
-plays the mono camera (frame events, ImgFrames, exposure control input) and
-``ScriptHost`` runs the generated on-device strobe Script unchanged, with a small
-``Device`` that holds the two emitter levels. The camera and projector under test are
-the backend's own classes, fed by the pipeline's real queues.
+A ``dai.Pipeline(createImplicitDevice=False)`` holds two host nodes (tests/depthai_rig.py):
+``SimulatedMono`` plays the mono camera on its own clock (frame events, ImgFrames,
+exposure control input; it never waits for the Script, so a late Script slips a frame as
+on the device) and ``ScriptHost`` runs the generated on-device strobe Script unchanged,
+with a small ``Device`` that holds the two emitter levels. The camera and projector under
+test are the backend's own classes, fed by the pipeline's real queues. The frames' host
+queue is blocking: a host that falls behind by 64 frames pauses the camera instead of
+losing frames, so the tests see every sequence number they expect.
 """
 
 from __future__ import annotations
@@ -12,7 +15,6 @@ from __future__ import annotations
 import ast
 import datetime
 import itertools
-import threading
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -21,7 +23,9 @@ import can
 import depthai as dai
 import numpy as np
 import pytest
+from depthai_rig import SHAPE, ScriptHost, SimulatedMono, build_rig, laser_lit, mono_frame
 
+from atris_node.demod import BlockDemodulator
 from atris_node.errors import CameraLostError, ConfigError, DeviceNotFoundError, DriverError
 from atris_node.types import SubFrame
 from drivers.depthai_backend import (
@@ -31,147 +35,16 @@ from drivers.depthai_backend import (
     open_backend,
 )
 from drivers.depthai_frames import FrameReader, to_sub_frame
-from drivers.depthai_script import (
-    CONTROL_INPUT,
-    EVENT_INPUT,
-    LEASE_FRAMES,
-    state_message,
-    strobe_script,
-)
+from drivers.depthai_script import LEASE_FRAMES, state_message, strobe_script
 
-SHAPE = (40, 64)
-LASER_ROW = 17
 CHIPS = [0, 1, 1, 0, 1, 0, 0, 1]
 DROPPED = (9, 10, 23)
 
 
-class EmitterLevels:
-    """The ``Device`` the Script sees: the two IR emitter levels, and a count of updates."""
-
-    def __init__(self) -> None:
-        self.dot = 0.0
-        self.flood = 0.0
-        self.updates = 0
-        self.changed = threading.Condition()
-
-    def setIrLaserDotProjectorIntensity(self, level: float) -> None:  # noqa: N802 - Script API
-        with self.changed:
-            self.dot, self.updates = level, self.updates + 1
-            self.changed.notify_all()
-
-    def setIrFloodLightIntensity(self, level: float) -> None:  # noqa: N802 - Script API
-        with self.changed:
-            self.flood, self.updates = level, self.updates + 1
-            self.changed.notify_all()
-
-
-class ScriptHost(dai.node.ThreadedHostNode):
-    """Runs a strobe Script's source as the device would, on real depthai inputs.
-
-    ``states[seq]`` is the Script's (code, enabled) once it finished frame event ``seq``,
-    i.e. the state that decided the emitter level of sub-frame ``seq + 1``.
-    """
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.event_in = self.createInput()
-        self.control_in = self.createInput()
-        self.device = EmitterLevels()
-        self.states: dict[int, tuple[tuple[int, ...], bool]] = {}
-        self.source = strobe_script([0, 0], "dot", 0.8)
-
-    def run(self) -> None:
-        env: dict[str, Any] = {"Device": self.device}
-        last: list[int] = []
-        host = self
-
-        class Events:
-            """``node.io['event']``: notes the state the previous event left behind."""
-
-            def get(self) -> Any:
-                with host.device.changed:
-                    if last:  # enabled, and inside the lease the host renews
-                        leased = env["since"] <= env["lease"]
-                        host.states[last[0]] = (tuple(env["code"]),
-                                                bool(env["enabled"]) and leased)
-                    host.device.changed.notify_all()
-                event = host.event_in.get()
-                last[:] = [event.getSequenceNum()]
-                return event
-
-        io = {EVENT_INPUT: Events(), CONTROL_INPUT: self.control_in}
-        env["node"] = type("ScriptNode", (), {"io": io, "warn": print})()
-        try:
-            exec(compile(self.source, "atris_strobe", "exec"), env)
-        except dai.MessageQueue.QueueException:
-            return
-
-
-def mono_frame(seq: int, level: float, exposure_us: int = 500) -> dai.ImgFrame:
-    """A GRAY8 frame of the dark room, its laser row at ``level`` (0..1); its host
-    timestamp is its creation, as depthai stamps a frame on the host clock."""
-    pixels = np.full(SHAPE, 20, np.uint8)
-    pixels[LASER_ROW] += np.uint8(200 * level)
-    frame = dai.ImgFrame()
-    frame.setType(dai.ImgFrame.Type.GRAY8)
-    frame.setWidth(SHAPE[1])
-    frame.setHeight(SHAPE[0])
-    frame.setFrame(pixels)
-    frame.setSequenceNum(seq)
-    frame.setTimestampDevice(datetime.timedelta(seconds=10.0 + seq / 100.0))
-    settings = frame.cam
-    settings.exposureTimeUs = exposure_us
-    frame.cam = settings
-    return frame
-
-
-class SimulatedMono(dai.node.ThreadedHostNode):
-    """A mono camera: a dark room with one laser row that is lit by the dot projector."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.out = self.createOutput()
-        self.event = self.createOutput()
-        self.control = self.createInput()
-        self.script: ScriptHost | None = None
-        self.count = 40
-        self.exposure_us = 500
-        self.period_s = 0.004
-
-    def _frame(self, seq: int, level: float) -> dai.ImgFrame:
-        return mono_frame(seq, level, self.exposure_us)
-
-    def _wait_for_script(self, seq: int) -> None:
-        """Block until the Script finished frame event ``seq`` (as the sensor's SoF does)."""
-        script = self.script
-        assert script is not None
-        with script.device.changed:
-            script.device.changed.wait_for(lambda: seq in script.states, 2.0)
-
-    def run(self) -> None:
-        for seq in range(self.count):
-            if not self.isRunning():
-                return
-            control = self.control.tryGet()
-            if control is not None:
-                self.exposure_us = int(control.getExposureTime().total_seconds() * 1e6)
-            level = self.script.device.dot if self.script else 0.0  # set on the last event
-            event = dai.ImgFrame()
-            event.setSequenceNum(seq)
-            self.event.send(event)
-            if self.script is not None:
-                self._wait_for_script(seq)
-            if seq not in DROPPED:
-                self.out.send(self._frame(seq, level))
-            time.sleep(self.period_s)
-
-
 @pytest.fixture
 def rig() -> Iterator[tuple[Any, SimulatedMono, ScriptHost, DepthaiCamera, DepthaiProjector]]:
-    pipeline = dai.Pipeline(createImplicitDevice=False)
-    mono, script = pipeline.create(SimulatedMono), pipeline.create(ScriptHost)
-    mono.script = script
-    mono.event.link(script.event_in)
+    pipeline, mono, script = build_rig()
+    mono.dropped = DROPPED
     frames = mono.out.createOutputQueue(maxSize=64, blocking=True)
     projector = DepthaiProjector(script.control_in.createInputQueue(), code_length=len(CHIPS))
     camera = DepthaiCamera(FrameReader(frames, projector.chip_for),
@@ -183,10 +56,6 @@ def rig() -> Iterator[tuple[Any, SimulatedMono, ScriptHost, DepthaiCamera, Depth
     pipeline.wait()
 
 
-def laser_lit(pixels: np.ndarray[Any, Any]) -> bool:
-    return bool(pixels[LASER_ROW].mean() > pixels[LASER_ROW + 5].mean() + 50)
-
-
 def settled_at(script: ScriptHost, chips: list[int], enabled: bool = True) -> int:
     """The first frame event after which the Script held ``chips`` (host messages landed)."""
     events = [seq for seq, (code, on) in sorted(script.states.items())
@@ -195,12 +64,29 @@ def settled_at(script: ScriptHost, chips: list[int], enabled: bool = True) -> in
     return events[0]
 
 
-def assert_strobed_by_script(script: ScriptHost, subs: list[SubFrame]) -> None:
-    """Each sub-frame is lit exactly when the Script's state after the previous event says."""
+def in_time(mono: SimulatedMono, script: ScriptHost, seq: int) -> bool:
+    """True when the Script had finished frame event ``seq - 1`` (and so set the emitter
+    for sub-frame ``seq``) before the sensor exposed ``seq``; else the sub-frame may show
+    the level before (a slip)."""
+    done = script.done_at.get(seq - 1)
+    return done is not None and done <= mono.exposed_at[seq]
+
+
+def assert_strobed_by_script(mono: SimulatedMono, script: ScriptHost,
+                             subs: list[SubFrame]) -> int:
+    """Every sub-frame shows the level the emitter had at its exposure, and each one the
+    Script set in time is lit exactly when the Script's state after the previous event
+    says. Returns how many were set in time (the rest may have slipped)."""
+    checked = 0
     for sub in subs[1:]:
+        assert laser_lit(sub.pixels) == (mono.levels[sub.sequence] > 0.0), sub.sequence
+        if not in_time(mono, script, sub.sequence):
+            continue
         code, enabled = script.states[sub.sequence - 1]
         expected = enabled and bool(code[sub.sequence % len(code)])
         assert laser_lit(sub.pixels) == expected, sub.sequence
+        checked += 1
+    return checked
 
 
 def read_strobing(camera: DepthaiCamera, projector: DepthaiProjector, count: int,
@@ -216,7 +102,7 @@ def read_strobing(camera: DepthaiCamera, projector: DepthaiProjector, count: int
 
 
 def test_feature_strobed_sub_frames_through_a_real_pipeline(rig: Any) -> None:
-    pipeline, _, script, camera, projector = rig
+    pipeline, mono, script, camera, projector = rig
     projector.set_code(CHIPS)
     pipeline.start()
     subs = read_strobing(camera, projector, 40 - len(DROPPED))
@@ -227,10 +113,10 @@ def test_feature_strobed_sub_frames_through_a_real_pipeline(rig: Any) -> None:
         assert sub.chip == CHIPS[sub.sequence % len(CHIPS)]
         assert sub.device_time_s == pytest.approx(10.0 + sub.sequence / 100.0 - 250e-6)
         assert sub.exposure_us == pytest.approx(500.0)
-    assert_strobed_by_script(script, subs)
+    assert assert_strobed_by_script(mono, script, subs) > 0, "no sub-frame set in time"
     settled = settled_at(script, CHIPS)
     assert settled < 25
-    after = [s for s in subs if s.sequence > settled]
+    after = [s for s in subs if s.sequence > settled and in_time(mono, script, s.sequence)]
     assert after and all(laser_lit(s.pixels) == bool(s.chip) for s in after)
     assert script.device.flood == 0.0
     assert all(a.host_time_s <= b.host_time_s for a, b in itertools.pairwise(subs))
@@ -248,22 +134,23 @@ def test_feature_off_darkens_both_emitters_and_frames(rig: Any) -> None:
     subs = [camera.read(2.0) for _ in range(50)]
     settled = settled_at(script, [1], enabled=False)
     assert settled < subs[-1].sequence - 5
-    assert not any(laser_lit(s.pixels) for s in subs if s.sequence > settled)
+    # sub-frame settled + 1 may have been exposed before the Script went dark (a slip)
+    assert not any(laser_lit(s.pixels) for s in subs if s.sequence > settled + 1)
     assert (script.device.dot, script.device.flood) == (0.0, 0.0)
-    assert_strobed_by_script(script, subs)
+    assert_strobed_by_script(mono, script, subs)
 
 
 def test_feature_strobe_per_sub_frame_fills_the_device_timeline(rig: Any) -> None:
-    pipeline, _, script, camera, projector = rig
+    pipeline, mono, script, camera, projector = rig
     for seq, chip in enumerate(CHIPS):
         projector.strobe(chip, seq)
     assert projector.code == CHIPS and projector.commanded[3] == CHIPS[3]
     pipeline.start()
     subs = read_strobing(camera, projector, 40 - len(DROPPED))
-    assert_strobed_by_script(script, subs)
+    assert assert_strobed_by_script(mono, script, subs) > 0, "no sub-frame set in time"
     settled = settled_at(script, CHIPS)
     assert all(laser_lit(s.pixels) == bool(CHIPS[s.sequence % 8]) for s in subs
-               if s.sequence > settled)
+               if s.sequence > settled and in_time(mono, script, s.sequence))
 
 
 def test_feature_a_host_that_stops_renewing_leaves_the_laser_dark_after_the_lease(
@@ -461,3 +348,28 @@ def test_feature_a_frames_age_is_its_exposure_time_not_its_arrival(
     sectors_id = frame_id(0, FrameKind.SECTORS)
     sector = next(codec.decode_message(m) for m in frames if m.arbitration_id == sectors_id)
     assert isinstance(sector.signals["Distance0"], float) is valid
+
+
+@pytest.mark.parametrize("late_periods", [0.0, 1.0])
+def test_feature_a_late_script_slips_and_the_phase_lock_measures_it(
+        rig: Any, late_periods: float) -> None:
+    """The camera runs on its own clock. A Script that handles each frame event a period
+    late sets the emitter after the next exposure: every sub-frame shows the chip of the
+    one before, and the demodulator's phase lock, fed the real frames, finds lag 1
+    (lag 0 when the Script is in time), so the demodulation signs follow the light.
+
+    Checked against the rig as it was (the camera waited for the Script on every event):
+    no slip happened, the lock found lag 0 with the late Script and the lag-1 case failed.
+    """
+    pipeline, mono, script, camera, projector = rig
+    mono.count, mono.dropped, mono.period_s = 160, (), 0.004
+    script.late_s = late_periods * mono.period_s
+    projector.set_code(CHIPS)
+    pipeline.start()
+    subs = read_strobing(camera, projector, 160)
+    settled = settled_at(script, CHIPS)
+    demod = BlockDemodulator(CHIPS, bits=8, lag=None)
+    for sub in subs:
+        if sub.sequence > settled + 2:
+            demod.push(sub)
+    assert demod.lag == round(late_periods)

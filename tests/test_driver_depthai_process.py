@@ -1,0 +1,84 @@
+"""A host killed (SIGKILL) or hung (SIGSTOP) while the device strobes, in two processes.
+
+The device (tests/depthai_rig.py ``device``: a free-running camera and the generated
+strobe Script in a depthai pipeline) and the host (the backend's DepthaiCamera and
+DepthaiProjector, strobing every sub-frame as the node does) are separate processes joined
+by pipes, as an OAK and its host are joined by XLink. The test stops the host with a
+signal and reads the device's log of every sub-frame: the emitter level at its exposure
+(time.monotonic, one clock for every process on Linux) and how many frame events the
+Script had seen since the host's newest message when it set that level.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from drivers.depthai_script import LEASE_FRAMES
+
+RIG = Path(__file__).with_name("depthai_rig.py")
+PERIOD_S = 0.004
+FRAMES = 1000  # 4 s of device time
+
+
+def run_and_stop_host(log: Path, stop: signal.Signals) -> float:
+    """Start device and host, stop the host with ``stop`` once it strobes; the time of
+    the signal. Returns after the device finished its frames."""
+    frames_r, frames_w = os.pipe()
+    control_r, control_w = os.pipe()
+    device = subprocess.Popen([sys.executable, str(RIG), "device", str(log), str(FRAMES),
+                               str(PERIOD_S), str(frames_w), str(control_r)],
+                              pass_fds=(frames_w, control_r))
+    host = subprocess.Popen([sys.executable, str(RIG), "host", "1", str(frames_r),
+                             str(control_w)], pass_fds=(frames_r, control_w),
+                            stderr=subprocess.PIPE, text=True)
+    for fd in (frames_r, frames_w, control_r, control_w):
+        os.close(fd)  # the two processes hold the ends now: the host's death closes its own
+    assert host.stderr is not None
+    try:
+        assert any("strobing" in line for line in host.stderr), "the host never strobed"
+        time.sleep(0.2)
+        stopped_at = time.monotonic()
+        os.kill(host.pid, stop)
+        assert device.wait(timeout=60) == 0
+    finally:
+        host.kill()
+        host.wait()
+        device.kill()
+    return stopped_at
+
+
+@pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGSTOP], ids=["killed", "hung"])
+def test_feature_the_device_goes_dark_within_its_lease_when_the_host_dies_or_hangs(
+        tmp_path: Path, stop: signal.Signals, record_property: Any) -> None:
+    """The host strobes code ``1`` (lit every sub-frame); it is killed or stopped while the
+    device runs on for seconds. Every lit sub-frame was set within LEASE_FRAMES frame
+    events of a host message; after the signal the laser goes dark within the lease and
+    stays dark. Measured (4 ms frames): lit for up to 64-68 ms after the signal.
+
+    Checked by giving the Script a lease of 10**6 frames (LEASE_FRAMES edited): the
+    device strobed to its last frame after the host was killed, and the dark asserts
+    failed for both signals.
+    """
+    stopped_at = run_and_stop_host(tmp_path / "device.json", stop)
+    events = json.loads((tmp_path / "device.json").read_text(encoding="utf-8"))
+    before = [e for e in events if stopped_at - 0.1 < e["t"] < stopped_at]
+    after = [e for e in events if e["t"] > stopped_at]
+    assert any(e["level"] > 0 for e in before), "not lit before the signal: proves nothing"
+    assert len(after) > LEASE_FRAMES + 100, "the device did not run on after the signal"
+    assert all(e["since"] <= LEASE_FRAMES for e in events if e["level"] > 0)
+    lit_after = [e for e in after if e["level"] > 0]
+    lit_ms = 1e3 * (max((e["t"] for e in lit_after), default=stopped_at) - stopped_at)
+    record_property("lit_after_signal_ms", round(lit_ms, 1))
+    record_property("lit_frames_after_signal", len(lit_after))
+    print(f"\nlit for {lit_ms:.1f} ms ({len(lit_after)} sub-frames) after {stop.name}")
+    assert len(lit_after) <= LEASE_FRAMES + 1
+    assert not any(e["level"] > 0 for e in after[LEASE_FRAMES + 2:])
