@@ -6,10 +6,10 @@ carrying 8-byte frames with 11-bit identifiers, which are at most 135 bits each 
 wire, is 0.9 * 500000 / 135 = 3333 frames/s. Two ``periodic`` processes send
 high-priority frames (identifiers 0x001 and 0x002) at 1667 frames/s each. The publisher
 (its own process, unit 5, 50 ms cycle, fed a fresh measurement every 20 ms: a healthy
-unit, so DeadlineMiss comes from late cycles, not stale data) is watched through a kernel filter on its Status
-frame only; periods come from the kernel receive timestamps. A cycle that arrives later
-than period + tolerance must carry the DeadlineMiss fault bit, unless it was a send delay
-of a cycle that started on time (see :func:`unreported_late`).
+unit, so DeadlineMiss comes from late cycles, not stale data) is watched through a kernel
+filter on its Status frame only; periods come from the kernel receive timestamps. A cycle
+that arrives later than period + tolerance must carry the DeadlineMiss fault bit, unless it
+was a send delay of a cycle that started on time (see :func:`unreported_late`).
 
 What is asserted is what holds on the test VM (no KVM, on a shared host) at the load the
 babblers actually reached (at least 500 frames/s; the rate itself depends on the host and
