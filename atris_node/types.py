@@ -44,6 +44,21 @@ class SubFrame:
 
 
 @dataclass(frozen=True)
+class WindowFrames:
+    """The raw sub-frames a map was summed from, oldest first, with their signs (±1).
+
+    References to the drivers' own arrays, not copies: kept only for the life of the map,
+    so the pipeline can read the time course of a few pixels (its peaks).
+    """
+
+    pixels: tuple[npt.NDArray[np.generic], ...]  # (H, W) uint8 or uint16 each, DN
+    signs: tuple[int, ...]
+    #: the last OFF sub-frame before the window, as (its sequence minus the window's
+    #: first, < 0; its pixels), when the demodulator saw it without a gap since
+    before: tuple[int, npt.NDArray[np.generic]] | None = None
+
+
+@dataclass(frozen=True)
 class DistortionMap:
     """The demodulated image: sum over one code period of ``v_i * F_i``.
 
@@ -58,6 +73,7 @@ class DistortionMap:
         phase: lag in sub-frames between the intended chip and the strobe actually seen.
         dropped: sub-frames lost since the previous map.
         processing_gain / snr: measured per paper Eq. 5-6 (0.0 when not measured).
+        window: the window's raw sub-frames (None for a map read back from a recording).
     """
 
     values: npt.NDArray[np.int16] | npt.NDArray[np.int32]
@@ -72,6 +88,7 @@ class DistortionMap:
     processing_gain: float = 0.0
     snr: float = 0.0
     extra: dict[str, float] = field(default_factory=dict)
+    window: WindowFrames | None = None
 
 
 class SectorState(enum.IntEnum):

@@ -407,3 +407,33 @@ def test_bench_rows_have_the_fields_other_tools_read() -> None:
                                                                 rel=0.05, abs=0.01)
     frames = bench.scene(64, 32, 10, codes.walsh_chips(4, 2), saturated=True)
     assert max(int(f.max()) for f in frames) == 1023
+
+
+@pytest.mark.parametrize("cls", [BlockDemodulator, SlidingDemodulator])
+def test_feature_a_map_carries_its_window_and_the_last_off_sub_frame_before_it(
+        cls: type[Demod]) -> None:
+    """The raw sub-frames of each map (oldest first, with their signs) and the last OFF
+    sub-frame before its window reach the pipeline (its time-course test); a gap in the
+    sequence numbers forgets the one before."""
+    chips = [1, 0, 1, 0]
+    frames = [np.full((3, 4), 10 + s, np.uint8) for s in range(20)]
+    demod = cls(chips, bits=8, lag=0)
+    maps = [m for s in range(12) if (m := demod.push(_sub(frames[s], s, 8))) is not None]
+    if cls is SlidingDemodulator:
+        maps = [m for m in maps if m.first_sequence != 1]  # sub-frame 0 before it is ON
+    first = maps[0]
+    assert first.window is not None and first.window.before is None  # nothing before it
+    assert first.window.signs == (1, -1, 1, -1)
+    assert [int(p[0, 0]) - 10 for p in first.window.pixels] == [0, 1, 2, 3]
+    for later in maps[1:]:
+        assert later.window is not None
+        start = later.first_sequence
+        assert [int(p[0, 0]) - 10 for p in later.window.pixels] == list(
+            range(start, start + 4))
+        assert later.window.before is not None
+        offset, pixels = later.window.before  # the OFF sub-frames are the odd ones
+        assert offset == (-1 if start % 2 == 0 else -2)
+        assert int(pixels[0, 0]) - 10 == start + offset
+    after_gap = [m for s in range(14, 20) if (m := demod.push(_sub(frames[s], s, 8)))]
+    assert after_gap and after_gap[0].window is not None
+    assert after_gap[0].window.before is None

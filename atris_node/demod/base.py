@@ -16,7 +16,7 @@ from atris_node.demod.kernels import CHUNK_BYTES, Array, Kernels, accumulator_dt
 from atris_node.demod.lock import PhaseLock
 from atris_node.demod.stats import measure_gain, strip_level
 from atris_node.errors import CodeError, DemodulationError
-from atris_node.types import DistortionMap, SubFrame
+from atris_node.types import DistortionMap, SubFrame, WindowFrames
 
 logger = logging.getLogger(__name__)
 
@@ -45,6 +45,19 @@ class Info:
     def saturated(self) -> bool:
         """True when some pixel of the sub-frame is at full scale."""
         return bool(self.hot_chunks)
+
+
+def _window(frames: Sequence[Array], infos: Sequence[Info],
+            before: tuple[int, Array] | None) -> WindowFrames | None:
+    """The window's sub-frames and signs, when every one of them is at hand, and the last
+    OFF sub-frame before it (``before``: sequence, pixels) when that is near enough."""
+    if len(frames) != len(infos) or not frames:
+        return None
+    first = infos[0].sequence
+    prior = None
+    if before is not None and -len(infos) <= before[0] - first < 0:
+        prior = (before[0] - first, before[1])
+    return WindowFrames(tuple(frames), tuple(i.sign for i in infos), prior)
 
 
 class Demodulator:
@@ -183,6 +196,7 @@ class Demodulator:
 
     def _reprime(self) -> None:
         self._ambient_cache = None
+        self._before = None
         self._clear_window()
         self._pending.clear()
         self._lock.reset()
@@ -217,6 +231,7 @@ class Demodulator:
         self._lag = decided
         self._relocks += 1
         self._lock.fresh = 0
+        self._before = None
         self._clear_window()
 
     # --- helpers for the windows ---------------------------------------------------------
@@ -259,7 +274,8 @@ class Demodulator:
         return self._ambient_cache[1]
 
     def _make_map(self, values: Array, saturated: npt.NDArray[np.bool_] | None,
-                  infos: Sequence[Info], newest: Array) -> DistortionMap:
+                  infos: Sequence[Info], newest: Array,
+                  frames: Sequence[Array] = ()) -> DistortionMap:
         values.setflags(write=False)
         mask = self._no_saturation(values.shape) if saturated is None else saturated
         fraction = 0.0 if saturated is None else np.count_nonzero(mask) / mask.size
@@ -272,13 +288,16 @@ class Demodulator:
             first_time_s=infos[0].host_time_s, last_time_s=infos[-1].host_time_s,
             phase=self._lag or 0, dropped=dropped, processing_gain=gain, snr=snr,
             extra={"ambient_level": ambient, "saturated_fraction": float(fraction),
-                   "signal_dn": signal, "residual_dn": residual})
+                   "signal_dn": signal, "residual_dn": residual},
+            window=_window(frames, infos, self._before))
 
     # --- per window, in the subclasses ---------------------------------------------------
 
     _chunk_bytes = CHUNK_BYTES  # accumulator bytes per row chunk of the updates
     _clear_mask: npt.NDArray[np.bool_] | None = None
     _ambient_cache: tuple[int, float] | None = None
+    #: the last OFF sub-frame before the current window (sequence, pixels)
+    _before: tuple[int, Array] | None = None
 
     def _clear_window(self) -> None:
         raise NotImplementedError

@@ -19,6 +19,7 @@ class BlockDemodulator(Demodulator):
         self._acc: Array | None = None
         self._mask: npt.NDArray[np.bool_] | None = None
         self._infos: list[Info] = []
+        self._frames: list[Array] = []
 
     def _add(self, sub: SubFrame, level: float | None) -> DistortionMap | None:
         kernels, frame = self._kernels_for(sub.pixels), sub.pixels
@@ -29,10 +30,14 @@ class BlockDemodulator(Demodulator):
         else:
             update = kernels.add(self._acc, frame, sign, self._mark)
         self._infos.append(self._info(sub, level, update))
+        self._frames.append(frame)
         if len(self._infos) < self._n:
             return None
-        result = self._make_map(self._acc, self._mask, self._infos, frame)
+        result = self._make_map(self._acc, self._mask, self._infos, frame, self._frames)
+        off = [(i.sequence, f) for i, f in zip(self._infos, self._frames, strict=True)
+               if i.sign < 0]
         self._clear_window()
+        self._before = off[-1] if off else None
         return result
 
     def _mark(self, rows: slice, chunk: Array) -> None:
@@ -73,7 +78,8 @@ class SlidingDemodulator(Demodulator):
         self._push_ring(frame, self._info(sub, level, update))
         if len(self._ring) < self._n:
             return None
-        return self._make_map(self._values, self._mask(), [i for _, i in self._ring], frame)
+        return self._make_map(self._values, self._mask(), [i for _, i in self._ring], frame,
+                              [f for f, _ in self._ring])
 
     def _slide(self, sub: SubFrame, level: float | None, kernels: Kernels) -> DistortionMap:
         assert self._values is not None
@@ -82,9 +88,12 @@ class SlidingDemodulator(Demodulator):
         update = kernels.slide(out, self._values, sub.pixels, (old_frame, old_info.hot_chunks),
                                self._sign(sub.sequence), (self._enter, self._leave))
         self._hot_frames.subtract(old_info.hot_chunks)
+        if old_info.sign < 0:
+            self._before = (old_info.sequence, old_frame)
         self._push_ring(sub.pixels, self._info(sub, level, update))
         self._values = out
-        return self._make_map(out, self._mask(), [i for _, i in self._ring], sub.pixels)
+        return self._make_map(out, self._mask(), [i for _, i in self._ring], sub.pixels,
+                              [f for f, _ in self._ring])
 
     def _push_ring(self, frame: Array, info: Info) -> None:
         self._ring.append((frame, info))

@@ -307,7 +307,7 @@ class Pipeline:
         search = None if self.roi is None else self.roi.search_rows()
         extraction = extract_lines(dmap.values, dmap.saturated, self.bands, self._extractor,
                                    roi_bands=self.config.roi_bands, prior=self._prior,
-                                   search=search)
+                                   search=search, window=dmap.window)
         return extraction, not extraction.narrowed
 
     def _clean_samples(self, samples: LineSamples) -> LineSamples:

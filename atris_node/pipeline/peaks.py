@@ -33,7 +33,9 @@ from atris_node.pipeline import peaks_kernels as kernels
 from atris_node.pipeline.bands import Band, count_in_bands, read_rows
 from atris_node.pipeline.identity import VisibilityPrior, identify_lines
 from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap, noise_floor, noise_map
-from atris_node.pipeline.rivals import robust_identity, stripe_peaks
+from atris_node.pipeline.rivals import robust_identity, set_aside, stripe_peaks
+from atris_node.pipeline.temporal import not_own_light
+from atris_node.types import WindowFrames
 
 logger = logging.getLogger(__name__)
 
@@ -254,7 +256,8 @@ def _above_elsewhere(values: npt.NDArray[Any], noise: NoiseMap, snr_min: float,
 def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                   bands: tuple[Band, ...], settings: ExtractorSettings, *,
                   roi_bands: bool = True, prior: VisibilityPrior | None = None,
-                  search: list[tuple[int, int]] | None = None) -> Extraction:
+                  search: list[tuple[int, int]] | None = None,
+                  window: WindowFrames | None = None) -> Extraction:
     """Line samples of a distortion map.
 
     Args:
@@ -271,6 +274,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
             row read reaches the peak threshold, every row read is searched after all, so
             the peaks are always those of the whole search. Noise statistics, line
             identity and the foreign-light counts use every row read.
+        window: the map's raw sub-frames; with them, peaks whose time course cannot be
+            own light (a moving edge, :mod:`atris_node.pipeline.temporal`) are set aside.
     """
     height = values.shape[0]
     spans = read_rows(bands, read_padding(settings), height) if roi_bands else [(0, height)]
@@ -286,6 +291,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     doubts = _NO_DOUBTS
     if settings.unique:
         peaks, lone = stripe_peaks(peaks)
+        peaks, moved = set_aside(peaks, not_own_light(peaks, values, window, local))
+        lone = lone + moved
         identity = robust_identity(
             peaks, lambda r: _peak_snr(values, local, r) < WEAK_SNR * settings.snr_min,
             bands, settings.min_separation_px, prior, aligned=aligned)

@@ -137,7 +137,7 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
     weak_peaks = weak(peaks) & (peaks >= 0)
     if not weak_peaks.any():
         return full
-    strong, _ = _compact(peaks, weak_peaks)
+    strong, _ = set_aside(peaks, weak_peaks)
     alone = _unique(strong, bands, sep, prior, aligned)
     rows, rows_b = full.rows, alone.rows
     held = (rows >= 0) & ~weak(rows)
@@ -208,7 +208,7 @@ def _is_rivalled(peaks: IntArray, rivalled: tuple[IntArray, IntArray, IntArray]
     return out
 
 
-def _compact(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
+def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
     """``peaks`` without the ``drop`` ones, each column sorted down with the -1 padding
     last (as the greedy matchings expect), and the (W,) count dropped."""
     big = np.iinfo(np.int64).max
@@ -227,7 +227,7 @@ def stripe_peaks(peaks: IntArray, reach: int = LONE_REACH, max_step: int = LONE_
     lone = rivals_kernels.isolated(peaks, reach, max_step)
     if not lone.any():
         return peaks, np.zeros(peaks.shape[1], dtype=np.int64)
-    return _compact(peaks, lone)
+    return set_aside(peaks, lone)
 
 
 def _has_peaks(rows: IntArray) -> IntArray:
