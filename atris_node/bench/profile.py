@@ -106,8 +106,10 @@ def pipeline_of(sim: Simulator, sectors: int) -> Pipeline:
 def _fastest_laps(pipe: Pipeline, dmap: DistortionMap) -> list[float]:
     """The cumulative laps (ms) of the fastest of REPEATS runs on ``dmap`` (the machine is
     shared: the fastest run is the one least disturbed by other work)."""
-    runs = [[pipe.process(dmap).diagnostics.timings_ms[k] for k in STAGE_LAPS]
-            for _ in range(REPEATS)]
+    runs = []
+    for _ in range(REPEATS):
+        timings = pipe.process(dmap).diagnostics.timings_ms
+        runs.append([timings[k] for k in STAGE_LAPS])
     return min(runs, key=lambda laps: laps[-1])
 
 
