@@ -63,6 +63,7 @@ def test_smoke_short_run_reports_every_field() -> None:
     assert _finite(row)
     subs = row["sub_frames"]
     assert subs["offered"] == 180
+    assert subs["gaps"] >= 0
     assert subs["offered"] == subs["consumed"] + subs["dropped"] + subs["pending"]
     assert row["measurements"] > 0 and row["output_hz"] > 0
     assert row["expected_output_hz"] == 120.0
@@ -85,6 +86,7 @@ def test_feature_a_stalled_consumer_drops_and_the_counts_add_up() -> None:
     assert subs["offered"] == 240
     assert subs["dropped"] > 0
     assert subs["offered"] == subs["consumed"] + subs["dropped"] + subs["pending"]
+    assert 0 < subs["gaps"] <= subs["dropped"]
     assert row["output_hz"] < row["expected_output_hz"]
 
 

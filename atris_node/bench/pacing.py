@@ -18,7 +18,9 @@ strobes on its own, the depthai Script) for every sequence number, while it is l
 sub-frame shows the pre-rendered ON or OFF picture of its index accordingly.
 
 Counting: sub-frames with sequence numbers in ``[first, end)`` (:meth:`PacedCamera.count`)
-are counted as offered, dropped (queue full) and consumed (read). After the run,
+are counted as offered, dropped (queue full) and consumed (read), and ``gaps`` counts the
+consumed ones that do not follow the sub-frame read before (the demodulator restarts its
+window there). After the run,
 ``offered == consumed + dropped + pending`` where ``pending`` is what was still queued.
 """
 
@@ -51,6 +53,7 @@ class Counts:
     offered: int = 0
     dropped: int = 0
     consumed: int = 0
+    gaps: int = 0  # consumed sub-frames not following the one before (a window restart)
 
     def holds(self, sequence: int) -> bool:
         """True when ``sequence`` is in the counted range."""
@@ -125,6 +128,7 @@ class PacedCamera(Camera):
         self._queue: queue.Queue[SubFrame] = queue.Queue(maxsize=queue_depth)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._last_read = -1  # sequence of the last sub-frame read
 
     def factory_calibration(self) -> Calibration:
         """The calibration of the rendered scene."""
@@ -192,5 +196,8 @@ class PacedCamera(Camera):
             sub = self._queue.get(timeout=timeout_s)
         except queue.Empty:
             raise CameraLostError(f"no sub-frame within {timeout_s} s") from None
-        self.counts.consumed += self.counts.holds(sub.sequence)
+        counted = self.counts.holds(sub.sequence)
+        self.counts.consumed += counted
+        self.counts.gaps += counted and sub.sequence != self._last_read + 1
+        self._last_read = sub.sequence
         return sub

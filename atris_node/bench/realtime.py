@@ -20,7 +20,9 @@ The first ``--warmup`` seconds (negotiation, the first maps) are not counted; th
 ``--seconds`` of sub-frames are. The row (``--json`` prints it as one object):
 
 - ``sub_frames``: ``offered``, ``consumed``, ``dropped`` (queue full) and ``pending``
-  (still queued at the end); ``offered == consumed + dropped + pending``.
+  (still queued at the end); ``offered == consumed + dropped + pending``; ``gaps``: how
+  often the unit read a sub-frame that did not follow the one before (each restarts the
+  demodulation window: N sub-frames without output in sliding mode).
 - ``measurements`` and ``output_hz`` (measurements whose newest sub-frame was counted, per
   counted second) beside ``expected_output_hz`` (the rate in sliding mode, rate / N in
   block mode).
@@ -245,7 +247,8 @@ def _row(opts: Options, camera: PacedCamera, frames: Prerendered,
         "mode": opts.mode, "code_length": opts.code_length, "scene": opts.scene,
         "queue_depth": opts.queue_depth, "seconds": round(seconds, 3),
         "sub_frames": {"offered": counts.offered, "consumed": counts.consumed,
-                       "dropped": counts.dropped, "pending": pending},
+                       "dropped": counts.dropped, "pending": pending,
+                       "gaps": counts.gaps},
         "measurements": measurements, "output_hz": round(measurements / seconds, 2),
         "expected_output_hz": round(expected, 2),
         "age_ms": _ages(sent, sends, camera),
@@ -288,7 +291,7 @@ def _table(row: dict[str, Any]) -> str:
         f"{cam['rate_hz']:g} sub-frames/s, {row['mode']} N={row['code_length']}, "
         f"{row['seconds']:.1f} s counted",
         f"sub-frames  offered {subs['offered']}  consumed {subs['consumed']}  "
-        f"dropped {subs['dropped']}  pending {subs['pending']}",
+        f"dropped {subs['dropped']}  pending {subs['pending']}  gaps {subs['gaps']}",
         f"output      {row['output_hz']:.1f} Hz of {row['expected_output_hz']:.1f} Hz "
         f"({row['measurements']} measurements)",
         f"data age    p50 {age['p50']} ms  p99 {age['p99']} ms  max {age['max']} ms",
