@@ -52,6 +52,18 @@ def test_exception_bad_camera_exits_2_and_says_what_is_accepted(
     assert "1280x800@fast" in err and "accepted: oak, paper or WxH[xBITS]@RATE" in err
 
 
+@pytest.mark.parametrize("option", [["--code-length", "12"], ["--seconds", "0"],
+                                    ["--queue", "0"], ["--mode", "both"]])
+def test_exception_bad_options_exit_2(option: list[str],
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        code = main(["bench", "realtime", "--camera", SMALL, *option])
+    except SystemExit as exc:  # argparse's own usage errors
+        code = int(exc.code or 0)
+    assert code == 2
+    assert "error" in capsys.readouterr().err
+
+
 def test_smoke_short_run_reports_every_field() -> None:
     row = realtime.measure(Options(parse_camera(SMALL), mode="sliding", seconds=1.5,
                                    warmup_s=1.0, code_length=8))

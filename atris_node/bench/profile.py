@@ -9,10 +9,11 @@ block and sliding mode (median ms per sub-frame ``push``), and the block maps go
 the node's pipeline (default settings of ``pipeline.*``). The pipeline's own stage laps
 (``PipelineResult.diagnostics.timings_ms``, of the fastest of REPEATS runs on each map)
 give ``lines`` (band search, peaks, line identity), ``triangulate`` (sample cleaning,
-undistortion, Eq. 1), ``sectors`` (ground,
-interference, sector verdicts, nearest obstacle) and ``rest`` (ROI update, export); each
-a median ms per map. ``top`` lists the functions with the most own time under cProfile
-(ms per map, cProfile's overhead included, so compare them with each other only).
+undistortion, Eq. 1), ``sectors`` (ground, interference, sector verdicts, nearest
+obstacle) and ``rest`` (ROI update, export), each a median ms per map, beside the wall
+``total`` and the process's CPU ms ``cpu``. ``top`` lists the functions with the most
+own time under cProfile (ms per map, cProfile's overhead included, so compare them with
+each other only).
 
 Sweep (``--sweep``): per-map cost against resolution (N = 16, 8 lines, 8 sectors), code
 length N, number of projector lines and sector count (each at 1280x800, the others as

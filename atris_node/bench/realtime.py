@@ -60,7 +60,7 @@ from atris_node.bench import cputime
 from atris_node.bench.accuracy import scaled
 from atris_node.bench.latency import _Arrivals
 from atris_node.bench.pacing import PacedCamera, PacedProjector, Prerendered
-from atris_node.errors import UsageError
+from atris_node.errors import CodeError, UsageError
 from atris_node.node.unit import Unit
 from atris_node.sim import Simulator, load_scene
 from atris_node.types import Measurement
@@ -279,9 +279,12 @@ def options_of(args: argparse.Namespace) -> Options:
         raise UsageError("--seconds must be > 0, --warmup >= 0, --queue >= 1 and "
                          f"--stall-ms >= 0; got {args.seconds}, {args.warmup}, {args.queue}, "
                          f"{args.stall_ms}")
+    try:
+        length = codes.check_length(args.code_length)
+    except CodeError as exc:
+        raise UsageError(f"--code-length: {exc}") from exc
     return Options(parse_camera(args.camera), args.mode, args.seconds, args.warmup,
-                   args.scene, codes.check_length(args.code_length), args.queue,
-                   args.stall_ms)
+                   args.scene, length, args.queue, args.stall_ms)
 
 
 def _table(row: dict[str, Any]) -> str:
