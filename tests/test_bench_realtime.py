@@ -5,13 +5,18 @@ Behaviour only: the machine is shared, so no figure here is compared with a time
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
+import time
+from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import pytest
 
 from atris_node.bench import realtime
+from atris_node.bench.pacing import PacedCamera, PacedProjector, Prerendered
 from atris_node.bench.realtime import Options, parse_camera
 from atris_node.cli import main
 from atris_node.errors import UsageError
@@ -110,3 +115,47 @@ def test_cli_prints_one_json_object(capsys: pytest.CaptureFixture[str]) -> None:
     assert row["mode"] == "block" and row["expected_output_hz"] == 30.0
     assert row["camera"] == {"name": SMALL, "width": 320, "height": 200, "bits": 8,
                              "rate_hz": 120.0}
+
+
+def _pictures(rate_hz: float) -> Prerendered:
+    """Tiny pre-rendered pictures: OFF all 0, ON all 1 (calibration and mounting unused)."""
+    off = [np.zeros((4, 8), np.uint8) for _ in range(4)]
+    on = [np.ones((4, 8), np.uint8) for _ in range(4)]
+    return Prerendered(off, on, rate_hz, 8, 100.0, None, None)  # type: ignore[arg-type]
+
+
+def _wait_for(condition: Callable[[], bool], timeout_s: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.005)
+
+
+def test_feature_a_full_queue_drops_the_arriving_sub_frame() -> None:
+    """Nobody reads: the first ``queue_depth`` counted sub-frames stay queued, every later
+    one is dropped, and they add up."""
+    camera = PacedCamera(_pictures(2000.0), PacedProjector(), queue_depth=3)
+    camera.count(0, 20)
+    camera.start(lead_s=0.0)
+    _wait_for(lambda: camera.counts.offered >= 20)
+    pending = camera.stop()
+    assert (camera.counts.offered, camera.counts.dropped, pending) == (20, 17, 3)
+    assert camera.counts.consumed == 0
+
+
+def test_feature_the_projector_strobes_its_code_by_sequence_while_lit() -> None:
+    projector = PacedProjector()
+    camera = PacedCamera(_pictures(500.0), projector, queue_depth=64)
+    projector.set_code([1, 0, 1, 0])
+    projector.strobe(1, 0)  # lit from now on
+    camera.count(0, 8)
+    camera.start(lead_s=0.0)
+    subs = [camera.read(1.0) for _ in range(8)]
+    projector.off()
+    camera.close()
+    camera.stop()
+    assert [s.sequence for s in subs] == list(range(8))
+    assert [s.chip for s in subs] == [1, 0, 1, 0, 1, 0, 1, 0]
+    assert [int(s.pixels[0, 0]) for s in subs] == [s.chip for s in subs]
+    assert all(b.host_time_s - a.host_time_s == pytest.approx(1 / 500.0)
+               for a, b in itertools.pairwise(subs))
+    assert camera.counts.consumed == 8 and camera.counts.gaps == 0
