@@ -15,6 +15,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "adaptive": ("atris_node.bench.adaptive", "adaptive N against fixed N = 32"),
     "safety": ("atris_node.bench.safety", "sector verdicts scored against the truth per scene"),
     "bus": ("atris_node.bench.bus", "publish cycle cost and publisher period on a virtual bus"),
+    "profile": ("atris_node.bench.profile",
+                "pipeline stages and demodulation per map; --sweep: cost growth"),
+    "realtime": ("atris_node.bench.realtime",
+                 "the node chain fed at a camera's native rate: drops, output, age, CPU"),
 }
 
 
