@@ -240,3 +240,17 @@ def test_exception_alpha_offsets_that_swap_lines_are_refused() -> None:
     with pytest.raises(ConfigError, match=r"alpha_offset_deg: must keep .* their order"):
         parse_scene(small(projector=projector,
                           miscalibration={"alpha_offset_deg": [0.6, -0.6]}))
+
+
+def test_feature_a_group_of_lines_keeps_its_own_calibration_errors() -> None:
+    """bench safety --groups renders a subset of the lines; each keeps its own α error
+    (lines are numbered top of the image first: 97, 94, ..., 76 deg here)."""
+    from atris_node.bench.safety import _group
+
+    scene = load_scene("calib_alpha_per_line")
+    group = _group(scene, 1, 2)
+    sim = Simulator(group)
+    offsets = np.degrees(np.subtract(sim.calibration().laser.alpha_rad,
+                                     sim.true_calibration().laser.alpha_rad))
+    assert offsets == pytest.approx([0.05, 0.1, 0.05, 0.1])  # lines 94, 88, 82, 76 deg
+    assert Simulator(_group(load_scene("indoor_lab"), 0, 2)).calibration().laser.alpha_rad

@@ -178,13 +178,15 @@ def scene_settings(scene: Any) -> dict[str, Any]:
 
 def _group(scene: Any, group: int, groups: int) -> Any:
     """``scene`` with only lines ``group``, ``group + groups``... at the same power per
-    line."""
+    line (and their calibration errors, if any)."""
     if groups == 1:
         return scene
-    laser = scene.projector
+    laser, wrong = scene.projector, scene.miscalibration
     alpha = tuple(laser.alpha_rad[group::groups])
     power = laser.power_w * len(alpha) / len(laser.alpha_rad)
-    return replace(scene, projector=replace(laser, alpha_rad=alpha, power_w=power))
+    wrong = replace(wrong, alpha_offset_rad=wrong.alpha_offset_rad[group::groups])
+    return replace(scene, projector=replace(laser, alpha_rad=alpha, power_w=power),
+                   miscalibration=wrong)
 
 
 def _measure(scene: Any, maps: int, config: Any, seed: int

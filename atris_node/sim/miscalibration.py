@@ -44,8 +44,8 @@ _KEYS = {
 @dataclass(frozen=True)
 class Miscalibration:
     """Offsets of the pipeline's calibration from the truth. ``alpha_offset_rad`` holds one
-    offset per line in calibration order (top of the image first); the others are scalars
-    (dimensionless scale, m, px, rad)."""
+    offset per line in calibration order (top of the image first), or nothing for none;
+    the others are scalars (dimensionless scale, m, px, rad)."""
 
     baseline_scale: float = 1.0
     baseline_offset_m: float = 0.0
@@ -94,8 +94,9 @@ def parse_miscalibration(table: Any, alpha_deg: tuple[float, ...],
     if baseline_m * v["baseline_scale"] + v["baseline_offset_m"] <= 0:
         raise s.fail("miscalibration.baseline_offset_m", "must leave the baseline > 0",
                      v["baseline_offset_m"])
+    alpha = tuple(math.radians(per_line[i]) for i in order)
     return Miscalibration(
-        alpha_offset_rad=tuple(math.radians(per_line[i]) for i in order),
+        alpha_offset_rad=alpha if any(alpha) else (),
         **{k.replace("_deg", "_rad"): math.radians(x) if k.endswith("_deg") else x
            for k, x in v.items()})
 
