@@ -23,6 +23,7 @@ import pytest
 
 from atris_node.bench.safety import score_scene
 from atris_node.sim import shipped_scenes, stress_scenes
+from atris_node.types import SectorState
 
 MAPS = 4
 #: INVALID fraction of each shipped scene before the never-wrong rules (commit 974fd91,
@@ -54,12 +55,30 @@ def _assert_never_wrong(row: dict) -> None:
 KNOWN_WRONG: dict[str, str] = {
     "pole_16cm_far": "94.7 % accurate: the building at the left edge reads 8.64 m for 8.92 m "
                      "(3.2 %, 3.3 standard errors) in one map of four",
+    "ramp_and_kerb": "far: sector 3 reports the wall (5.9-6.0 m) through the 15 cm kerb at "
+                     "1.98 m, whose face only line 76 deg meets, 12.7 cm up, just over the "
+                     "10 cm ground clearance; sector 6 reports the wall (6.2 m) over the 10 deg "
+                     "ramp at 3.19 m, which lines 82 and 85 deg meet 15-26 cm up. The nearest "
+                     "credible obstacle is not taken from a low, gently rising or one-line "
+                     "surface (issue 18 point 3)",
+}
+#: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
+#: not a pipeline fault (the unit cannot know its calibration is off), strict expected
+#: failures all the same; test_feature_alpha_error_reads_long_as_geometry_predicts checks
+#: that their error is the one the geometry predicts and no more (docs/benchmarks.md,
+#: "Calibration errors")
+CALIBRATION_LIMITED: dict[str, str] = {
+    "calib_alpha_0p1deg": "a 0.1 deg error in every alpha reads long by z dA / (b sin^2 a), "
+                          "2.3 %/m: 50 % accurate (1 and 1.5 m within 3 %, 2 and 3 m not)",
+    "calib_alpha_per_line": "per-line alpha errors of 0.05-0.1 deg: lines disagree by up to "
+                            "2.3 %/m each way; 50 % accurate",
 }
 
 
 def _scenes(names: list[str]) -> list:
-    return [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN_WRONG[n], strict=True))
-            if n in KNOWN_WRONG else n for n in names]
+    reasons = {**KNOWN_WRONG, **CALIBRATION_LIMITED}
+    return [pytest.param(n, marks=pytest.mark.xfail(reason=reasons[n], strict=True))
+            if n in reasons else n for n in names]
 
 
 @pytest.mark.parametrize("name", _scenes(shipped_scenes()))
@@ -130,3 +149,34 @@ def test_feature_a_phantom_is_judged_against_the_real_obstacle_at_any_range() ->
     assert "false_free" not in score_sector(one(SectorState.NO_RETURN), beyond, 0, 10.0)
     assert "false_free" in score_sector(one(SectorState.NO_RETURN), (9.5,), 0, 10.0)
     assert "near_phantom" in score_sector(one(SectorState.VALID, 5.0), (None,), 0, 10.0)
+
+
+def test_feature_alpha_error_reads_long_as_geometry_predicts() -> None:
+    """calib_alpha_0p1deg: with every α of the pipeline 0.1° large, a surface at z reads
+    z / (1 − z Δα / b) (α = 90°), 2.4 % long at 1 m and 7.5 % at 3 m. Every VALID sector
+    lies within 1.5 points of that and never nearer than the truth: the pipeline adds no
+    error of its own to the calibration's. The baseline 1 % long reads 1 % long."""
+    import math
+
+    from atris_node.bench import safety
+    from atris_node.codes import walsh_chips
+    from atris_node.pipeline.chain import PipelineConfig
+    from atris_node.sim import Simulator, load_scene
+
+    config = PipelineConfig(sector_count=8, fov_deg=70.0)
+    for name, predicted in (("calib_alpha_0p1deg",
+                             lambda z: 1.0 / (1.0 - z * math.radians(0.1) / 0.075) - 1.0),
+                            ("calib_baseline_1pct", lambda z: 0.01)):
+        scene = load_scene(name)
+        whole = Simulator(scene, chips=walsh_chips(scene.code_length, scene.code_row))
+        valid = 0
+        for measurement, _, _, span in safety._measure(scene, 2, config, seed=1):
+            truth = safety.sector_truth(whole, span)
+            for sector, true_m in zip(measurement.sectors, truth, strict=True):
+                if sector.state is not SectorState.VALID:
+                    continue
+                valid += 1
+                true = float(true_m[0])  # type: ignore[index]  # static: (t, t)
+                error = sector.distance_m / true - 1.0
+                assert abs(error - predicted(true)) < 0.015, (name, sector, true)
+        assert valid >= 6, name

@@ -35,7 +35,7 @@ import numpy as np
 
 from atris_node import codes
 from atris_node.bench.safety import Truth as SectorTruth
-from atris_node.bench.safety import score_sector, sector_truth
+from atris_node.bench.safety import scene_settings, score_sector, sector_truth
 from atris_node.demod import BlockDemodulator, SlidingDemodulator
 from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.pipeline.peaks import IDENTITY_MODES, PEAK_METHODS
@@ -197,7 +197,8 @@ def _pipeline_rows(sim: Simulator, maps: list[DistortionMap], truths: list[Truth
     ``truths`` at each map's middle sub-frame, ``sectors`` over its time."""
     for method, roi, identity in itertools.product(grid.methods, grid.roi, grid.identities):
         config = PipelineConfig(peak_method=method, roi_bands=roi, identity=identity,
-                                stripe_sigma_px=STRIPE_SIGMA_PX * k)
+                                stripe_sigma_px=STRIPE_SIGMA_PX * k,
+                                **scene_settings(sim.scene))
         pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
         times, errors, valid, no_surface = [], [], [], 0
         counts = dict.fromkeys(SECTOR_COUNTS, 0)

@@ -11,7 +11,8 @@ above):
 - ``near_phantom``: VALID with ``t`` None, or ``d < t - max(10 %, 20 cm)``;
 - ``far``: VALID with ``d > t + max(10 %, 20 cm)`` and no neighbouring sector VALID at
   ``t`` plus that tolerance or nearer (a farther-than-truth distance not covered);
-- ``false_free``: NO_RETURN while ``t`` is within z_max;
+- ``false_free``: NO_RETURN while ``t`` is within z_max (the scene's ``z_max_m`` when it
+  states one, else the pipeline's default; the pipeline searches to the same range);
 - ``accurate``: VALID within ``max(3 %, 5 cm)`` of ``t``;
 - ``invalid``: INVALID.
 
@@ -155,7 +156,8 @@ def score_scene(name: str, maps: int = MAPS, groups: int = 1, seed: int = 1) -> 
     from atris_node.pipeline.chain import PipelineConfig
 
     scene = load_scene(name)
-    config = PipelineConfig(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad))
+    config = PipelineConfig(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad),
+                            **scene_settings(scene))
     whole = Simulator(scene, chips=walsh_chips(scene.code_length, scene.code_row), seed=1)
     runs = [_measure(_group(scene, g, groups), maps, config, seed=seed + g)
             for g in range(groups)]
@@ -169,15 +171,22 @@ def score_scene(name: str, maps: int = MAPS, groups: int = 1, seed: int = 1) -> 
     return score
 
 
+def scene_settings(scene: Any) -> dict[str, Any]:
+    """The pipeline settings a scene states (``z_max_m``), as PipelineConfig keywords."""
+    return {} if scene.z_max_m is None else {"z_max_m": scene.z_max_m}
+
+
 def _group(scene: Any, group: int, groups: int) -> Any:
     """``scene`` with only lines ``group``, ``group + groups``... at the same power per
-    line."""
+    line (and their calibration errors, if any)."""
     if groups == 1:
         return scene
-    laser = scene.projector
+    laser, wrong = scene.projector, scene.miscalibration
     alpha = tuple(laser.alpha_rad[group::groups])
     power = laser.power_w * len(alpha) / len(laser.alpha_rad)
-    return replace(scene, projector=replace(laser, alpha_rad=alpha, power_w=power))
+    wrong = replace(wrong, alpha_offset_rad=wrong.alpha_offset_rad[group::groups])
+    return replace(scene, projector=replace(laser, alpha_rad=alpha, power_w=power),
+                   miscalibration=wrong)
 
 
 def _measure(scene: Any, maps: int, config: Any, seed: int

@@ -135,7 +135,10 @@ def _pipeline(sim: Any, layout: SectorLayout) -> Any:
     except ImportError:  # the chain is optional for rendering and truth
         logger.warning("atris_node.pipeline.chain is not available: sectors are not measured")
         return None
-    config = PipelineConfig(sector_count=layout.count, fov_deg=math.degrees(layout.fov_rad))
+    from atris_node.bench.safety import scene_settings
+
+    config = PipelineConfig(sector_count=layout.count, fov_deg=math.degrees(layout.fov_rad),
+                            **scene_settings(sim.scene))
     return Pipeline(config, sim.calibration(), sim.mounting, layout)
 
 

@@ -104,7 +104,7 @@ def couple_simulated_units(units: list[Unit]) -> int:
             shift = target.time_origin_s - source.time_origin_s
             strobe = _shifted(source.projector.strobe_function(), shift)
             target.simulator.add_interferer(
-                source.simulator.mounting, source.simulator.scene.projector,
+                source.simulator.true_mounting, source.simulator.scene.projector,
                 strobe, name=f"unit {source.simulator.unit}")
             made += 1
     return made

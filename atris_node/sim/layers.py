@@ -29,7 +29,9 @@ Float32Array = npt.NDArray[np.float32]
 class Surface:
     """What each ray of an (h, w) grid sees: ray parameter ``t`` (m, inf = nothing),
     world ``points`` and ``normals`` (h, w, 3), ``shape`` index (h, w) (-1 = nothing),
-    ``albedo`` (h, w) and the ``hit`` mask."""
+    ``albedo`` (h, w) (the diffuse part) and the ``hit`` mask; ``finish`` holds per-pixel
+    (h, w) arrays for :func:`atris_node.sim.optics.finish_factor`, None when every shape
+    seen is plain Lambertian."""
 
     t: FloatArray
     points: FloatArray
@@ -37,6 +39,20 @@ class Surface:
     shape: npt.NDArray[np.int64]
     albedo: FloatArray
     hit: npt.NDArray[np.bool_]
+    finish: dict[str, FloatArray] | None = None
+
+
+def _finish(shapes: Sequence[Shape], index: npt.NDArray[np.int64]) -> dict[str, FloatArray] | None:
+    """Per-pixel finish arrays of the shapes ``index`` points at (-1 = none)."""
+    if not any(s.finished for s in shapes):
+        return None
+
+    def per_pixel(values: list[float]) -> FloatArray:
+        return np.array([*values, 0.0])[index]
+    return {"retro_gain": per_pixel([s.retro_gain for s in shapes]),
+            "retro_lobe_rad": per_pixel([s.retro_lobe_rad for s in shapes]) + 1e-9,
+            "mirror": per_pixel([s.albedo * s.specular for s in shapes]),
+            "gloss_rad": per_pixel([s.gloss_rad for s in shapes]) + 1e-9}
 
 
 def see(shapes: Sequence[Shape], origin: FloatArray, dirs: FloatArray,
@@ -47,10 +63,11 @@ def see(shapes: Sequence[Shape], origin: FloatArray, dirs: FloatArray,
     hit = hits.shape >= 0
     t = np.where(hit, hits.t, 0.0)
     points = origin + dirs.reshape(-1, 3) * t[:, None]
-    albedo = np.array([s.albedo for s in shapes] + [0.0])[hits.shape]
+    albedo = np.array([s.albedo * (1.0 - s.specular) for s in shapes] + [0.0])[hits.shape]
+    index = hits.shape.reshape(h, w)
     return Surface(hits.t.reshape(h, w), points.reshape(h, w, 3),
-                   hits.normal.reshape(h, w, 3), hits.shape.reshape(h, w),
-                   albedo.reshape(h, w), hit.reshape(h, w))
+                   hits.normal.reshape(h, w, 3), index, albedo.reshape(h, w), hit.reshape(h, w),
+                   _finish(shapes, index))
 
 
 def ambient_rates(scene: Scene, surface: Surface, shapes: Sequence[Shape],
@@ -77,13 +94,25 @@ def ambient_rates(scene: Scene, surface: Surface, shapes: Sequence[Shape],
 
 
 def sheet_rates(camera: CameraSpec, pose: Mounting, pattern: LinePattern, surface: Surface,
-                shapes: Sequence[Shape], *, time_s: float = 0.0) -> Float32Array:
-    """Electron rate (h, w) e⁻/s of a line pattern at full power, shadows included."""
+                shapes: Sequence[Shape], *, time_s: float = 0.0,
+                eye_m: FloatArray | None = None) -> Float32Array:
+    """Electron rate (h, w) e⁻/s of a line pattern at full power, shadows included.
+
+    ``eye_m`` (3,) is the viewing camera's centre (vehicle frame, m; default: ``pose``'s,
+    the own projector's camera); it matters only for retro-reflective or glossy finishes.
+    """
     irr = optics.sheet_irradiance(pose, pattern, shapes, points=surface.points,
                                   normals=surface.normals, hit=surface.hit,
                                   psf_sigma_px=camera.psf_sigma_px, time_s=time_s)
     k = optics.electrons_per_radiance(camera, pattern.wavelength_nm)
-    return (surface.albedo * irr * (k / math.pi)).astype(np.float32)
+    if surface.finish is None:
+        return (surface.albedo * irr * (k / math.pi)).astype(np.float32)
+    eye = pose.translation if eye_m is None else np.asarray(eye_m)
+    to_eye = eye - surface.points
+    to_eye /= np.maximum(np.linalg.norm(to_eye, axis=-1, keepdims=True), 1e-12)
+    from_source = optics.sheet_angles(pose, pattern, surface.points)[3]
+    extra = optics.finish_factor(surface.finish, surface.normals, from_source, to_eye)
+    return (irr * k * (surface.albedo / math.pi + extra)).astype(np.float32)
 
 
 def camera_rays(camera: CameraSpec, mounting: Mounting) -> tuple[FloatArray, FloatArray]:

@@ -19,6 +19,17 @@ Laws used (all surfaces Lambertian, radiance ``L = albedo · E / π``):
   ``AMBIENT_WAVELENGTH_NM``. Sun ``E_sun · max(0, n·s)`` where the sun is not shadowed
   (and passes the window, if any); sky and lamp ``E · (1 + n_z) / 2`` (the visible part
   of a uniform upper hemisphere); a pixel that sees no surface sees the sky, ``E_sky / π``.
+  Several lamps are diffuse alike, so they add into one lamp irradiance.
+- Finishes (point sources only: the own projector and interferers; ambient light sees the
+  diffuse part alone). A shape of albedo ρ and ``specular`` s reflects ``ρ (1 − s)``
+  diffusely and ``ρ s`` into a Gaussian mirror lobe of σ ``gloss``: radiance
+  ``E ρ s exp(−γ²/2σ²) / (2π σ²)``, γ the angle between the view direction and the
+  mirror image of the incoming ray (the lobe holds ρ s E for small σ; a dark-diffuse
+  glossy patch returns little unless seen near its mirror angle). A retro-reflector adds
+  ``E g exp(−β²/2σ_r²) / π``, β the angle at the surface between the source and the eye,
+  g = ``retro_gain`` (its radiance relative to a white Lambertian surface at β = 0;
+  retro-reflective sheeting is of order 100–1000 near 0.2°). With the projector b below
+  the camera, β ≈ b / r, so a sign returns far more at long range than near.
 """
 
 from __future__ import annotations
@@ -101,9 +112,8 @@ def diffuse_irradiance(ambient: Ambient, normals: FloatArray,
                        filter_factor: float) -> tuple[FloatArray, FloatArray]:
     """Sky and lamp irradiance (n,) W/m² each (the lamp part is the one that flickers)."""
     hemi = hemisphere_factor(normals)
-    lamp_lux = ambient.lamp.lux if ambient.lamp else 0.0
     return (hemi * lux_to_w_m2(ambient.sky_lux, filter_factor),
-            hemi * lux_to_w_m2(lamp_lux, filter_factor))
+            hemi * lux_to_w_m2(ambient.lamp_lux, filter_factor))
 
 
 def footprint_rad(theta: FloatArray) -> FloatArray:
@@ -174,3 +184,24 @@ def sheet_irradiance(pose: Mounting, pattern: LinePattern, shapes: Sequence[Shap
         shadow = occluded(shapes, pts, -dirs.reshape(-1, 3)[lit], r.ravel()[lit], time_s)
         flat[lit[shadow]] = 0.0
     return flat.reshape(irr.shape)
+
+
+def _angle(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Angle (rad) between unit vectors a and b (..., 3)."""
+    return np.arccos(np.clip(np.einsum("...i,...i->...", a, b), -1.0, 1.0))
+
+
+def finish_factor(finish: dict[str, FloatArray], normals: FloatArray, from_source: FloatArray,
+                  to_eye: FloatArray) -> FloatArray:
+    """Radiance per irradiance (sr⁻¹) the finish adds to the diffuse ``ρ (1 − s) / π``
+    (see "Finishes" above). ``finish`` holds per-pixel ``retro_gain``, ``retro_lobe_rad``,
+    ``mirror`` (ρ s) and ``gloss_rad``; ``from_source`` the unit directions of the light,
+    ``to_eye`` the unit directions from the surface to the camera, all (..., 3)."""
+    beta = _angle(-from_source, to_eye)
+    lobe = finish["retro_lobe_rad"]
+    retro = finish["retro_gain"] / math.pi * np.exp(-0.5 * (beta / lobe) ** 2)
+    cos_in = np.einsum("...i,...i->...", from_source, normals)
+    mirrored = from_source - 2.0 * cos_in[..., None] * normals
+    gamma, gloss = _angle(mirrored, to_eye), finish["gloss_rad"]
+    glossy = finish["mirror"] * np.exp(-0.5 * (gamma / gloss) ** 2) / (2.0 * math.pi * gloss**2)
+    return retro + glossy

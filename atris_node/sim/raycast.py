@@ -1,8 +1,8 @@
 """Scene geometry and vectorised ray casting, in the vehicle frame (x fwd, y left, z up, m).
 
 Every shape answers :meth:`Shape.intersect` for n rays at once: ``origins`` (3,) or (n, 3)
-and unit ``directions`` (n, 3), float64, at time ``time_s`` (a shape with a velocity has
-moved by ``velocity * time_s``). It returns the ray parameter ``t`` (n,) in metres
+and unit ``directions`` (n, 3), float64, at time ``time_s`` (a shape with a velocity v and
+an acceleration a has moved by ``v·t + a·t²/2``). It returns the ray parameter ``t`` (n,) in metres
 (``inf`` for a miss, only hits with ``t > EPSILON_M`` count) and the outward unit normals
 (n, 3). :func:`cast` takes the nearest hit over several shapes.
 """
@@ -24,7 +24,12 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class Shape:
-    """Common surface data: Lambertian ``albedo`` 0..1, ``velocity_mps`` (3,), a name.
+    """Common surface data: ``albedo`` 0..1, ``velocity_mps`` and ``acceleration_mps2``
+    (3,) each, a name, and the finish (:mod:`atris_node.sim.optics`, "Finishes"):
+    ``retro_gain`` (peak retro-reflected radiance relative to a white Lambertian surface,
+    0 = none) within a Gaussian lobe of σ ``retro_lobe_rad`` about the source direction,
+    and ``specular`` (0..1, the part of ``albedo`` reflected into a mirror lobe of σ
+    ``gloss_rad`` instead of diffusely).
 
     ``obstacle`` is False only for the ground plane, which sector truth leaves out.
     """
@@ -33,15 +38,26 @@ class Shape:
     velocity_mps: Vec3 = (0.0, 0.0, 0.0)
     name: str = ""
     obstacle: bool = True
+    acceleration_mps2: Vec3 = (0.0, 0.0, 0.0)
+    retro_gain: float = 0.0
+    retro_lobe_rad: float = 0.0175
+    specular: float = 0.0
+    gloss_rad: float = 0.035
 
     @property
     def moving(self) -> bool:
-        """True when the shape has a non-zero velocity."""
-        return any(v != 0.0 for v in self.velocity_mps)
+        """True when the shape has a non-zero velocity or acceleration."""
+        return any(v != 0.0 for v in (*self.velocity_mps, *self.acceleration_mps2))
+
+    @property
+    def finished(self) -> bool:
+        """True when the surface is not purely Lambertian (retro-reflective or glossy)."""
+        return self.retro_gain > 0.0 or self.specular > 0.0
 
     def offset(self, time_s: float) -> FloatArray:
-        """Displacement (3,) of the shape at ``time_s``, metres."""
-        return np.asarray(self.velocity_mps) * time_s
+        """Displacement (3,) of the shape at ``time_s``: ``v·t + a·t²/2``, metres."""
+        return (np.asarray(self.velocity_mps) * time_s
+                + 0.5 * np.asarray(self.acceleration_mps2) * time_s * time_s)
 
     def bounding_sphere(self, time_s: float) -> tuple[FloatArray, float]:
         """Centre (3,) and radius (m) of a sphere holding the shape; radius inf if unbounded."""
@@ -208,6 +224,57 @@ class Cylinder(Shape):
         caps = np.zeros_like(p)
         caps[:, 2] = np.where(which == 1, -1.0, 1.0)
         return t, np.where((which == 0)[:, None], side, caps)
+
+
+@dataclass(frozen=True)
+class Ramp(Shape):
+    """A finite tilted rectangle (a ramp's running surface, seen from both sides): its low
+    edge centred on ``start_m``, climbing ``length_m`` along its surface at ``slope_rad``
+    above the horizontal towards the heading ``yaw_rad`` (about z, 0 = vehicle +x), and
+    ``width_m`` across."""
+
+    start_m: Vec3 = (0.0, 0.0, 0.0)
+    length_m: float = 1.0
+    width_m: float = 1.0
+    slope_rad: float = 0.1
+    yaw_rad: float = 0.0
+
+    def axes(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Unit vectors (3,) up the slope, across it, and normal to it (upwards)."""
+        cs, ss = np.cos(self.slope_rad), np.sin(self.slope_rad)
+        cy, sy = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
+        up = np.array([cs * cy, cs * sy, ss])
+        across = np.array([-sy, cy, 0.0])
+        return up, across, np.cross(up, across)
+
+    def centre(self, time_s: float) -> FloatArray:
+        """Centre (3,) of the rectangle at ``time_s``, m."""
+        return np.asarray(self.start_m) + 0.5 * self.length_m * self.axes()[0] + self.offset(
+            time_s)
+
+    def bounding_sphere(self, time_s: float) -> tuple[FloatArray, float]:
+        return self.centre(time_s), 0.5 * float(np.hypot(self.length_m, self.width_m))
+
+    def bounds(self, time_s: float) -> tuple[FloatArray, FloatArray] | None:
+        up, across, _ = self.axes()
+        half = 0.5 * (np.abs(up) * self.length_m + np.abs(across) * self.width_m)
+        centre = self.centre(time_s)
+        return centre - half, centre + half
+
+    def intersect(self, origins: FloatArray, directions: FloatArray,
+                  time_s: float = 0.0) -> tuple[FloatArray, FloatArray]:
+        up, across, n = self.axes()
+        centre = self.centre(time_s)
+        denom = directions @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((centre - origins) @ n) / denom
+        t = np.where(np.abs(denom) > 1e-12, t, np.inf)
+        rel = np.broadcast_to(origins - centre, directions.shape) + directions * np.where(
+            np.isfinite(t), t, 0.0)[:, None]
+        inside = (np.abs(rel @ up) <= 0.5 * self.length_m) & (
+            np.abs(rel @ across) <= 0.5 * self.width_m)
+        t = np.where(inside, _valid(t), np.inf)
+        return t, np.where((denom > 0)[:, None], -n, n)
 
 
 @dataclass(frozen=True)

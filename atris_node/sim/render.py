@@ -17,6 +17,12 @@ of each chip is prepared once (noise-free pixels are cached outright); ``calls``
 each stage so tests can see what ran. Noise of sub-frame ``sequence`` comes from its own
 generator seeded by ``(seed, unit, sequence)``, so a fixed seed gives bit-identical
 sub-frames in any order.
+
+Truth and belief: the renderer and the truth use the scene's true pose
+(``true_mounting``) and projector; ``mounting`` and :meth:`Simulator.calibration` are what
+the unit's pipeline gets, the truth off by the scene's ``[miscalibration]`` (equal to the
+truth without one). This is the one place the error is applied: ``atris sim``, the benches
+and the node's simulated camera all build their pipeline from these two.
 """
 
 from __future__ import annotations
@@ -41,7 +47,7 @@ from atris_node.sim.optics import sheet_angles
 from atris_node.sim.raycast import Shape, occluded
 from atris_node.sim.scene import LinePattern, Scene
 from atris_node.sim.sensor import Pixels, Sensor
-from atris_node.sim.strobe import Strobe, always_on, code_strobe, flicker_factor
+from atris_node.sim.strobe import Strobe, always_on, code_strobe, lamps_factor
 from atris_node.sim.truth import Truth, compute_truth
 from atris_node.types import SubFrame
 
@@ -98,7 +104,9 @@ class Simulator:
             raise ConfigError(f"unit {unit} has no mounting in scene {scene.name!r}; "
                               f"accepted: 0..{len(scene.mountings) - 1}")
         self.scene, self.camera, self.unit = scene, scene.camera, unit
-        self.mounting = scene.mountings[unit]
+        self.true_mounting = scene.mountings[unit]
+        #: the pose the unit's pipeline gets (the truth off by the scene's miscalibration)
+        self.mounting = scene.miscalibration.mounting(self.true_mounting)
         default = walsh_chips(scene.code_length, scene.code_row)
         self.chips = np.asarray(default if chips is None else chips, dtype=np.uint8)
         self.seed = scene.seed if seed is None else int(seed)
@@ -110,7 +118,7 @@ class Simulator:
         self.sources = [_source_of(spec) for spec in scene.interferers]
         self.static_shapes = tuple(s for s in scene.shapes if not s.moving)
         self.moving_shapes = tuple(s for s in scene.shapes if s.moving)
-        self._dirs_cam, self._dirs = layers.camera_rays(scene.camera, self.mounting)
+        self._dirs_cam, self._dirs = layers.camera_rays(scene.camera, self.true_mounting)
         self._static: _Static | None = None
         self._lock = threading.Lock()
         self._prepared: dict[int, tuple[object, ...]] = {}
@@ -120,9 +128,13 @@ class Simulator:
     @property
     def flickers(self) -> bool:
         """True when the scene has a lamp with flicker."""
-        lamp = self.scene.ambient.lamp
-        return lamp is not None and lamp.lux > 0 and lamp.flicker_hz > 0 and (
-            lamp.flicker_depth > 0)
+        return any(lamp.lux > 0 and lamp.flicker_hz > 0 and lamp.flicker_depth > 0
+                   for lamp in self.scene.ambient.all_lamps)
+
+    def _lamp_factor(self, t0: float, t1: float) -> np.float32:
+        """Mean lamp output over the window relative to the lamps' mean (flicker)."""
+        self.calls["flicker"] += 1
+        return np.float32(lamps_factor(self.scene.ambient.all_lamps, t0, t1))
 
     @property
     def dynamic(self) -> bool:
@@ -131,7 +143,7 @@ class Simulator:
 
     def _sheet(self, static: _Static, pose: Mounting, pattern: LinePattern) -> Float32Array:
         return layers.sheet_rates(self.camera, pose, pattern, static.surface,
-                                  self.static_shapes)
+                                  self.static_shapes, eye_m=self.true_mounting.translation)
 
     def _static_layer(self) -> _Static:
         """The static scene's rates, rendered once (thread-safe: another thread may be
@@ -146,11 +158,11 @@ class Simulator:
 
     def _render_static(self) -> _Static:
         self.calls["static_render"] += 1
-        surface = layers.see(self.static_shapes, self.mounting.translation, self._dirs)
+        surface = layers.see(self.static_shapes, self.true_mounting.translation, self._dirs)
         steady, lamp = layers.ambient_rates(self.scene, surface, self.static_shapes)
         if not self.flickers:
             steady += lamp
-        laser = layers.sheet_rates(self.camera, self.mounting, self.scene.projector,
+        laser = layers.sheet_rates(self.camera, self.true_mounting, self.scene.projector,
                                    surface, self.static_shapes)
         static = _Static(surface, steady, lamp, laser,
                          lit=np.flatnonzero(laser.reshape(-1) > 0))
@@ -235,11 +247,7 @@ class Simulator:
         exposure_s = np.float32(self.exposure_us * 1e-6)
         e = static.steady.copy()
         if self.flickers:
-            self.calls["flicker"] += 1
-            lamp = self.scene.ambient.lamp
-            assert lamp is not None
-            e += static.lamp * np.float32(flicker_factor(lamp.flicker_hz, lamp.flicker_depth,
-                                                         t0, t1))
+            e += static.lamp * self._lamp_factor(t0, t1)
         if chip:
             e += self._laser(0.5 * (t0 + t1)) if self.moving_shapes else static.laser
         for source, rates in zip(list(self.sources), static.interferers, strict=False):
@@ -257,7 +265,7 @@ class Simulator:
         """Own-laser rates with the shadows the moving shapes cast at ``time_s``."""
         static = self._static_layer()
         points = static.surface.points.reshape(-1, 3)[static.lit]
-        _, _, r, dirs = sheet_angles(self.mounting, self.scene.projector, points)
+        _, _, r, dirs = sheet_angles(self.true_mounting, self.scene.projector, points)
         shadow = occluded(self.moving_shapes, points, -dirs, r, time_s)
         laser = static.laser.copy()
         laser.reshape(-1)[static.lit[shadow]] = 0.0
@@ -277,7 +285,7 @@ class Simulator:
         lo, hi = bounds
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                             for z in (lo[2], hi[2])])
-        local = self.mounting.vehicle_to_camera(corners)
+        local = self.true_mounting.vehicle_to_camera(corners)
         if local[:, 2].min() <= 0.05:
             return 0, h, 0, w
         u = cam.focal_px * local[:, 1] / local[:, 2]
@@ -308,7 +316,7 @@ class Simulator:
         r0, r1, c0, c1 = box
         time_s = 0.5 * (t0 + t1)
         static = self._static_layer()
-        moving = layers.see(self.moving_shapes, self.mounting.translation,
+        moving = layers.see(self.moving_shapes, self.true_mounting.translation,
                             self._dirs[r0:r1, c0:c1], time_s)
         near = moving.t < static.surface.t[r0:r1, c0:c1]
         if not near.any():
@@ -320,18 +328,16 @@ class Simulator:
         steady, lamp = layers.ambient_rates(self.scene, part, shapes, time_s=time_s)
         rates = steady if self.flickers else steady + lamp
         if self.flickers:
-            lamp_spec = self.scene.ambient.lamp
-            assert lamp_spec is not None
-            rates += lamp * np.float32(flicker_factor(lamp_spec.flicker_hz,
-                                                      lamp_spec.flicker_depth, t0, t1))
+            rates += lamp * self._lamp_factor(t0, t1)
         if chip:
-            rates += layers.sheet_rates(self.camera, self.mounting, self.scene.projector,
+            rates += layers.sheet_rates(self.camera, self.true_mounting, self.scene.projector,
                                         part, shapes, time_s=time_s)
+        eye = self.true_mounting.translation
         for source in self.sources:
             on = source.strobe(t0, t1)
             if on > 0.0:
                 rates += layers.sheet_rates(self.camera, source.pose, source.pattern, part,
-                                            shapes, time_s=time_s) * np.float32(on)
+                                            shapes, time_s=time_s, eye_m=eye) * np.float32(on)
         window = e[r0:r1, c0:c1]
         window[near] = rates[near] * np.float32(self.exposure_us * 1e-6)
 
@@ -339,12 +345,17 @@ class Simulator:
     def truth(self, sequence: int, layout: SectorLayout) -> Truth:
         """Ground truth at the exposure mid-time of sub-frame ``sequence``."""
         t0, t1 = self.window(sequence)
-        return compute_truth(self.scene, self.mounting, self._dirs_cam, self._dirs,
+        return compute_truth(self.scene, self.true_mounting, self._dirs_cam, self._dirs,
                              sequence=sequence, time_s=0.5 * (t0 + t1), layout=layout)
 
-    def calibration(self) -> Calibration:
+    def true_calibration(self) -> Calibration:
         """The true camera model and light planes of this unit."""
         laser = self.scene.projector
         return Calibration(self.camera.model,
                            LaserCalibration(laser.baseline_m, laser.alpha_rad))
+
+    def calibration(self) -> Calibration:
+        """The calibration the unit's pipeline gets: the truth off by the scene's
+        ``[miscalibration]`` (the truth itself without one)."""
+        return self.scene.miscalibration.calibration(self.true_calibration())
 

@@ -27,7 +27,8 @@ from atris_node.calibration import CameraModel
 from atris_node.errors import ConfigError
 from atris_node.mounting import Mounting
 from atris_node.sim import schema as s
-from atris_node.sim.raycast import Box, Cylinder, Plane, Shape, Sphere
+from atris_node.sim.miscalibration import Miscalibration, parse_miscalibration
+from atris_node.sim.raycast import Box, Cylinder, Plane, Ramp, Shape, Sphere
 
 F = s.Field
 SCENES_ENV = "ATRIS_SCENES"
@@ -121,11 +122,23 @@ class Lamp:
 
 @dataclass(frozen=True)
 class Ambient:
-    """Sky (diffuse, lux on a horizontal surface), sun and lamp, each optional."""
+    """Sky (diffuse, lux on a horizontal surface), sun and lamps, each optional: ``lamp``
+    (the file's ``lamp``) and ``lamps`` (the file's ``lamps`` list) together."""
 
     sky_lux: float = 0.0
     sun: Sun | None = None
     lamp: Lamp | None = None
+    lamps: tuple[Lamp, ...] = ()
+
+    @property
+    def all_lamps(self) -> tuple[Lamp, ...]:
+        """Every lamp of the scene: ``lamp`` first, then ``lamps``."""
+        return ((self.lamp,) if self.lamp is not None else ()) + self.lamps
+
+    @property
+    def lamp_lux(self) -> float:
+        """Mean illuminance of all lamps together, lux."""
+        return sum(lamp.lux for lamp in self.all_lamps)
 
 
 @dataclass(frozen=True)
@@ -165,6 +178,8 @@ class Scene:
     code_row: int = 2
     description: str = ""
     path: Path | None = field(default=None, compare=False)
+    z_max_m: float | None = None
+    miscalibration: Miscalibration = field(default_factory=Miscalibration)
 
 
 _POSE = {"x_m": F(float, 0.0), "y_m": F(float, 0.0), "z_m": F(float, 0.5),
@@ -194,14 +209,25 @@ _PATTERN = {
 _PROJECTOR = {**_PATTERN, "baseline_m": F(float, s.REQUIRED, s.positive),
               "filter_factor": F(float, 1.0, s.within(0.0, 1.0))}
 _SHAPE_COMMON = {"albedo": F(float, 0.5, s.within(0.0, 1.0)), "name": F(str, ""),
-                 "velocity_mps": F("vec3", (0.0, 0.0, 0.0))}
+                 "velocity_mps": F("vec3", (0.0, 0.0, 0.0)),
+                 "acceleration_mps2": F("vec3", (0.0, 0.0, 0.0), s.within(-100.0, 100.0)),
+                 "retro_gain": F(float, 0.0, s.within(0.0, 1e5)),
+                 "retro_lobe_deg": F(float, 1.0, s.within(0.01, 10.0)),
+                 "specular": F(float, 0.0, s.within(0.0, 1.0)),
+                 "gloss_deg": F(float, 2.0, s.within(0.1, 30.0))}
 _SHAPES: dict[str, tuple[type[Shape], dict[str, s.Field]]] = {
     "plane": (Plane, {"point_m": F("vec3"), "normal": F("vec3")}),
     "box": (Box, {"center_m": F("vec3"), "size_m": F("vec3"), "yaw_deg": F(float, 0.0)}),
     "cylinder": (Cylinder, {"center_m": F("vec3"), "radius_m": F(float, s.REQUIRED, s.positive),
                             "height_m": F(float, s.REQUIRED, s.positive)}),
     "sphere": (Sphere, {"center_m": F("vec3"), "radius_m": F(float, s.REQUIRED, s.positive)}),
+    "ramp": (Ramp, {"start_m": F("vec3"), "length_m": F(float, s.REQUIRED, s.positive),
+                    "width_m": F(float, s.REQUIRED, s.positive),
+                    "slope_deg": F(float, s.REQUIRED, s.within(0.1, 90.0)),
+                    "yaw_deg": F(float, 0.0)}),
 }
+#: keys given in degrees in the file and held in radians
+_DEGREES = ("yaw_deg", "slope_deg", "retro_lobe_deg", "gloss_deg")
 _INTERFERER = {
     "name": F(str, "interferer"), "pose": F(dict, s.REQUIRED),
     "strobe": F(str, "cw", s.one_of("cw", "code")), "code_length": F(int, 16, s.within(2, 1024)),
@@ -211,7 +237,7 @@ _INTERFERER = {
     "exposure_us": F(float, 1000.0, s.positive), **_PATTERN,
 }
 _TOP = ("scene", "camera", "projector", "mounting", "ambient", "ground", "code", "noise",
-        "interferer", *_SHAPES)
+        "interferer", "miscalibration", *_SHAPES)
 
 
 def _pose(table: Any, where: str) -> Mounting:
@@ -251,8 +277,9 @@ def _shapes(data: dict[str, Any]) -> tuple[Shape, ...]:
     for kind, (cls, spec) in _SHAPES.items():
         for i, table in enumerate(s.tables(data.get(kind, []), kind)):
             values = s.read_table(table, f"{kind}[{i}]", {**_SHAPE_COMMON, **spec})
-            if "yaw_deg" in values:
-                values["yaw_rad"] = math.radians(values.pop("yaw_deg"))
+            for key in _DEGREES:
+                if key in values:
+                    values[key.replace("_deg", "_rad")] = math.radians(values.pop(key))
             shapes.append(cls(**values))
     return tuple(shapes)
 
@@ -263,9 +290,26 @@ def _window(table: Any) -> Window:
     return Window(**w)
 
 
+def _lamp(table: Any, where: str) -> Lamp:
+    v = s.read_table(table, where, {
+        "lux": F(float, s.REQUIRED, s.non_negative),
+        "flicker_hz": F(float, 0.0, s.non_negative),
+        "flicker_depth": F(float, 0.0, s.within(0.0, 1.0))})
+    return Lamp(**v)
+
+
+def _lamps(value: Any) -> tuple[Lamp, ...]:
+    """``ambient.lamps``: a list of lamp tables (inline tables or ``[[ambient.lamps]]``)."""
+    if not isinstance(value, list):
+        raise s.fail("ambient.lamps", "must be a list of lamp tables "
+                     "({ lux, flicker_hz, flicker_depth })", value)
+    return tuple(_lamp(t, f"ambient.lamps[{i}]") for i, t in enumerate(value))
+
+
 def _ambient(table: Any) -> Ambient:
     a = s.read_table(table, "ambient", {"sky_lux": F(float, 0.0, s.non_negative),
-                                        "sun": F(dict, None), "lamp": F(dict, None)})
+                                        "sun": F(dict, None), "lamp": F(dict, None),
+                                        "lamps": F(list, [])})
     sun = lamp = None
     if a["sun"] is not None:
         raw = dict(a["sun"])
@@ -276,12 +320,8 @@ def _ambient(table: Any) -> Ambient:
         sun = Sun(v["lux"], math.radians(v["azimuth_deg"]), math.radians(v["elevation_deg"]),
                   window)
     if a["lamp"] is not None:
-        v = s.read_table(a["lamp"], "ambient.lamp", {
-            "lux": F(float, s.REQUIRED, s.non_negative),
-            "flicker_hz": F(float, 0.0, s.non_negative),
-            "flicker_depth": F(float, 0.0, s.within(0.0, 1.0))})
-        lamp = Lamp(**v)
-    return Ambient(a["sky_lux"], sun, lamp)
+        lamp = _lamp(a["lamp"], "ambient.lamp")
+    return Ambient(a["sky_lux"], sun, lamp, _lamps(a["lamps"]))
 
 
 def _interferers(data: Any, focal_px: float) -> tuple[InterfererSpec, ...]:
@@ -303,10 +343,12 @@ def parse_scene(data: dict[str, Any], name: str = "scene", path: Path | None = N
     if unknown:
         raise ConfigError(f"scene {unknown[0]}: unknown table; accepted: {', '.join(_TOP)}")
     meta = s.read_table(data.get("scene", {}), "scene",
-                        {"name": F(str, name), "description": F(str, "")})
+                        {"name": F(str, name), "description": F(str, ""),
+                         "z_max_m": F(float, None, s.within(0.5, 200.0))})
     camera = _camera(data.get("camera"))
-    projector = _pattern(s.read_table(data.get("projector"), "projector", _PROJECTOR),
-                         camera.focal_px)
+    raw = s.read_table(data.get("projector"), "projector", _PROJECTOR)
+    miscalibration = _miscalibration(data.get("miscalibration", {}), raw, camera.focal_px)
+    projector = _pattern(raw, camera.focal_px)
     mountings = tuple(_pose(t, f"mounting[{i}]")
                       for i, t in enumerate(s.tables(data.get("mounting", {}), "mounting")))
     code = s.read_table(data.get("code", {}), "code",
@@ -318,7 +360,16 @@ def parse_scene(data: dict[str, Any], name: str = "scene", path: Path | None = N
                  ambient=_ambient(data.get("ambient", {})), shapes=_shapes(data),
                  interferers=_interferers(data.get("interferer", []), camera.focal_px),
                  noise=noise["enabled"], seed=noise["seed"], code_length=code["length"],
-                 code_row=code["row"], path=path)
+                 code_row=code["row"], path=path, z_max_m=meta["z_max_m"],
+                 miscalibration=miscalibration)
+
+
+def _miscalibration(table: Any, projector: dict[str, Any], focal_px: float) -> Miscalibration:
+    """The ``[miscalibration]`` table against the (file-order) projector angles."""
+    alpha_deg = tuple(projector["alpha_deg"])
+    order = sorted(range(len(alpha_deg)),
+                   key=lambda i: focal_px / math.tan(math.radians(alpha_deg[i])))
+    return parse_miscalibration(table, alpha_deg, order, projector["baseline_m"])
 
 
 #: sub-folder of a scene folder holding the stress scenes

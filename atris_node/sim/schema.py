@@ -50,7 +50,7 @@ def one_of(*choices: str) -> Check:
 
 @dataclass(frozen=True)
 class Field:
-    """One key of a table: kind is float, int, bool, str, 'vec3' or 'floats'."""
+    """One key of a table: kind is float, int, bool, str, dict, list, 'vec3' or 'floats'."""
 
     kind: Any
     default: Any = REQUIRED
@@ -82,9 +82,9 @@ def convert(field: Field, value: Any, where: str) -> Any:
         typed = _floats(value, where, 3)
     elif field.kind == "floats":
         typed = _floats(value, where, None)
-    elif field.kind in (bool, str, dict):
+    elif field.kind in (bool, str, dict, list):
         if not isinstance(value, field.kind):
-            kind = "table" if field.kind is dict else field.kind.__name__
+            kind = {dict: "table", list: "list"}.get(field.kind, field.kind.__name__)
             raise fail(where, f"must be a {kind}", value)
         typed = value
     else:  # pragma: no cover - a programming error in a spec

@@ -12,6 +12,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from atris_node.sim.scene import Lamp
 
 Strobe = Callable[[float, float], float]
 
@@ -72,3 +76,13 @@ def flicker_factor(flicker_hz: float, depth: float, t0_s: float, t1_s: float) ->
     if t1_s <= t0_s:
         return 1.0 + depth * math.cos(w * t0_s)
     return 1.0 + depth * (math.sin(w * t1_s) - math.sin(w * t0_s)) / (w * (t1_s - t0_s))
+
+
+def lamps_factor(lamps: Sequence[Lamp], t0_s: float, t1_s: float) -> float:
+    """Mean output of several lamps over ``[t0_s, t1_s]`` relative to their summed mean
+    lux: the lux-weighted mean of their :func:`flicker_factor` (1 without lamps)."""
+    total = sum(lamp.lux for lamp in lamps)
+    if total <= 0.0:
+        return 1.0
+    return sum(lamp.lux * flicker_factor(lamp.flicker_hz, lamp.flicker_depth, t0_s, t1_s)
+               for lamp in lamps) / total

@@ -12,6 +12,9 @@ The true point of a crossing is Eq. 1 at the undistorted sub-pixel position, so 
 the point the pipeline would triangulate from a perfect line row. Sector truth takes
 those points on obstacles only (never the ground plane), in the vehicle frame, and keeps
 the smallest horizontal range per sector of :class:`atris_node.pipeline.sectors.SectorLayout`.
+On a ramp only points at least ``RAMP_MIN_HEIGHT_M`` above the ground count: a surface
+rising gently out of the ground is ground below the sensor's stated floor (the pipeline's
+default ``ground_clearance_m``); other shapes count at every height, as before.
 """
 
 from __future__ import annotations
@@ -26,11 +29,13 @@ from atris_node.pipeline.geometry import undistort_pixels
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim.layers import Surface, see
 from atris_node.sim.optics import sheet_angles
-from atris_node.sim.raycast import occluded
+from atris_node.sim.raycast import Ramp, occluded
 from atris_node.sim.scene import Scene
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
+#: ramp points lower than this above the ground (z = 0) are not sector truth, m
+RAMP_MIN_HEIGHT_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -129,6 +134,9 @@ def compute_truth(scene: Scene, mounting: Mounting, dirs_cam: FloatArray,
     rows, visible = np.zeros((k_count, width)), np.zeros((k_count, width), bool)
     points, obstacle = np.zeros((k_count, width, 3)), np.zeros((k_count, width), bool)
     is_obstacle = np.array([s.obstacle for s in scene.shapes] + [False])
+    floor = np.array([RAMP_MIN_HEIGHT_M if isinstance(s, Ramp) else -np.inf
+                      for s in scene.shapes] + [0.0])
+    floor_m = np.full((k_count, width), -np.inf)
     cols = np.arange(width)
     for k, alpha in enumerate(scene.projector.alpha_rad):
         c = _crossings(theta, alpha, surface, depth)
@@ -136,7 +144,10 @@ def compute_truth(scene: Scene, mounting: Mounting, dirs_cam: FloatArray,
         ok &= _reached(scene, mounting, pts, time_s)
         where = cols[c.found][ok]
         rows[k, where], visible[k, where], points[k, where] = c.rows[where], True, pts[ok]
-        obstacle[k, where] = is_obstacle[surface.shape[c.row_above[where], where]]
-    hits = mounting.camera_to_vehicle(points[visible & obstacle])
+        index = surface.shape[c.row_above[where], where]
+        obstacle[k, where], floor_m[k, where] = is_obstacle[index], floor[index]
+    counted = visible & obstacle
+    hits = mounting.camera_to_vehicle(points[counted]).reshape(-1, 3)
+    hits = hits[hits[:, 2] >= floor_m[counted]]
     return Truth(sequence, time_s, depth, rows, visible, points, visible & obstacle,
-                 sector_distances(hits.reshape(-1, 3), layout))
+                 sector_distances(hits, layout))
