@@ -133,6 +133,16 @@ def test_feature_without_the_window_nothing_is_set_aside() -> None:
     assert not out.any()
 
 
+def test_feature_a_map_without_peaks_sets_nothing_aside() -> None:
+    """A map where no column holds a peak (a blank scene, or every peak removed as
+    isolated): an empty answer, not an error (a numpy quantile of nothing raised before)."""
+    signs = alternating()
+    frames, values = window(signs, np.zeros(16), np.zeros(16))
+    local = noise_map(values, [(0, HEIGHT)])
+    for peaks in (np.full((3, WIDTH), -1, dtype=np.int64), np.zeros((0, WIDTH), np.int64)):
+        assert not not_own_light(peaks, values, frames, local).any()
+
+
 def test_feature_the_off_projection_needs_three_off_sub_frames() -> None:
     assert off_projection((1, -1, 1, -1))[1] is None
     assert off_projection((1, -1, 1, -1), before=-1)[1] is not None

@@ -98,6 +98,8 @@ def not_own_light(peaks: IntArray, values: npt.NDArray[np.generic], window: Wind
     if window is None or len(window.pixels) != len(window.signs) or not peaks.size:
         return out
     m, c = np.nonzero(peaks >= 0)
+    if not m.size:
+        return out
     r = peaks[m, c]
     series = np.stack([frame[r, c] for frame in window.pixels]).astype(np.float64)  # (N, P)
     tile_row, tile_col = local.tile_row[r], c // NOISE_TILE_PX
