@@ -104,8 +104,7 @@ def test_feature_a_moving_edge_does_not_shift_the_identity() -> None:
     The time course of each peak (atris_node/pipeline/temporal.py) sets those residuals
     aside: no phantom, the car's sectors INVALID in those maps.
 
-    Checked by making ``not_own_light`` return no rejection: the 3 phantoms came back (and
-    with only the sub-frame before the window left out of the test, 1 in the second map).
+    Checked by making ``not_own_light`` return no rejection: the 3 phantoms came back.
     """
     from atris_node.bench.safety import score_scene
 

@@ -53,6 +53,10 @@ def _assert_never_wrong(row: dict) -> None:
 #: scenes the pipeline does not yet get right, and what they still do (strict expected
 #: failures: a scene that starts passing fails here until it is taken off)
 KNOWN_WRONG: dict[str, str] = {
+    "parking_pedestrian": "94.4 % accurate: the building at 9.0 m reads 8.55 m (5 %, 4.6 of "
+                          "its 0.10 m sigma) in one map of four, 1 of 18 VALID (1 of 21, "
+                          "95.2 %, before the time-course test set aside the pedestrian's "
+                          "edge residuals and 3 sector-frames beside it went INVALID)",
     "pole_16cm_far": "94.7 % accurate: the building at the left edge reads 8.64 m for 8.92 m "
                      "(3.2 %, 3.3 standard errors) in one map of four",
     "ramp_and_kerb": "far: sector 3 reports the wall (5.9-6.0 m) through the 15 cm kerb at "

@@ -8,14 +8,12 @@ demodulated sum of both is a strong peak; only the own stripe may stay.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
 from atris_node.codes import bipolar, walsh_chips
 from atris_node.pipeline.noise import noise_map
-from atris_node.pipeline.temporal import not_own_light, off_projection, trend_weights
+from atris_node.pipeline.temporal import local_weights, not_own_light
 from atris_node.types import WindowFrames
 
 HEIGHT, WIDTH = 40, 64
@@ -43,7 +41,7 @@ def rejected(signs: np.ndarray, ambient: np.ndarray, stripe: np.ndarray) -> tupl
     frames, values = window(signs, ambient, stripe)
     peaks = np.full((2, WIDTH), -1, dtype=np.int64)
     peaks[0], peaks[1] = STRIPE_ROW, EDGE_ROW
-    out = not_own_light(peaks, values, frames, noise_map(values, [(0, HEIGHT)]))
+    out = not_own_light(peaks, frames, noise_map(values, [(0, HEIGHT)]))
     assert out[0].all() or not out[0].any(), "columns disagree on the stripe"
     assert out[1].all() or not out[1].any(), "columns disagree on the edge"
     return bool(out[0, 0]), bool(out[1, 0])
@@ -53,20 +51,19 @@ def alternating() -> np.ndarray:
     return bipolar(walsh_chips(16, ALTERNATING)).astype(np.int64)
 
 
-def test_feature_the_alternating_code_has_a_trend_margin_the_half_code_none() -> None:
-    _, margin, noise = trend_weights(tuple(alternating()))
-    assert margin == pytest.approx(1.0 - 15.0 * 16.0 / 1360.0)  # 0.82
-    assert noise == pytest.approx(math.sqrt(1.0 - 256.0 / (16 * 1360.0)), rel=1e-9)
-    half = tuple([1] * 8 + [-1] * 8)
-    assert trend_weights(half)[1] < 0.0  # the trend test cannot tell: not run
-
-
-def test_feature_a_linear_change_leaves_nothing_after_de_trending() -> None:
-    signs = alternating()
-    weights, _, _ = trend_weights(tuple(signs))
-    ramp = 50.0 + 7.0 * np.arange(16)
-    assert abs(float(signs @ ramp)) > 50.0  # the plain sum keeps a residual
-    assert float(weights @ ramp) == pytest.approx(0.0, abs=1e-9)
+@pytest.mark.parametrize("signs", [tuple(bipolar(walsh_chips(16, row))) for row in (2, 3, 9)])
+def test_feature_the_local_sum_leaves_out_constant_and_linear_ambient(
+        signs: tuple[int, ...]) -> None:
+    """For the alternating, a paired and the half-on Walsh row: ambient light that is
+    constant or changes linearly adds nothing to D_local; own light on an ON sub-frame
+    adds exactly itself."""
+    u = local_weights(signs, before=-1)
+    t = np.arange(-1, 16, dtype=np.float64)
+    assert float(u @ np.ones(17)) == pytest.approx(0.0, abs=1e-9)
+    assert float(u @ (50.0 + 7.0 * t)) == pytest.approx(0.0, abs=1e-9)
+    on = [i for i in range(16) if signs[i] > 0]
+    assert all(u[i + 1] == 1.0 for i in on)
+    assert float(u[1:] @ np.where(np.asarray(signs) > 0, 10.0, 0.0)) == pytest.approx(80.0)
 
 
 @pytest.mark.parametrize("course", ["still", "first ON only", "last ON only", "moving in"])
@@ -101,6 +98,18 @@ def test_feature_ambient_light_that_changes_is_set_aside(change: str) -> None:
     assert edge_out
 
 
+def test_feature_own_light_that_a_passing_edge_then_covers_stays() -> None:
+    """A stripe on the wall for ten sub-frames, then a bright pedestrian walks in front of
+    it (ambient up by 200 DN on every sub-frame from 10 on, the stripe gone): the peak
+    holds own light and an ambient step; its own light keeps it."""
+    signs = alternating()
+    i = np.arange(16)
+    ambient = np.where(i >= 10, 200.0, 0.0)
+    stripe = np.where((signs > 0) & (i < 10), 100.0, 0.0)
+    stripe_out, _ = rejected(signs, np.where(i < 5, 400.0, 0.0), stripe + ambient)
+    assert not stripe_out
+
+
 def test_feature_a_step_after_the_first_sub_frame_needs_the_sub_frame_before() -> None:
     """Ambient that drops right after an ON first sub-frame looks, inside the window,
     exactly like own light seen on that sub-frame alone. The last OFF sub-frame before the
@@ -114,22 +123,22 @@ def test_feature_a_step_after_the_first_sub_frame_needs_the_sub_frame_before() -
     peaks = np.full((2, WIDTH), -1, dtype=np.int64)
     peaks[0], peaks[1] = STRIPE_ROW, EDGE_ROW
     local = noise_map(values, [(0, HEIGHT)])
-    assert not not_own_light(peaks, values, frames, local).any()
+    assert not not_own_light(peaks, frames, local).any()
     bright = frames.pixels[1].copy()  # an OFF sub-frame, the sky on EDGE_ROW: no edge yet
     bright[EDGE_ROW] = frames.pixels[0][EDGE_ROW]
     with_before = WindowFrames(frames.pixels, frames.signs, (-1, bright))
-    out = not_own_light(peaks, values, with_before, local)
+    out = not_own_light(peaks, with_before, local)
     assert out[1].all() and not out[0].any()
     dark = frames.pixels[1].copy()  # own light on sub-frame 0: ambient was dark before
     own = WindowFrames(frames.pixels, frames.signs, (-1, dark))
-    assert not not_own_light(peaks, values, own, local).any()
+    assert not not_own_light(peaks, own, local).any()
 
 
 def test_feature_without_the_window_nothing_is_set_aside() -> None:
     signs = alternating()
     _, values = window(signs, np.where(np.arange(16) < 6, 400.0, 0.0), np.zeros(16))
     peaks = np.full((1, WIDTH), EDGE_ROW, dtype=np.int64)
-    out = not_own_light(peaks, values, None, noise_map(values, [(0, HEIGHT)]))
+    out = not_own_light(peaks, None, noise_map(values, [(0, HEIGHT)]))
     assert not out.any()
 
 
@@ -140,16 +149,13 @@ def test_feature_a_map_without_peaks_sets_nothing_aside() -> None:
     frames, values = window(signs, np.zeros(16), np.zeros(16))
     local = noise_map(values, [(0, HEIGHT)])
     for peaks in (np.full((3, WIDTH), -1, dtype=np.int64), np.zeros((0, WIDTH), np.int64)):
-        assert not not_own_light(peaks, values, frames, local).any()
+        assert not not_own_light(peaks, frames, local).any()
 
 
-def test_feature_the_off_projection_needs_three_off_sub_frames() -> None:
-    assert off_projection((1, -1, 1, -1))[1] is None
-    assert off_projection((1, -1, 1, -1), before=-1)[1] is not None
-    off, projection = off_projection((1, -1) * 4)
-    assert off.sum() == 4 and projection is not None
-    line = 3.0 + 2.0 * np.flatnonzero(off)
-    assert np.allclose(projection @ line, 0.0)
+def test_feature_an_on_sub_frame_without_an_off_neighbour_on_one_side_takes_the_other() -> None:
+    u = local_weights((1, -1, 1, -1))
+    assert u.tolist() == [0.0, 1.0, -1.5, 1.0, -0.5]  # sub-frame 0: its right neighbour only
+    assert local_weights((1, -1, 1, -1), before=-1).tolist() == [-0.5, 1.0, -1.0, 1.0, -0.5]
 
 
 def test_feature_the_moving_roof_edge_of_an_approaching_car_makes_no_phantom() -> None:

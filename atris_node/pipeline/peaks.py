@@ -287,11 +287,13 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     peaks = strong_maxima(values, where.scan, local, settings.snr_min, settings.min_separation_px,
                           len(bands) + EXTRA_PEAKS, where.inside)
     lone = np.zeros(peaks.shape[1], dtype=np.int64)
+    striped = peaks
     aligned = settings.identity == "aligned"
     doubts = _NO_DOUBTS
     if settings.unique:
         peaks, lone = stripe_peaks(peaks)
-        peaks, moved = set_aside(peaks, not_own_light(peaks, values, window, local))
+        striped = peaks  # light that is not own light still counts as foreign below
+        peaks, moved = set_aside(peaks, not_own_light(peaks, window, local))
         lone = lone + moved
         identity = robust_identity(
             peaks, lambda r: _peak_snr(values, local, r) < WEAK_SNR * settings.snr_min,
@@ -302,7 +304,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
                                       aligned=aligned)
     ambiguous = int(unsure.sum())
-    unassigned = np.maximum(count_in_bands(peaks, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
+    unassigned = np.maximum(count_in_bands(striped, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
     samples, strong, dropped = _samples(values, saturated, rows, local, settings, noise)
     searched = sum(values.shape[1] for b in bands if not b.empty)
     return Extraction(samples, noise, background, tuple(spans),
