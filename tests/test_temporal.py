@@ -168,3 +168,27 @@ def test_feature_the_moving_roof_edge_of_an_approaching_car_makes_no_phantom() -
 
     row = score_scene("approach_2mps", 1, seed=11).row()
     assert row["near_phantom"] == row["far"] == row["false_free"] == 0
+
+
+def test_feature_light_set_aside_still_counts_as_foreign_light() -> None:
+    """A peak set aside because it is not own light (here an ambient step in every column,
+    inside line 0's band, with no own stripe anywhere) is not a sample, and it still counts
+    as light in the bands that no line explains: its columns are foreign-light columns, so
+    the sector verdicts blank them as before the test existed (another unit's light that
+    the test sets aside must not free its columns).
+
+    Checked by counting the foreign light after the test (set-aside peaks left out): no
+    foreign column, and this failed."""
+    from atris_node.pipeline.bands import Band
+    from atris_node.pipeline.peaks import ExtractorSettings, extract_lines
+
+    signs = alternating()
+    frames, values = window(signs, np.where(np.arange(16) < 5, 400.0, 0.0),
+                            np.where(signs > 0, 300.0, 0.0))
+    bands = (Band(0, 4, 16), Band(1, 24, 36))  # the stripe in line 0's, the step in line 1's
+    saturated = np.zeros(values.shape, dtype=bool)
+    found = extract_lines(values, saturated, bands, ExtractorSettings(), window=frames)
+    assert set(found.samples.line.tolist()) == {0}
+    assert found.foreign_columns.all() and found.unassigned == WIDTH
+    blind = extract_lines(values, saturated, bands, ExtractorSettings())
+    assert set(blind.samples.line.tolist()) == {0, 1}  # without the window: taken for line 1
