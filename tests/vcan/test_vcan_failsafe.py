@@ -41,6 +41,8 @@ from atris_node.bus.can.ids import FrameKind, frame_id
 pytestmark = pytest.mark.vcan
 
 REANNOUNCE_S = 1.0
+#: link-down cycles tried until one catches the unit strobing (one, unless the VM starves it)
+ATTEMPTS = 3
 STATE_RUNNING = 2
 #: the largest distance a valid sector carries, m (raw 65532; above: no-sector, no-return,
 #: invalid codes)
@@ -49,6 +51,15 @@ MAX_AGE_S = 0.25
 PERIOD_S = 0.05
 UNIT_IDS = (8, 9)
 RUN_S = 30.0
+
+
+def wait_lit(unit: Any) -> None:
+    """Until the unit's newest report says it may strobe (it may have lost the permission
+    after its first claim when the VM starves it, and it claims again)."""
+    unit.drain()
+    states = unit.of("state")
+    if not states or not states[-1]["strobe"]:
+        wait_owned(unit)
 
 
 @contextmanager
@@ -67,13 +78,16 @@ def link_down(iface: str) -> Iterator[float]:
 def test_a_unit_whose_link_goes_down_stops_strobing_within_its_lease(
         spawn: Any, record_property: Any) -> None:
     unit = spawn("negotiator", "vcan1", "0x4000", "4", "16")
-    wait_owned(unit)
-    with link_down("vcan1") as down_at:
-        time.sleep(REANNOUNCE_S + 1.0)
-        unit.drain()
+    for _ in range(ATTEMPTS):
+        wait_lit(unit)
+        with link_down("vcan1") as down_at:
+            time.sleep(REANNOUNCE_S + 1.0)
+            unit.drain()
+        intervals = strobe_intervals(unit.of("state"), time.monotonic())
+        lit_at_down = [i for i in intervals if i[0] <= down_at < i[1]]
+        if lit_at_down:
+            break
     final = unit.stop()
-    intervals = strobe_intervals(unit.of("state"), time.monotonic())
-    lit_at_down = [i for i in intervals if i[0] <= down_at < i[1]]
     assert lit_at_down, "the unit was not strobing when the link went down: proves nothing"
     dark_after_s = lit_at_down[0][1] - down_at
     record_property("link_down_to_dark_s", round(dark_after_s, 3))
