@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+
+import numpy as np
 
 from atris_node.errors import ConfigError
 
@@ -80,3 +82,14 @@ def time_interleaved(work: dict[str, tuple[Callable[[], object], int]], repeats:
             fn()
             samples[name].append((time.perf_counter() - start) / max(items, 1))
     return {name: Timing(min(s), statistics.median(s), repeats) for name, s in samples.items()}
+
+
+def spread_ms(values_ms: Sequence[float]) -> dict[str, float | int | None]:
+    """``samples`` and the p50, p99 and max (ms, rounded to µs) of ``values_ms``; the three
+    are None when there is no value."""
+    values = np.asarray(values_ms, dtype=np.float64)
+    if values.size == 0:
+        return {"samples": 0, "p50": None, "p99": None, "max": None}
+    return {"samples": int(values.size), "p50": round(float(np.percentile(values, 50)), 3),
+            "p99": round(float(np.percentile(values, 99)), 3),
+            "max": round(float(values.max()), 3)}

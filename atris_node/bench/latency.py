@@ -26,6 +26,7 @@ import can
 import numpy as np
 
 from atris_node import config as cfg
+from atris_node.bench._timing import spread_ms
 from atris_node.bus.can.frames import FrameCodec
 from atris_node.bus.can.ids import FrameKind, unit_of
 from atris_node.errors import FrameDecodeError
@@ -35,7 +36,7 @@ from atris_node.types import Measurement
 CHANNEL = "atris-bench-latency"
 
 
-class _Arrivals(can.Listener):
+class Arrivals(can.Listener):
     """Receive time of the first quality frame carrying each measurement counter."""
 
     def __init__(self) -> None:
@@ -82,7 +83,7 @@ def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
         f"bus.channel={CHANNEL}"])
     sent: dict[int, float] = {}
     pipeline_ms: list[float] = []
-    arrivals = _Arrivals()
+    arrivals = Arrivals()
     with can.Bus(interface="virtual", channel=CHANNEL) as rx, \
             can.Bus(interface="virtual", channel=CHANNEL) as tx:
         notifier = can.Notifier(rx, [arrivals], timeout=0.05)
@@ -113,15 +114,11 @@ def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
 
 def _row(scene: str, unit: Unit, sent: dict[int, float],
          arrivals: dict[int, float]) -> dict[str, Any]:
-    ages = np.array([1e3 * (arrivals[c] - t) for c, t in sent.items() if c in arrivals])
+    spread = spread_ms([1e3 * (arrivals[c] - t) for c, t in sent.items() if c in arrivals])
     shape = getattr(unit.camera, "size", (0, 0))
-    if ages.size == 0:
-        return {"scene": scene, "width": shape[0], "height": shape[1], "samples": 0,
-                "p50_ms": None, "p99_ms": None, "max_ms": None}
-    return {"scene": scene, "width": shape[0], "height": shape[1], "samples": int(ages.size),
-            "p50_ms": round(float(np.percentile(ages, 50)), 3),
-            "p99_ms": round(float(np.percentile(ages, 99)), 3),
-            "max_ms": round(float(ages.max()), 3)}
+    return {"scene": scene, "width": shape[0], "height": shape[1],
+            "samples": spread["samples"], "p50_ms": spread["p50"], "p99_ms": spread["p99"],
+            "max_ms": spread["max"]}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

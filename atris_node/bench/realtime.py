@@ -52,13 +52,13 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import can
-import numpy as np
 
 from atris_node import codes
 from atris_node import config as cfg
 from atris_node.bench import cputime
+from atris_node.bench._timing import spread_ms
 from atris_node.bench.accuracy import scaled
-from atris_node.bench.latency import _Arrivals
+from atris_node.bench.latency import Arrivals
 from atris_node.bench.pacing import PacedCamera, PacedProjector, Prerendered
 from atris_node.errors import CodeError, UsageError
 from atris_node.node.unit import Unit
@@ -146,12 +146,8 @@ def _sleep_until(clock_s: float) -> None:
 def _ages(sent: dict[int, tuple[float, int]], sends: dict[int, float],
           camera: PacedCamera) -> dict[str, Any]:
     """Data age (ms) of the counted measurements that reached the bus."""
-    ages = np.array([1e3 * (sends[c] - t) for c, (t, seq) in sent.items()
-                     if c in sends and camera.counts.holds(seq)])
-    if ages.size == 0:
-        return {"samples": 0, "p50": None, "p99": None, "max": None}
-    return {"samples": int(ages.size), "p50": round(float(np.percentile(ages, 50)), 3),
-            "p99": round(float(np.percentile(ages, 99)), 3), "max": round(float(ages.max()), 3)}
+    return spread_ms([1e3 * (sends[c] - t) for c, (t, seq) in sent.items()
+                      if c in sends and camera.counts.holds(seq)])
 
 
 def _cpu_s() -> float:
@@ -186,7 +182,7 @@ def measure(opts: Options) -> dict[str, Any]:
         f"code.demod={opts.mode}", f"bus.channel={CHANNEL}"])
     timers = {name: cputime.StageTimer() for name in STAGES}
     sent: dict[int, tuple[float, int]] = {}
-    arrivals = _Arrivals()
+    arrivals = Arrivals()
     with can.Bus(interface="virtual", channel=CHANNEL) as rx, \
             can.Bus(interface="virtual", channel=CHANNEL) as tx:
         notifier = can.Notifier(rx, [arrivals], timeout=0.05)
