@@ -108,6 +108,8 @@ PARAMS: tuple[Param, ...] = (
       "sector invalid (false: only the affected columns are left out)"),
     P("interference.every_windows", int, 8, "measure other codes' energy on one window of N "
       "sub-frames out of this many (0 = never; hopping needs it)", in_range(0, 10000)),
+    P("pipeline.thread", bool, True, "measure maps on a thread beside the camera loop (a "
+      "map that finds it busy replaces the waiting one); false: in the loop, serially"),
     P("pipeline.objects", bool, False, "cluster points into objects (open3d DBSCAN)"),
     P("bus.interface", str, "virtual", "python-can interface"),
     P("bus.channel", str, "atris", "python-can channel"),

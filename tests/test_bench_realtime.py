@@ -10,6 +10,7 @@ import json
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -93,18 +94,39 @@ def test_smoke_short_run_reports_every_field() -> None:
     assert row["peak_rss_mb"] > row["prerendered_mb"] > 0
 
 
+STALLED = Options(parse_camera("320x200@240"), mode="sliding", seconds=1.0, warmup_s=0.5,
+                  code_length=4, queue_depth=2, stall_ms=40.0)
+
+
 def test_feature_a_stalled_consumer_drops_and_the_counts_add_up() -> None:
-    """Every map stalls 40 ms while sub-frames come every 4 ms: the camera's queue fills
-    and the sub-frames that find it full are dropped, never lost from the count."""
-    row = realtime.measure(Options(parse_camera("320x200@240"), mode="sliding",
-                                   seconds=1.0, warmup_s=0.5, code_length=4,
-                                   queue_depth=2, stall_ms=40.0))
+    """Every map stalls 40 ms in the camera loop (no map thread) while sub-frames come
+    every 4 ms: the camera's queue fills and the sub-frames that find it full are dropped,
+    never lost from the count."""
+    row = realtime.measure(replace(STALLED, serial=True))
     subs = row["sub_frames"]
     assert subs["offered"] == 240
     assert subs["dropped"] > 0
     assert subs["offered"] == subs["consumed"] + subs["dropped"] + subs["pending"]
     assert 0 < subs["gaps"] <= subs["dropped"]
     assert row["output_hz"] < row["expected_output_hz"]
+    assert row["maps"]["skipped"] == 0
+
+
+def test_with_the_map_thread_a_slow_pipeline_skips_maps_instead_of_dropping_sub_frames(
+        ) -> None:
+    """The same 40 ms stall per map on the map thread: the loop keeps reading, so the
+    camera drops (almost) nothing and maps are skipped instead, newest first. Both runs in
+    one test, compared with each other (a loaded machine can still drop a few).
+
+    Checked by running the map-thread row with ``serial=True`` as well: its drops were
+    those of the first row and the comparison failed."""
+    threaded = realtime.measure(STALLED)
+    serial = realtime.measure(replace(STALLED, serial=True))
+    subs = threaded["sub_frames"]
+    assert subs["offered"] == subs["consumed"] + subs["dropped"] + subs["pending"]
+    assert subs["dropped"] * 4 < serial["sub_frames"]["dropped"]
+    assert threaded["maps"]["skipped"] > 0
+    assert 0 < threaded["output_hz"] < threaded["expected_output_hz"]
 
 
 def test_cli_prints_one_json_object(capsys: pytest.CaptureFixture[str]) -> None:

@@ -158,7 +158,8 @@ def _cpu_s() -> float:
 @dataclass(frozen=True)
 class Options:
     """What to run: camera, demodulation mode, counted and warm-up seconds, scene, N,
-    frame buffers, and a deliberate stall per map (ms, for tests of the drop rule)."""
+    frame buffers, a deliberate stall per map (ms, for tests of the drop rule), and
+    whether maps are measured in the camera loop (``serial``) instead of the map thread."""
 
     camera: CameraSpec
     mode: str = "sliding"
@@ -168,6 +169,7 @@ class Options:
     code_length: int = 16
     queue_depth: int = 4
     stall_ms: float = 0.0
+    serial: bool = False
 
 
 def measure(opts: Options) -> dict[str, Any]:
@@ -179,7 +181,8 @@ def measure(opts: Options) -> dict[str, Any]:
     camera.count(first, first + max(1, round(opts.seconds * opts.camera.rate_hz)))
     config = cfg.load(environ={}, overrides=[
         f"driver.scene={opts.scene}", f"code.length={opts.code_length}",
-        f"code.demod={opts.mode}", f"bus.channel={CHANNEL}"])
+        f"code.demod={opts.mode}", f"bus.channel={CHANNEL}",
+        f"pipeline.thread={str(not opts.serial).lower()}"])
     timers = {name: cputime.StageTimer() for name in STAGES}
     sent: dict[int, tuple[float, int]] = {}
     arrivals = Arrivals()
@@ -204,7 +207,9 @@ def measure(opts: Options) -> dict[str, Any]:
             pending = camera.stop()
             notifier.stop()
         unit.check()
-    return _row(opts, camera, frames, sent, arrivals.sends, timers, usage, pending)
+    row = _row(opts, camera, frames, sent, arrivals.sends, timers, usage, pending)
+    row["maps"] = {"skipped": unit.stats.maps_skipped, "stale": unit.stats.stale_maps}
+    return row
 
 
 def _counted_run(camera: PacedCamera, timers: dict[str, cputime.StageTimer]
@@ -241,6 +246,7 @@ def _row(opts: Options, camera: PacedCamera, frames: Prerendered,
         "camera": {"name": spec.name, "width": spec.width, "height": spec.height,
                    "bits": spec.bits, "rate_hz": spec.rate_hz},
         "mode": opts.mode, "code_length": opts.code_length, "scene": opts.scene,
+        "map_thread": not opts.serial,
         "queue_depth": opts.queue_depth, "seconds": round(seconds, 3),
         "sub_frames": {"offered": counts.offered, "consumed": counts.consumed,
                        "dropped": counts.dropped, "pending": pending,
@@ -266,6 +272,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--queue", type=int, default=4, help="camera frame buffers")
     parser.add_argument("--stall-ms", type=float, default=0.0,
                         help="sleep added per map (to see the drop rule at work), ms")
+    parser.add_argument("--serial", action="store_true",
+                        help="measure maps in the camera loop (pipeline.thread=false)")
     parser.add_argument("--json", action="store_true", help="print the row as one object")
 
 
@@ -280,7 +288,7 @@ def options_of(args: argparse.Namespace) -> Options:
     except CodeError as exc:
         raise UsageError(f"--code-length: {exc}") from exc
     return Options(parse_camera(args.camera), args.mode, args.seconds, args.warmup,
-                   args.scene, length, args.queue, args.stall_ms)
+                   args.scene, length, args.queue, args.stall_ms, args.serial)
 
 
 def _table(row: dict[str, Any]) -> str:
@@ -292,7 +300,8 @@ def _table(row: dict[str, Any]) -> str:
         f"sub-frames  offered {subs['offered']}  consumed {subs['consumed']}  "
         f"dropped {subs['dropped']}  pending {subs['pending']}  gaps {subs['gaps']}",
         f"output      {row['output_hz']:.1f} Hz of {row['expected_output_hz']:.1f} Hz "
-        f"({row['measurements']} measurements)",
+        f"({row['measurements']} measurements; maps skipped {row['maps']['skipped']}, "
+        f"stale {row['maps']['stale']}; map thread {'on' if row['map_thread'] else 'off'})",
         f"data age    p50 {age['p50']} ms  p99 {age['p99']} ms  max {age['max']} ms",
         f"{'stage':<10} {'calls':>7} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'cpu %':>6}"]
     lines += [f"{name:<10} {s['calls']:>7} {s['p50_ms']:>8.3f} {s['p99_ms']:>8.3f} "

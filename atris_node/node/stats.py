@@ -17,6 +17,10 @@ class NodeStats:
     measurements: int = 0
     dropped_sub_frames: int = 0
     deadline_misses: int = 0
+    #: maps a newer map replaced before the map thread took them
+    maps_skipped: int = 0
+    #: measurements not published: the loop had gone invalid while they were measured
+    stale_maps: int = 0
     camera_faults: int = 0
     bad_sub_frames: int = 0
     reconnects: int = 0

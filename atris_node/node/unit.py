@@ -11,7 +11,13 @@ One sub-frame step of the loop::
             | yes
     strobe chip[seq % N] for the next sub-frame, read it, push it to the demodulator
             | a distortion map is complete
-    pipeline -> Measurement -> publisher (status + sectors + nearest)
+    map thread (atris_node.node.worker): pipeline -> Measurement -> publisher
+                                         (status + sectors + nearest)
+
+With ``pipeline.thread`` (the default, when the loop runs in its own thread) the loop hands
+each complete map to the map thread and reads on; a measurement is published only if the
+loop has not gone invalid since its map was complete (the loop's epoch). Without it, and
+in ``step()`` / ``run_for()`` called directly, the map is measured in the loop.
 
 The projector is off whenever the node is not demodulating: before activation, while the
 code is not owned, on a camera fault, on deactivate/shutdown, and (through ``atexit`` and the
@@ -48,6 +54,7 @@ from atris_node.node.measure import Measurer
 from atris_node.node.snapshot import write_snapshot
 from atris_node.node.stats import NodeStats
 from atris_node.node.status import compose_status, unit_state
+from atris_node.node.worker import MapThread
 from atris_node.types import (
     DistortionMap,
     FaultBits,
@@ -96,7 +103,12 @@ class Unit:
         self._negotiator: Any = None
         self._services: wiring.BusServices | None = None
         self._thread: threading.Thread | None = None
+        self._maps: MapThread | None = None
         self._stop = threading.Event()
+        #: the loop's epoch: a new one whenever it publishes invalid distances or stops;
+        #: a measurement of an older epoch is not published
+        self._epoch = 0
+        self._publish_lock = threading.Lock()
         self._fatal: BaseException | None = None
         self._next_seq: int | None = None
         self._counter = 0
@@ -134,6 +146,10 @@ class Unit:
         self._publisher.start()
         self._negotiator.start()
         self.lifecycle = Lifecycle.ACTIVE
+        if threaded and self.config["pipeline.thread"]:
+            self._maps = MapThread(self._measure_map, self._on_map_thread_error,
+                                   name=f"atris-maps-{self.label}")
+            self._maps.start()
         if threaded:
             self._thread = threading.Thread(target=self._guarded_loop,
                                             name=f"atris-unit-{self.label}", daemon=True)
@@ -152,6 +168,7 @@ class Unit:
             if self._thread.is_alive():
                 logger.error("unit %s: the loop did not stop within 5 s", self.label)
             self._thread = None
+        self._stop_map_thread()
         self._laser_off()
         self._negotiator.stop()
         assert self._publisher is not None
@@ -216,8 +233,25 @@ class Unit:
         except Exception as exc:  # stored and re-raised by check(); the laser goes off
             logger.exception("unit %s loop failed", self.label)
             self._fatal = exc
+        if self._fatal is not None:  # the loop's own error, or the map thread's
             self._laser_off()
             self._publish_fault()
+
+    def _on_map_thread_error(self, exc: BaseException) -> None:
+        """The map thread failed: stored for check(), the loop stopped, laser off, FAULT."""
+        self._fatal = exc
+        self._stop.set()
+        self._laser_off()
+        self._publish_fault()
+
+    def _stop_map_thread(self) -> None:
+        """A new epoch (nothing measured from now on is published), then the thread ends."""
+        with self._publish_lock:
+            self._epoch += 1
+        if self._maps is not None:
+            self.stats.maps_skipped = self._maps.skipped
+            self._maps.stop()
+            self._maps = None
 
     def _publish_fault(self) -> None:
         """After the loop died: state FAULT and invalid distances on the bus at once."""
@@ -257,9 +291,11 @@ class Unit:
             self._on_map(dmap)
         elif chips is None:
             self._publish(None)
-        else:
+        elif self._maps is None or self._maps.idle:
+            # progress: the loop is alive between maps; while the map thread measures,
+            # its publishing is the progress (a hung pipeline makes the output FAULT)
             assert self._publisher is not None
-            self._publisher.heartbeat()  # progress: the loop is alive between maps
+            self._publisher.heartbeat()
 
     def _tick_negotiation(self) -> None:
         """Advance the negotiation; a receive error it reports (the laser is already off:
@@ -354,8 +390,17 @@ class Unit:
             return None
 
     def _on_map(self, dmap: DistortionMap) -> None:
+        if self._maps is None:
+            self._measure_map(dmap, self._epoch)
+            return
+        self._maps.submit(dmap, self._epoch)
+        self.stats.maps_skipped = self._maps.skipped
+
+    def _measure_map(self, dmap: DistortionMap, epoch: int) -> None:
+        """Measure ``dmap`` (complete in the loop's ``epoch``) and publish it (the map
+        thread, or the loop itself without one)."""
         assert self._measure is not None
-        self._publish(self._measure.measure(dmap, self._camera))
+        self._publish(self._measure.measure(dmap, self._camera), epoch)
 
     def _on_bad_sub_frame(self, exc: DemodulationError) -> None:
         """A sub-frame that cannot be demodulated: drop it, restart the window, go invalid."""
@@ -428,12 +473,20 @@ class Unit:
                               float(getattr(self._camera, "rate_hz", 0.0)), self._counter,
                               self.stats)
 
-    def _publish(self, measurement: Measurement | None) -> None:
-        if measurement is not None:
-            self._counter += 1
-            measurement = replace(measurement, counter=self._counter)
-            if self.on_measurement is not None:
-                self.on_measurement(measurement)
+    def _publish(self, measurement: Measurement | None, epoch: int | None = None) -> None:
+        """Hand ``measurement`` (None: distances invalid, a new epoch) to the output; a
+        measurement of an epoch that is over is not handed (``stats.stale_maps``)."""
         assert self._publisher is not None
-        self._publisher.update(measurement, self.status())
+        with self._publish_lock:
+            if measurement is None:
+                self._epoch += 1
+            elif epoch is not None and epoch != self._epoch:
+                self.stats.stale_maps += 1
+                return
+            else:
+                self._counter += 1
+                measurement = replace(measurement, counter=self._counter)
+                if self.on_measurement is not None:
+                    self.on_measurement(measurement)
+            self._publisher.update(measurement, self.status())
 

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import collections
 import itertools
+import os
 import shutil
+import signal
 import subprocess
 import time
 from collections.abc import Iterator
@@ -50,7 +52,13 @@ DISTANCE_MAX_M = 65.532
 MAX_AGE_S = 0.25
 PERIOD_S = 0.05
 UNIT_IDS = (8, 9)
-RUN_S = 30.0
+#: seconds the babblers flood the bus while the test listens
+BABBLE_S = 26.0
+#: seconds each unit may take to start (numba compiles its kernels in the VM, slowly when
+#: another CPU-heavy process runs) before it must be heard NEGOTIATING or RUNNING
+START_S = 150.0
+#: the units' --duration, a cap only: the test stops them with SIGINT when it has listened
+RUN_S = START_S + BABBLE_S + 30.0
 
 
 def wait_lit(unit: Any) -> None:
@@ -132,16 +140,41 @@ def running_spans(received: list[Received], unit_id: int) -> list[tuple[float, f
     return spans
 
 
+def wait_started(bus: can.BusABC, timeout_s: float) -> float:
+    """Seconds until every unit's status frame says more than INIT (its loop runs)."""
+    db = cantools.database.load_file(DBC_PATH)
+    ids = {frame_id(uid, FrameKind.STATUS): uid for uid in UNIT_IDS}
+    started: set[int] = set()
+    begin = time.monotonic()
+    while started != set(UNIT_IDS):
+        if time.monotonic() - begin > timeout_s:
+            pytest.fail(f"units {sorted(set(UNIT_IDS) - started)} did not leave INIT within "
+                        f"{timeout_s:.0f} s")
+        msg = bus.recv(0.1)
+        if msg is not None and msg.arbitration_id in ids:
+            state = db.decode_message(msg.arbitration_id, bytes(msg.data),
+                                      decode_choices=False)["State"]
+            if int(state) != 0:
+                started.add(ids[msg.arbitration_id])
+    return time.monotonic() - begin
+
+
 def test_a_babbling_node_makes_no_unit_share_a_code_or_publish_stale_distances(
         spawn: Any, record_property: Any) -> None:
+    """The babblers start only once both units' loops run (a unit still compiling its
+    kernels under a CPU-heavy neighbour reports INIT, and a test that babbles over that
+    proves nothing); the units are stopped with SIGINT once the babble window was heard."""
     units = [spawn("atris", *run_args(uid)) for uid in UNIT_IDS]
     for unit in units:
         unit.wait_for("ready")
     ids = [frame_id(uid, FrameKind.STATUS) for uid in UNIT_IDS]
     with can.Bus(interface="socketcan", channel="vcan0", can_filters=[
-            {"can_id": i, "can_mask": 0x7FC, "extended": False} for i in ids]) as bus, \
-            cangen_babblers():
-        frames = listen(bus, RUN_S - 4.0)
+            {"can_id": i, "can_mask": 0x7FC, "extended": False} for i in ids]) as bus:
+        record_property("start_s", round(wait_started(bus, START_S), 1))
+        with cangen_babblers():
+            frames = listen(bus, BABBLE_S)
+    for unit in units:
+        os.kill(unit.pid, signal.SIGINT)
     results = [unit.wait_for("done", 120.0) for unit in units]
     received = check_and_decode(cantools.database.load_file(DBC_PATH), frames,
                                 dict[int, P01Receiver]())
