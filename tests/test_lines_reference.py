@@ -19,7 +19,13 @@ from atris_node.pipeline.identity import (
     VisibilityPrior,
     _continuity_reference,
 )
-from atris_node.pipeline.noise import NOISE_TILE_PX, _quartile_and_median, noise_floor, noise_map
+from atris_node.pipeline.noise import (
+    NOISE_TILE_PX,
+    _counted_quartile_and_median,
+    _quartile_and_median,
+    noise_floor,
+    noise_map,
+)
 from atris_node.pipeline.peaks import (
     ExtractorSettings,
     LineSamples,
@@ -49,6 +55,25 @@ def test_quartile_and_median_are_numpys_percentiles(dtype: type, n: int) -> None
     assert q25.dtype == median.dtype == np.float32
     np.testing.assert_allclose(q25, reference[0], rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(median, reference[1], rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.uint16, np.int64])
+@pytest.mark.parametrize("n", [1, 2, 5, 256, 41281])
+def test_counted_order_statistics_are_the_sorted_ones_exactly(dtype: type, n: int) -> None:
+    """The counting path of noise_floor gives the very numbers of the sort."""
+    rng = np.random.default_rng(n)
+    a = np.abs(np.round(rng.normal(5.0, 300.0, n))).astype(dtype)
+    a[: n // 100] += 4000  # a tail of laser pixels
+    counted = _counted_quartile_and_median(a)
+    assert counted is not None
+    assert counted == tuple(_quartile_and_median(a))
+
+
+def test_counting_is_left_to_the_sort_where_it_does_not_pay() -> None:
+    wide = np.array([0, 2**21], dtype=np.int32)
+    assert _counted_quartile_and_median(wide) is None
+    assert _counted_quartile_and_median(np.zeros(4, np.float32)) is None
+    assert noise_floor(wide[None, :], [(0, 1)]) == (0.0, 0.5)
 
 
 def test_noise_map_is_the_per_tile_percentile_statistics() -> None:

@@ -33,8 +33,43 @@ def noise_floor(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -
     parts = [values[lo:hi:2, ::2].ravel() for lo, hi in spans]
     if not parts or sum(p.size for p in parts) == 0:
         return 0.0, MIN_NOISE_DN
-    q25, median = _quartile_and_median(np.concatenate(parts))
+    sample = np.concatenate(parts)
+    counted = _counted_quartile_and_median(sample)
+    q25, median = counted if counted is not None else _quartile_and_median(sample)
     return float(median), max(float(median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
+
+
+#: value range (max - min + 1) up to which order statistics are counted, not sorted
+COUNTED_RANGE_MAX = 1 << 20
+
+
+def _counted_quartile_and_median(a: npt.NDArray[Any]) -> tuple[np.float32, np.float32] | None:
+    """:func:`_quartile_and_median` of a 1-D integer ``a`` by counting (``np.bincount``,
+    O(n + range)) instead of sorting (several times faster on a 2 MP map's 0.5 M
+    samples); None for other dtypes or a value range above COUNTED_RANGE_MAX.
+
+    The k-th smallest value is the first value whose cumulative count exceeds k, the
+    same element a sort puts at index k, so the numbers are identical.
+    """
+    if a.ndim != 1 or a.size == 0 or a.dtype.kind not in "iu":
+        return None
+    low, high = int(a.min()), int(a.max())
+    if high - low + 1 > COUNTED_RANGE_MAX:
+        return None
+    cumulative = np.cumsum(np.bincount((a - low).astype(np.intp, copy=False)))
+    n = a.size
+
+    def kth(k: int) -> np.float32:
+        return np.float32(low + int(np.searchsorted(cumulative, k, side="right")))
+
+    def at(position: float) -> np.float32:
+        i, frac = divmod(position, 1.0)
+        value = kth(int(i))
+        if not frac:
+            return value
+        return np.float32(value + np.float32(frac) * (kth(min(int(i) + 1, n - 1)) - value))
+
+    return at((n - 1) * 0.25), at((n - 1) * 0.5)
 
 
 def _quartile_and_median(a: npt.NDArray[Any]) -> tuple[Any, Any]:
