@@ -38,6 +38,7 @@ Known limit: ambient light that drops right after an ON first sub-frame of the f
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -103,9 +104,18 @@ def not_own_light(peaks: IntArray, window: WindowFrames | None, local: NoiseMap)
     frames = ((before[1],) if before is not None else ()) + window.pixels
     if before is None:
         test = test[1:]
-    series = np.stack([frame[r, c] for frame in frames]).astype(np.float64)  # (n, P), DN
+    series = _series(frames, r * peaks.shape[1] + c)  # (n, P), DN
     sigma = _pixel_sigma(series, window, local.sigma_tiles[local.tile_row[r], c // NOISE_TILE_PX])
     out[m, c] = test @ series < -LOCAL_SIGMAS * sigma * float(np.linalg.norm(test))
+    return out
+
+
+def _series(frames: tuple[npt.NDArray[Any], ...], flat: IntArray) -> FloatArray:
+    """(n, P) float64 the value of each frame at the flat pixel indices ``flat``, DN (one
+    ``take`` per frame: several times faster than 2-D fancy indexing)."""
+    out = np.empty((len(frames), flat.size), dtype=np.float64)
+    for i, frame in enumerate(frames):
+        out[i] = np.ravel(frame).take(flat)
     return out
 
 
