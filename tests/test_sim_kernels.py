@@ -4,6 +4,7 @@ stream of random numbers, same hits."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -45,3 +46,47 @@ def test_feature_compiled_noise_equals_numpy_steps(bits: int, low: bool,
         assert pixels.dtype == expected.dtype
         assert np.array_equal(pixels, expected), draw
         assert rng.random() == expected_next, draw  # the generator is left where numpy was
+
+
+def shapes_all_kinds() -> list[Any]:
+    from atris_node.sim.raycast import Box, Cylinder, Plane, Ramp, Sphere
+
+    return [Plane(0.3, name="ground"),
+            Plane(0.5, point_m=(6.0, 0.0, 0.0), normal=(-1.0, 0.2, 0.0)),
+            Sphere(0.4, center_m=(3.0, 0.5, 0.6), radius_m=0.5, velocity_mps=(0.0, -2.0, 0.0)),
+            Box(0.6, center_m=(2.5, -1.0, 0.5), size_m=(0.4, 0.8, 1.0), yaw_rad=0.4),
+            Box(0.6, center_m=(4.0, 1.0, 0.45), size_m=(1.0, 1.0, 0.9),
+                velocity_mps=(-3.0, 0.0, 0.0)),
+            Cylinder(0.9, center_m=(2.0, 0.2, 0.0), radius_m=0.22, height_m=1.75,
+                     velocity_mps=(0.0, -1.4, 0.0), acceleration_mps2=(0.0, 0.5, 0.0)),
+            Ramp(0.4, start_m=(1.5, -0.5, 0.0), length_m=2.0, width_m=1.0, slope_rad=0.3,
+                 yaw_rad=0.2)]
+
+
+def random_rays(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    dirs = rng.normal(size=(n, 3)) + np.array([1.5, 0.0, -0.2])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    dirs[:8] = [[1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [1, 0, -0.0], [-1, 0, 0],
+                [0.6, 0.8, 0.0], [0.0, 0.6, -0.8]]  # axis-aligned and level rays
+    return rng.normal(size=(n, 3)) * [1.0, 1.0, 0.3] + [0.0, 0.0, 0.6], dirs
+
+
+@pytest.mark.parametrize("time_s", [0.0, 0.37])
+def test_feature_compiled_cast_equals_numpy_intersect(time_s: float) -> None:
+    from atris_node.sim.raycast import cast, cast_reference
+
+    shapes = shapes_all_kinds()
+    origins, dirs = random_rays(20000, 5)
+    for start in (origins, origins[0]):  # one origin per ray, or one for all
+        for i, shape in enumerate(shapes):  # each kind alone, then all together
+            got = cast([shape], start, dirs, time_s, index_offset=i)
+            want = cast_reference([shape], start, dirs, time_s, index_offset=i)
+            assert np.array_equal(np.isinf(got.t), np.isinf(want.t)), type(shape).__name__
+            assert np.array_equal(got.shape, want.shape)
+            np.testing.assert_allclose(got.t, want.t, rtol=1e-12, atol=1e-12)
+            hit = np.isfinite(want.t)
+            np.testing.assert_allclose(got.normal[hit], want.normal[hit], atol=1e-9)
+        got, want = cast(shapes, start, dirs, time_s), cast_reference(shapes, start, dirs, time_s)
+        assert np.array_equal(got.shape, want.shape)
+        np.testing.assert_allclose(got.t, want.t, rtol=1e-12)
