@@ -90,3 +90,56 @@ def test_feature_compiled_cast_equals_numpy_intersect(time_s: float) -> None:
         got, want = cast(shapes, start, dirs, time_s), cast_reference(shapes, start, dirs, time_s)
         assert np.array_equal(got.shape, want.shape)
         np.testing.assert_allclose(got.t, want.t, rtol=1e-12)
+
+
+def reference_sheet_irradiance(pose: Any, pattern: Any, shapes: Any, *, points: np.ndarray,
+                               normals: np.ndarray, hit: np.ndarray, psf_sigma_px: float,
+                               time_s: float = 0.0) -> np.ndarray:
+    """The whole-grid numpy form of :func:`atris_node.sim.optics.sheet_irradiance`."""
+    import math
+
+    from atris_node.sim import optics
+
+    theta, phi, r, dirs = optics.sheet_angles(pose, pattern, points)
+    theta = np.where(hit, theta, np.nan)
+    profile = optics.sheet_profile(theta, pattern, optics.footprint_rad(theta), psf_sigma_px)
+    in_fan = hit & (np.abs(phi) <= pattern.fan_rad / 2.0) & (theta > 0.0)
+    cos_i = np.clip(-np.einsum("...i,...i->...", normals, dirs), 0.0, None)
+    peak = pattern.power_w / len(pattern.alpha_rad) / (
+        pattern.fan_rad * pattern.line_sigma_rad * math.sqrt(2.0 * math.pi))
+    irr = np.where(in_fan, peak * profile * cos_i / np.maximum(r, 1e-3) ** 2, 0.0)
+    lit = np.flatnonzero(irr.ravel() > 0.0)
+    lit = lit[profile.ravel()[lit] > optics.PROFILE_CUTOFF]
+    flat = irr.ravel()
+    flat[np.setdiff1d(np.flatnonzero(flat > 0.0), lit, assume_unique=True)] = 0.0
+    if lit.size:
+        pts = points.reshape(-1, 3)[lit]
+        flat[lit[optics.occluded(shapes, pts, -dirs.reshape(-1, 3)[lit], r.ravel()[lit],
+                                 time_s)]] = 0.0
+    return flat.reshape(irr.shape)
+
+
+def use_reference_paths(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Render with the numpy ray casting and whole-grid laser sheets."""
+    from atris_node.sim import layers, optics, raycast
+
+    monkeypatch.setattr(raycast, "cast", raycast.cast_reference)
+    monkeypatch.setattr(layers, "cast", raycast.cast_reference)
+    monkeypatch.setattr(optics, "sheet_irradiance", reference_sheet_irradiance)
+
+
+@pytest.mark.parametrize(("name", "unit"), [("parking_pedestrian", 0), ("fleet", 0)])
+@pytest.mark.parametrize("noise", [False, True])
+def test_feature_moving_frames_equal_reference_paths(name: str, unit: int, noise: bool,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    from atris_node.sim import Simulator, load_scene
+
+    scene = replace(load_scene(name), noise=noise)
+    sequences = [(0, 0), (1, 1), (40, 1), (97, 0), (97, 1)]
+    fast = Simulator(scene, unit=unit)
+    frames = [fast.render(s, chip).pixels for s, chip in sequences]
+    assert fast.calls["motion"] == len(sequences)
+    use_reference_paths(monkeypatch)
+    slow = Simulator(scene, unit=unit)
+    for (s, chip), pixels in zip(sequences, frames, strict=True):
+        assert np.array_equal(slow.render(s, chip).pixels, pixels), (s, chip)
