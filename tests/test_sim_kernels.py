@@ -92,6 +92,30 @@ def test_feature_compiled_cast_equals_numpy_intersect(time_s: float) -> None:
         np.testing.assert_allclose(got.t, want.t, rtol=1e-12)
 
 
+def reference_sheet_angles(pose: Any, pattern: Any, points: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The numpy form of :func:`atris_node.sim.optics.sheet_angles`."""
+    d = pose.vehicle_to_camera(points) - np.array([0.0, -pattern.baseline_m, 0.0])
+    r = np.linalg.norm(d, axis=-1)
+    theta = np.arctan2(d[..., 2], d[..., 1])
+    phi = np.arctan2(d[..., 0], np.hypot(d[..., 1], d[..., 2]))
+    dirs = (d / np.maximum(r, 1e-12)[..., None]) @ pose.rotation.T
+    return theta, phi, r, dirs
+
+
+def test_feature_compiled_sheet_angles_equal_numpy() -> None:
+    from atris_node.mounting import Mounting
+    from atris_node.sim import LinePattern
+    from atris_node.sim.optics import sheet_angles
+
+    pose = Mounting(0.1, -0.4, 0.6, 0.02, 0.05, 0.3)
+    pattern = LinePattern((1.4, 1.5), 0.5, baseline_m=0.075)
+    points = np.random.default_rng(2).normal(size=(40, 50, 3)) * 3.0 + [4.0, 0.0, 0.5]
+    for got, want in zip(sheet_angles(pose, pattern, points),
+                         reference_sheet_angles(pose, pattern, points), strict=True):
+        assert got.shape == want.shape
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-15)
+
+
 def reference_sheet_irradiance(pose: Any, pattern: Any, shapes: Any, *, points: np.ndarray,
                                normals: np.ndarray, hit: np.ndarray, psf_sigma_px: float,
                                time_s: float = 0.0) -> np.ndarray:
@@ -100,7 +124,7 @@ def reference_sheet_irradiance(pose: Any, pattern: Any, shapes: Any, *, points: 
 
     from atris_node.sim import optics
 
-    theta, phi, r, dirs = optics.sheet_angles(pose, pattern, points)
+    theta, phi, r, dirs = reference_sheet_angles(pose, pattern, points)
     theta = np.where(hit, theta, np.nan)
     profile = optics.sheet_profile(theta, pattern, optics.footprint_rad(theta), psf_sigma_px)
     in_fan = hit & (np.abs(phi) <= pattern.fan_rad / 2.0) & (theta > 0.0)
@@ -120,12 +144,14 @@ def reference_sheet_irradiance(pose: Any, pattern: Any, shapes: Any, *, points: 
 
 
 def use_reference_paths(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Render with the numpy ray casting and whole-grid laser sheets."""
-    from atris_node.sim import layers, optics, raycast
+    """Render with the numpy ray casting, source angles and whole-grid laser sheets."""
+    from atris_node.sim import layers, optics, raycast, render
 
     monkeypatch.setattr(raycast, "cast", raycast.cast_reference)
     monkeypatch.setattr(layers, "cast", raycast.cast_reference)
     monkeypatch.setattr(optics, "sheet_irradiance", reference_sheet_irradiance)
+    monkeypatch.setattr(optics, "sheet_angles", reference_sheet_angles)
+    monkeypatch.setattr(render, "sheet_angles", reference_sheet_angles)
 
 
 @pytest.mark.parametrize(("name", "unit"), [("parking_pedestrian", 0), ("fleet", 0)])

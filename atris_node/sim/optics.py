@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.mounting import Mounting
+from atris_node.sim import optics_kernels
 from atris_node.sim.raycast import Shape, occluded
 from atris_node.sim.scene import Ambient, CameraSpec, LinePattern, Sun
 
@@ -139,13 +140,16 @@ def footprint_rad(theta: FloatArray) -> FloatArray:
 def sheet_angles(pose: Mounting, pattern: LinePattern,
                  points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Source-frame angles of world points (..., 3): θ (plane family angle), φ (along the
-    fan), distance r (m) and unit world directions (..., 3) from the source."""
-    d = pose.vehicle_to_camera(points) - np.array([0.0, -pattern.baseline_m, 0.0])
-    r = np.linalg.norm(d, axis=-1)
-    theta = np.arctan2(d[..., 2], d[..., 1])
-    phi = np.arctan2(d[..., 0], np.hypot(d[..., 1], d[..., 2]))
-    dirs = (d / np.maximum(r, 1e-12)[..., None]) @ pose.rotation.T
-    return theta, phi, r, dirs
+    fan), distance r (m) and unit world directions (..., 3) from the source (compiled:
+    :mod:`atris_node.sim.optics_kernels`)."""
+    p = np.asarray(points, dtype=np.float64)
+    flat = p.reshape(-1, 3)
+    theta, phi, r = (np.empty(flat.shape[0]) for _ in range(3))
+    dirs = np.empty(flat.shape)
+    optics_kernels.source_angles(flat, pose.translation, pose.rotation,
+                                 float(pattern.baseline_m), theta, phi, r, dirs)
+    shape = p.shape[:-1]
+    return theta.reshape(shape), phi.reshape(shape), r.reshape(shape), dirs.reshape(p.shape)
 
 
 def sheet_profile(theta: FloatArray, pattern: LinePattern,
