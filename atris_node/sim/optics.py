@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.mounting import Mounting
+from atris_node.sim import optics_kernels
 from atris_node.sim.raycast import Shape, occluded
 from atris_node.sim.scene import Ambient, CameraSpec, LinePattern, Sun
 
@@ -139,13 +140,16 @@ def footprint_rad(theta: FloatArray) -> FloatArray:
 def sheet_angles(pose: Mounting, pattern: LinePattern,
                  points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Source-frame angles of world points (..., 3): θ (plane family angle), φ (along the
-    fan), distance r (m) and unit world directions (..., 3) from the source."""
-    d = pose.vehicle_to_camera(points) - np.array([0.0, -pattern.baseline_m, 0.0])
-    r = np.linalg.norm(d, axis=-1)
-    theta = np.arctan2(d[..., 2], d[..., 1])
-    phi = np.arctan2(d[..., 0], np.hypot(d[..., 1], d[..., 2]))
-    dirs = (d / np.maximum(r, 1e-12)[..., None]) @ pose.rotation.T
-    return theta, phi, r, dirs
+    fan), distance r (m) and unit world directions (..., 3) from the source (compiled:
+    :mod:`atris_node.sim.optics_kernels`)."""
+    p = np.asarray(points, dtype=np.float64)
+    flat = p.reshape(-1, 3)
+    theta, phi, r = (np.empty(flat.shape[0]) for _ in range(3))
+    dirs = np.empty(flat.shape)
+    optics_kernels.source_angles(flat, pose.translation, pose.rotation,
+                                 float(pattern.baseline_m), theta, phi, r, dirs)
+    shape = p.shape[:-1]
+    return theta.reshape(shape), phi.reshape(shape), r.reshape(shape), dirs.reshape(p.shape)
 
 
 def sheet_profile(theta: FloatArray, pattern: LinePattern,
@@ -164,26 +168,27 @@ def sheet_irradiance(pose: Mounting, pattern: LinePattern, shapes: Sequence[Shap
                      psf_sigma_px: float, time_s: float = 0.0) -> FloatArray:
     """Irradiance (H, W) W/m² of a line pattern at surface points (H, W, 3), with shadows.
 
-    ``hit`` (H, W) marks pixels that see a surface; others get 0.
+    ``hit`` (H, W) marks pixels that see a surface; others get 0 and are not computed.
+    Pixels below ``PROFILE_CUTOFF`` of the line profile get 0 without a shadow test.
     """
-    theta, phi, r, dirs = sheet_angles(pose, pattern, points)
-    theta = np.where(hit, theta, np.nan)
-    profile = sheet_profile(theta, pattern, footprint_rad(theta), psf_sigma_px)
-    in_fan = hit & (np.abs(phi) <= pattern.fan_rad / 2.0) & (theta > 0.0)
-    cos_i = np.clip(-np.einsum("...i,...i->...", normals, dirs), 0.0, None)
+    seen = np.flatnonzero(hit)
+    theta_s, phi, r, dirs = sheet_angles(pose, pattern, points.reshape(-1, 3)[seen])
+    theta = np.full(hit.shape, np.nan)
+    theta.reshape(-1)[seen] = theta_s
+    footprint = footprint_rad(theta).reshape(-1)[seen]
+    profile = sheet_profile(theta_s, pattern, footprint, psf_sigma_px)
+    in_fan = (np.abs(phi) <= pattern.fan_rad / 2.0) & (theta_s > 0.0)
+    cos_i = np.clip(-np.einsum("...i,...i->...", normals.reshape(-1, 3)[seen], dirs), 0.0, None)
     peak = pattern.power_w / len(pattern.alpha_rad) / (
         pattern.fan_rad * pattern.line_sigma_rad * math.sqrt(2.0 * math.pi))
     irr = np.where(in_fan, peak * profile * cos_i / np.maximum(r, 1e-3) ** 2, 0.0)
-    lit = np.flatnonzero(irr.ravel() > 0.0)
-    lit = lit[profile.ravel()[lit] > PROFILE_CUTOFF]
-    flat = irr.ravel()
-    dark = np.setdiff1d(np.flatnonzero(flat > 0.0), lit, assume_unique=True)
-    flat[dark] = 0.0
+    lit = np.flatnonzero((irr > 0.0) & (profile > PROFILE_CUTOFF))
     if lit.size:
-        pts = points.reshape(-1, 3)[lit]
-        shadow = occluded(shapes, pts, -dirs.reshape(-1, 3)[lit], r.ravel()[lit], time_s)
-        flat[lit[shadow]] = 0.0
-    return flat.reshape(irr.shape)
+        shadow = occluded(shapes, points.reshape(-1, 3)[seen[lit]], -dirs[lit], r[lit], time_s)
+        lit = lit[~shadow]
+    flat = np.zeros(hit.size)
+    flat[seen[lit]] = irr[lit]
+    return flat.reshape(hit.shape)
 
 
 def _angle(a: FloatArray, b: FloatArray) -> FloatArray:

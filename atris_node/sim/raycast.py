@@ -4,7 +4,9 @@ Every shape answers :meth:`Shape.intersect` for n rays at once: ``origins`` (3,)
 and unit ``directions`` (n, 3), float64, at time ``time_s`` (a shape with a velocity v and
 an acceleration a has moved by ``v·t + a·t²/2``). It returns the ray parameter ``t`` (n,) in metres
 (``inf`` for a miss, only hits with ``t > EPSILON_M`` count) and the outward unit normals
-(n, 3). :func:`cast` takes the nearest hit over several shapes.
+(n, 3). :func:`cast` takes the nearest hit over several shapes; it runs each shape's
+compiled kernel (:mod:`atris_node.sim.raycast_kernels`, the same formulas in one pass,
+through :meth:`Shape.nearest`), and :func:`cast_reference` the numpy methods.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+
+from atris_node.sim import raycast_kernels as kernels
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -75,6 +79,20 @@ class Shape:
         """Ray parameter (n,) (inf on a miss) and unit normals (n, 3)."""
         raise NotImplementedError
 
+    def nearest(self, origins: FloatArray, directions: FloatArray, time_s: float,
+                index: int, best: Hits) -> None:
+        """Write this shape's hits into ``best`` where they are nearer, as shape ``index``.
+
+        ``origins`` (1, 3) or (n, 3), ``directions`` (n, 3). Shapes with a compiled
+        kernel override this; the default uses :meth:`intersect`.
+        """
+        t, normal = self.intersect(origins[0] if origins.shape[0] == 1 else origins,
+                                   directions, time_s)
+        closer = t < best.t
+        best.t[closer] = t[closer]
+        best.normal[closer] = normal[closer]
+        best.shape[closer] = index
+
 
 def _valid(t: FloatArray) -> FloatArray:
     return np.where(t > EPSILON_M, t, np.inf)
@@ -102,6 +120,12 @@ class Plane(Shape):
         normals = np.where((denom > 0)[:, None], -n, n)
         return t, normals
 
+    def nearest(self, origins: FloatArray, directions: FloatArray, time_s: float,
+                index: int, best: Hits) -> None:
+        n = np.asarray(self.normal, dtype=np.float64)
+        kernels.plane_hits(origins, directions, np.asarray(self.point_m) + self.offset(time_s),
+                           n / np.linalg.norm(n), index, best.t, best.normal, best.shape)
+
 
 @dataclass(frozen=True)
 class Sphere(Shape):
@@ -126,6 +150,12 @@ class Sphere(Shape):
         t = np.where(disc >= 0.0, _valid(t), np.inf)
         hit = oc + directions * np.where(np.isfinite(t), t, 0.0)[:, None]
         return t, hit / self.radius_m
+
+    def nearest(self, origins: FloatArray, directions: FloatArray, time_s: float,
+                index: int, best: Hits) -> None:
+        centre = np.asarray(self.center_m) + self.offset(time_s)
+        kernels.sphere_hits(origins, directions, centre, float(self.radius_m), index,
+                            best.t, best.normal, best.shape)
 
 
 @dataclass(frozen=True)
@@ -170,6 +200,12 @@ class Box(Shape):
         local[rows, axis] = -np.sign(d[rows, axis])
         local[rows, axis] *= np.where(t_in > EPSILON_M, 1.0, -1.0)
         return t, local @ rot.T
+
+    def nearest(self, origins: FloatArray, directions: FloatArray, time_s: float,
+                index: int, best: Hits) -> None:
+        centre = np.asarray(self.center_m, dtype=np.float64) + self.offset(time_s)
+        kernels.box_hits(origins, directions, centre, 0.5 * np.asarray(self.size_m),
+                         self._rotation(), index, best.t, best.normal, best.shape)
 
 
 @dataclass(frozen=True)
@@ -225,6 +261,12 @@ class Cylinder(Shape):
         caps[:, 2] = np.where(which == 1, -1.0, 1.0)
         return t, np.where((which == 0)[:, None], side, caps)
 
+    def nearest(self, origins: FloatArray, directions: FloatArray, time_s: float,
+                index: int, best: Hits) -> None:
+        base = np.asarray(self.center_m, dtype=np.float64) + self.offset(time_s)
+        kernels.cylinder_hits(origins, directions, base, float(self.radius_m),
+                              float(self.height_m), index, best.t, best.normal, best.shape)
+
 
 @dataclass(frozen=True)
 class Ramp(Shape):
@@ -276,6 +318,12 @@ class Ramp(Shape):
         t = np.where(inside, _valid(t), np.inf)
         return t, np.where((denom > 0)[:, None], -n, n)
 
+    def nearest(self, origins: FloatArray, directions: FloatArray, time_s: float,
+                index: int, best: Hits) -> None:
+        kernels.ramp_hits(origins, directions, self.centre(time_s), np.stack(self.axes()),
+                          0.5 * self.length_m, 0.5 * self.width_m, index, best.t,
+                          best.normal, best.shape)
+
 
 @dataclass(frozen=True)
 class Hits:
@@ -290,6 +338,18 @@ class Hits:
 def cast(shapes: Sequence[Shape], origins: FloatArray, directions: FloatArray,
          time_s: float = 0.0, index_offset: int = 0) -> Hits:
     """Nearest hit of every ray over ``shapes``; shape indices start at ``index_offset``."""
+    n = directions.shape[0]
+    best = Hits(np.full(n, np.inf), np.zeros((n, 3)), np.full(n, -1, dtype=np.int64))
+    rays = np.asarray(directions, dtype=np.float64)
+    starts = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    for i, shape in enumerate(shapes):
+        shape.nearest(starts, rays, time_s, i + index_offset, best)
+    return best
+
+
+def cast_reference(shapes: Sequence[Shape], origins: FloatArray, directions: FloatArray,
+                   time_s: float = 0.0, index_offset: int = 0) -> Hits:
+    """:func:`cast` with the shapes' numpy :meth:`Shape.intersect` (the tests' reference)."""
     n = directions.shape[0]
     best = Hits(np.full(n, np.inf), np.zeros((n, 3)), np.full(n, -1, dtype=np.int64))
     for i, shape in enumerate(shapes):

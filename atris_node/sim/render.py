@@ -77,6 +77,9 @@ class _Static:
     laser: Float32Array
     interferers: list[Float32Array] = field(default_factory=list)
     lit: npt.NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, np.intp))
+    #: shadow rays of the lit pixels towards the own projector: points (n, 3), unit
+    #: directions (n, 3), distances (n,) m; made at the first moving sub-frame
+    lit_rays: tuple[npt.NDArray[np.float64], ...] | None = None
 
 
 def _source_of(spec: object) -> Source:
@@ -264,9 +267,12 @@ class Simulator:
     def _laser(self, time_s: float) -> Float32Array:
         """Own-laser rates with the shadows the moving shapes cast at ``time_s``."""
         static = self._static_layer()
-        points = static.surface.points.reshape(-1, 3)[static.lit]
-        _, _, r, dirs = sheet_angles(self.true_mounting, self.scene.projector, points)
-        shadow = occluded(self.moving_shapes, points, -dirs, r, time_s)
+        if static.lit_rays is None:
+            points = static.surface.points.reshape(-1, 3)[static.lit]
+            _, _, r, dirs = sheet_angles(self.true_mounting, self.scene.projector, points)
+            static.lit_rays = (points, -dirs, r)
+        points, towards, r = static.lit_rays
+        shadow = occluded(self.moving_shapes, points, towards, r, time_s)
         laser = static.laser.copy()
         laser.reshape(-1)[static.lit[shadow]] = 0.0
         return laser
