@@ -104,7 +104,7 @@ PARAMS: tuple[Param, ...] = (
     P("pipeline.fov_deg", float, 70.0, "horizontal field of view of the sectors, deg",
       in_range(1.0, 360.0)),
     P("pipeline.min_points", int, 5, "points a sector needs to be valid", in_range(1, 10000)),
-    P("pipeline.invalid_on_interference", bool, True, "foreign light anywhere makes every "
+    P("pipeline.invalid_on_interference", bool, False, "foreign light anywhere makes every "
       "sector invalid (false: only the affected columns are left out)"),
     P("interference.every_windows", int, 8, "measure other codes' energy on one window of N "
       "sub-frames out of this many (0 = never; hopping needs it)", in_range(0, 10000)),

@@ -17,6 +17,8 @@ BENCHES: dict[str, tuple[str, str]] = {
     "bus": ("atris_node.bench.bus", "publish cycle cost and publisher period on a virtual bus"),
     "profile": ("atris_node.bench.profile",
                 "pipeline stages and demodulation per map; --sweep: cost growth"),
+    "interference": ("atris_node.bench.interference",
+                     "foreign-light metric against its limit, both ways, per situation"),
     "realtime": ("atris_node.bench.realtime",
                  "the node chain fed at a camera's native rate: drops, output, age, CPU"),
 }
