@@ -26,5 +26,8 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({"name": unit.label, "sub_frames": stats.sub_frames,
                           "measurements": stats.measurements,
                           "dropped_sub_frames": stats.dropped_sub_frames,
+                          "maps_skipped": stats.maps_skipped,
+                          "stale_maps": stats.stale_maps,
+                          "deadline_misses": stats.deadline_misses,
                           "camera_faults": stats.camera_faults}))
     return 0
