@@ -25,6 +25,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,6 +42,7 @@ from atris_node.types import DistortionMap, Measurement
 from drivers import Camera, Projector
 from drivers import open_backend as open_registry_backend
 
+SCENES = Path(__file__).resolve().parents[1] / "launch" / "scenes"
 BASE = ["code.length=8", "negotiation.window_s=0.1", "negotiation.reannounce_s=0.5",
         "negotiation.silence_timeout_s=1.5"]
 
@@ -202,3 +204,36 @@ def test_the_newest_map_replaces_a_waiting_one() -> None:
     assert measured == [(3, 1), (5, 2)]
     assert (maps.skipped, maps.measured) == (1, 2)
     assert not maps.alive
+
+
+def test_the_adaptations_exposure_is_set_by_the_loop_not_the_map_thread(
+        request: pytest.FixtureRequest, tmp_path: Path) -> None:
+    """With adaptation on and the map thread measuring, every exposure change reaches the
+    camera from the loop's thread, between two reads (a camera is read by the loop only).
+    Checked by calling ``camera.set_exposure_us`` in ``Measurer._adapt`` again: the
+    changes came from the map thread and the test failed."""
+    callers: list[str] = []
+    # indoor_lab exposed 20x too short: the adaptation lengthens the exposure at once
+    scene = tmp_path / "short_exposure.toml"
+    text = (SCENES / "indoor_lab.toml").read_text(encoding="utf-8")
+    scene.write_text(text.replace("exposure_us = 1000.0", "exposure_us = 50.0", 1),
+                     encoding="utf-8")
+    overrides = [*BASE, "adaptive.enabled=true", f"driver.scene={scene}"]
+    with listened_bus(f"map-thread-{request.node.name}", CycleFrames(), 0.01) as bus:
+        unit = Unit(cfg.load(environ={}, overrides=overrides), bus)
+        unit.configure()
+        camera = unit.camera
+        assert camera is not None
+        inner = camera.set_exposure_us
+
+        def recording(exposure_us: float) -> None:
+            callers.append(threading.current_thread().name)
+            inner(exposure_us)
+
+        camera.set_exposure_us = recording  # type: ignore[method-assign]
+        unit.activate(threaded=True)
+        try:
+            wait_for(lambda: len(callers) >= 1 and unit.stats.measurements >= 20, 60.0)
+        finally:
+            unit.shutdown()
+    assert callers and all(name.startswith("atris-unit-") for name in callers), callers

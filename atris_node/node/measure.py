@@ -3,12 +3,15 @@
 :class:`Measurer` owns the demodulator of the owned code, the sampled foreign-code energy,
 the pipeline and the scene adaptation. The unit's loop (:mod:`atris_node.node.unit`) reads
 the camera, strobes the projector and hands each sub-frame here; what comes back is the
-Measurement to publish. Everything here runs in the loop's thread.
+Measurement to publish. Sub-frames are handled in the loop's thread, maps on the map
+thread (:mod:`atris_node.node.worker`) or in the loop; an exposure the adaptation asks for
+is set on the camera by the loop (:meth:`Measurer.take_exposure_request`).
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -63,6 +66,10 @@ class Measurer:
         self.map_faults = FaultBits.NONE
         #: False while the sub-frames do not fit the calibrated camera (CALIBRATION)
         self.fits_calibration = True
+        #: an exposure (µs) the adaptation asked for, for the loop to set on the camera
+        #: between two reads (the map may be measured on another thread)
+        self._exposure_request: float | None = None
+        self._request_lock = threading.Lock()
 
     # ----------------------------------------------------------------- sub-frames
     def set_code(self, key: tuple[int, int], bits: int) -> None:
@@ -173,11 +180,19 @@ class Measurer:
             assess(dmap, result.samples.snr, diag.line_snr, diag.foreign_energy,
                    self.last_sub), int(self.negotiator.plan.code_length))
         if decision.exposure_us is not None:
-            camera.set_exposure_us(decision.exposure_us)
+            with self._request_lock:
+                self._exposure_request = float(decision.exposure_us)
         if decision.code_length is not None:
             self.negotiator.request_plan(decision.code_length)
         self.low_signal = decision.low_signal
         return withheld(result.measurement) if decision.low_signal else result.measurement
+
+    def take_exposure_request(self) -> float | None:
+        """The exposure (µs) the adaptation asked for since the last call, or None; the
+        loop sets it on the camera between two reads."""
+        with self._request_lock:
+            request, self._exposure_request = self._exposure_request, None
+        return request
 
     def _count_deadline(self, dmap: DistortionMap, camera: Camera | None) -> None:
         """A map not processed within one output period of its newest sub-frame is late."""

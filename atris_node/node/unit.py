@@ -270,6 +270,7 @@ class Unit:
         """One sub-frame: negotiate, strobe, read, demodulate, measure, publish."""
         self._watch_output()
         self._tick_negotiation()
+        self._apply_exposure_request()
         allowed = bool(self._negotiator.may_strobe)
         chips = self._strobe_next(self._chips() if allowed else None)
         if chips is None:
@@ -296,6 +297,13 @@ class Unit:
             # its publishing is the progress (a hung pipeline makes the output FAULT)
             assert self._publisher is not None
             self._publisher.heartbeat()
+
+    def _apply_exposure_request(self) -> None:
+        """Set the exposure the adaptation asked for, between two reads (never from the
+        map thread while the loop reads)."""
+        request = None if self._measure is None else self._measure.take_exposure_request()
+        if request is not None and self._camera is not None:
+            self._camera.set_exposure_us(request)
 
     def _tick_negotiation(self) -> None:
         """Advance the negotiation; a receive error it reports (the laser is already off:
