@@ -11,9 +11,9 @@ import pytest
 
 from atris_node.codes import walsh_chips
 from atris_node.demod import BlockDemodulator
-from atris_node.pipeline import chain, peaks
+from atris_node.pipeline import peaks
 from atris_node.pipeline.bands import line_bands, read_rows
-from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap, noise_floor, noise_map
+from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap, noise_map
 from atris_node.sim import Simulator, load_scene
 from atris_node.types import DistortionMap
 
@@ -70,40 +70,3 @@ def test_smoke_peak_snr_is_the_numpy_form(scene_map: tuple[Any, Any, NoiseMap]) 
         np.testing.assert_array_equal(got, want)
     assert (found >= 0).sum() > 100
 
-
-def _foreign_energy_numpy(dmap: DistortionMap, spans: list[tuple[int, int]],
-                          background_dn: float, threshold_dn: float
-                          ) -> tuple[float, npt.NDArray[np.bool_]]:
-    """The numpy form chain.foreign_energy had before its compiled pass."""
-    negative = positive = 0.0
-    columns = np.zeros(dmap.values.shape[1], dtype=np.bool_)
-    for lo, hi in spans:
-        block = dmap.values[lo:hi].astype(np.float32) - np.float32(background_dn)
-        block[dmap.saturated[lo:hi]] = 0.0
-        w = block.shape[1]
-        strong = np.flatnonzero(block < -threshold_dn)
-        strong = strong[(strong % w > 0) & (strong % w < w - 1)]
-        flat, weak = block.ravel(), -threshold_dn / 2
-        low = strong[(flat[strong - 1] < weak) & (flat[strong + 1] < weak)]
-        negative += float(-block.ravel()[low].sum())
-        positive += float(block[block > threshold_dn].sum())
-        columns[low % block.shape[1]] = True
-    if negative == 0.0:
-        return 0.0, columns
-    return negative / max(positive, threshold_dn, 1.0), columns
-
-
-@pytest.mark.parametrize("threshold_dn", [0.0, 2.5, 40.0, 333.3])
-def test_smoke_foreign_energy_is_the_numpy_form(scene_map: tuple[Any, Any, NoiseMap],
-                                                threshold_dn: float) -> None:
-    dmap, spans, _ = scene_map
-    background, _ = noise_floor(dmap.values, spans)
-    rng = np.random.default_rng(1)
-    saturated = dmap.saturated | (rng.random(dmap.saturated.shape) < 0.01)
-    for sat in (dmap.saturated, saturated):
-        case = DistortionMap(dmap.values, sat, dmap.code_length, dmap.first_sequence,
-                             dmap.last_sequence, dmap.first_time_s, dmap.last_time_s)
-        want = _foreign_energy_numpy(case, spans, background, threshold_dn)
-        got = chain.foreign_energy(case, tuple(spans), background, threshold_dn)
-        assert got[0] == want[0]
-        np.testing.assert_array_equal(got[1], want[1])

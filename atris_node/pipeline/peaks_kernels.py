@@ -361,60 +361,6 @@ def peak_snr(values: npt.NDArray[np.generic], rows: IntArray, tile_row: IntArray
     return out
 
 
-@kernel()
-def _level(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_], r: int, c: int,
-           background: np.float32) -> np.float32:
-    """values[r, c] as float32 minus ``background``; 0 where saturated."""
-    if saturated[r, c]:
-        return np.float32(0.0)
-    return np.float32(values[r, c]) - background
-
-
-def _foreign_signatures() -> list[Any]:
-    """Signatures of :func:`foreign_pixels`, per map dtype (read-only types take writable
-    arrays too)."""
-    f32, b1 = types.float32, types.boolean
-    out = types.Tuple((types.Array(f32, 1, "C"), types.Array(f32, 1, "C"),
-                       types.Array(b1, 1, "C")))
-    return [out(types.Array(dtype, 2, "C", readonly=True),
-                types.Array(b1, 2, "A", readonly=True), types.int64, types.int64,
-                types.float64, types.float64)
-            for dtype in (types.int16, types.int32, f32, types.float64)]
-
-
-@kernel(_foreign_signatures())
-def foreign_pixels(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_], lo: int,
-                   hi: int, background_dn: float, threshold_dn: float
-                   ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32],
-                              npt.NDArray[np.bool_]]:
-    """The pixels of rows ``[lo, hi)`` as float32 over ``background_dn`` (saturated ones
-    0): (those below ``-threshold_dn`` whose left and right neighbours are below
-    ``-threshold_dn / 2``, the (W,) columns holding them, those above ``threshold_dn``),
-    the pixel lists in row-major order. The comparisons are in float32, as numpy makes
-    them between a float32 array and a Python float."""
-    width = values.shape[1]
-    size = max(hi - lo, 0) * width
-    negative, positive = np.empty(size, dtype=np.float32), np.empty(size, dtype=np.float32)
-    columns = np.zeros(width, dtype=np.bool_)
-    background = np.float32(background_dn)
-    high, low, weak = np.float32(threshold_dn), np.float32(-threshold_dn), np.float32(
-        -threshold_dn / 2)
-    n_neg = n_pos = 0
-    for r in range(lo, hi):
-        for c in range(width):
-            v = _level(values, saturated, r, c, background)
-            if v > high:
-                positive[n_pos] = v
-                n_pos += 1
-            if (v < low and 0 < c < width - 1
-                    and _level(values, saturated, r, c - 1, background) < weak
-                    and _level(values, saturated, r, c + 1, background) < weak):
-                negative[n_neg] = v
-                n_neg += 1
-                columns[c] = True
-    return negative[:n_neg], positive[:n_pos], columns
-
-
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -434,5 +380,3 @@ def warm_up() -> None:
     peak_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
              np.zeros(4, dtype=i64), np.zeros((1, 1), dtype=np.float32),
              np.ones((1, 1), dtype=np.float32), 32)
-    foreign_pixels(np.zeros((4, 3), dtype=np.int16), np.zeros((4, 3), dtype=np.bool_), 0, 4,
-                   0.0, 1.0)
