@@ -78,14 +78,47 @@ def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> In
 
 
 @kernel()
-def _nearest(z: FloatArray, k: int) -> float:
-    """The finite range of ``z`` nearest to position k (the nearer range on a tie)."""
-    up = k - 1
-    while up >= 0 and not np.isfinite(z[up]):
-        up -= 1
-    down = k + 1
-    while down < z.size and not np.isfinite(z[down]):
-        down += 1
+def _next_finite(z: FloatArray, k: int) -> int:
+    """The first position from k down whose range is finite (``z.size`` when none)."""
+    while k < z.size and not np.isfinite(z[k]):
+        k += 1
+    return k
+
+
+@kernel()
+def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
+                        ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
+    """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
+    ``ground_range_m``; ``z`` (K,) scratch. One pass down the lines: each missing line
+    takes the finite range of the nearest line above (``up``) or below (``down``) it, the
+    nearer range on a tie of the distance in lines."""
+    k_count = order.size
+    if rows.min() >= 0:
+        return 0  # no line missing
+    focal_px, cy_px, height_px, baseline_m, z_max_m = geometry
+    for k in range(k_count):
+        line = order[k]
+        den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
+        z[k] = focal_px * baseline_m / den if rows[line] >= 0 and den > 0 else np.inf
+    count, up, down = 0, -1, _next_finite(z, 0)
+    for k in range(k_count):
+        if down <= k:
+            down = _next_finite(z, k + 1)
+        line = order[k]
+        if rows[line] < 0 and (up >= 0 or down < k_count):
+            near = _nearer(z, k, up, down)
+            if np.isfinite(near) and near <= z_max_m and near < ground_range_m[line, c]:
+                row = cy_px + focal_px * cot_alpha[line] - focal_px * baseline_m / near
+                count += 0 <= row < height_px
+        if np.isfinite(z[k]):
+            up = k
+    return count
+
+
+@kernel()
+def _nearer(z: FloatArray, k: int, up: int, down: int) -> float:
+    """Of the finite ranges at positions ``up`` < k < ``down`` (-1 / ``z.size``: none), the
+    one nearer to k in lines; on a tie the nearer range."""
     z_up = z[up] if up >= 0 else np.inf
     z_down = z[down] if down < z.size else np.inf
     gap_up = k - up if up >= 0 else 3 * z.size
@@ -93,31 +126,6 @@ def _nearest(z: FloatArray, k: int) -> float:
     if gap_up < gap_down or (gap_up == gap_down and z_up <= z_down):
         return z_up
     return z_down
-
-
-@kernel()
-def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
-                        ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
-    """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
-    ``ground_range_m``; ``z`` (K,) scratch."""
-    if rows.min() >= 0:
-        return 0  # no line missing
-    focal_px, cy_px, height_px, baseline_m, z_max_m = geometry
-    for k in range(order.size):
-        line = order[k]
-        den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
-        z[k] = focal_px * baseline_m / den if rows[line] >= 0 and den > 0 else np.inf
-    count = 0
-    for k in range(order.size):
-        line = order[k]
-        if rows[line] >= 0:
-            continue
-        near = _nearest(z, k)
-        if not (np.isfinite(near) and near <= z_max_m and near < ground_range_m[line, c]):
-            continue
-        row = cy_px + focal_px * cot_alpha[line] - focal_px * baseline_m / near
-        count += 0 <= row < height_px
-    return count
 
 
 @kernel(f"int64[:]({_I2}, {_F1}, {_F1}, {_F2}, {_I1})")

@@ -319,16 +319,13 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
 
 def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> FloatArray:
     """(., W) SNR of the map at the given rows of each column (0 where a row is -1): the
-    value over its tile's background, in its tile's σ."""
-    width = rows.shape[1]
-    cols = np.broadcast_to(np.arange(width), rows.shape)
-    at = np.maximum(rows, 0)
-    tile_row = local.tile_row[at]
-    tile_col = cols // NOISE_TILE_PX
-    value = values[at, cols].astype(np.float64)
-    snr = (value - local.background_tiles[tile_row, tile_col]) / local.sigma_tiles[
-        tile_row, tile_col]
-    return np.where(rows >= 0, snr, 0.0)
+    value over its tile's background, in its tile's σ. One compiled pass
+    (:func:`atris_node.pipeline.peaks_kernels.peak_snr`); tests/test_kernels.py holds it to
+    the numpy form."""
+    return np.asarray(kernels.peak_snr(kernels.map_values(values),
+                                       np.asarray(rows, dtype=np.int64), local.tile_row,
+                                       local.background_tiles, local.sigma_tiles,
+                                       NOISE_TILE_PX))
 
 
 def _unsampled(rows: IntArray, samples: LineSamples) -> IntArray:

@@ -332,6 +332,35 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
             out_sigma[:n].copy(), out_flat[:n].copy(), strong, strong - n)
 
 
+def _snr_signatures() -> list[Any]:
+    """Signatures of :func:`peak_snr`, per map dtype, writable or read-only."""
+    i64, f32 = types.int64, types.float32
+    out = types.Array(types.float64, 2, "C")
+    return [out(types.Array(dtype, 2, "C", readonly=readonly), types.Array(i64, 2, "A"),
+                types.Array(i64, 1, "A"), types.Array(f32, 2, "A"), types.Array(f32, 2, "A"),
+                i64)
+            for dtype in (types.int16, types.int32, f32, types.float64)
+            for readonly in (False, True)]
+
+
+@kernel(_snr_signatures())
+def peak_snr(values: npt.NDArray[np.generic], rows: IntArray, tile_row: IntArray,
+             background_tiles: npt.NDArray[np.float32], sigma_tiles: npt.NDArray[np.float32],
+             tile_px: int) -> FloatArray:
+    """(., W) SNR of ``values`` (H, W) at the ``rows`` (., W) of each column (0.0 where a
+    row is -1): the value over its tile's background, in its tile's σ (the tiles as
+    :func:`line_samples` reads them)."""
+    out = np.zeros(rows.shape)
+    for i in range(rows.shape[0]):
+        for c in range(rows.shape[1]):
+            r = rows[i, c]
+            if r >= 0:
+                tile = (tile_row[r], c // tile_px)
+                out[i, c] = (np.float64(values[r, c]) - np.float64(background_tiles[tile])) / (
+                    np.float64(sigma_tiles[tile]))
+    return out
+
+
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -348,3 +377,6 @@ def warm_up() -> None:
                  np.zeros((1, 1), dtype=np.float32), np.ones((1, 1), dtype=np.float32), 32,
                  6.0, 2, 1, 0.0, 1.5, 1.0, 0.5, 8)
     line_medians(line, np.zeros(1), 1)
+    peak_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
+             np.zeros(4, dtype=i64), np.zeros((1, 1), dtype=np.float32),
+             np.ones((1, 1), dtype=np.float32), 32)

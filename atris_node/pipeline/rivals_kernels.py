@@ -27,6 +27,12 @@ IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
+#: rival paths per column whose prior count is kept (different candidates often read back
+#: the same path: a comb shifted by one line is the rival of each of its peaks)
+SEEN_PATHS = 16
+#: the steps of a path through the tables: line takes peak, line skipped, peak spare
+TAKE, SKIP, SPARE = 1, 2, 0
+
 
 @kernel()
 def _match(j: int, p: int, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: FloatArray,
@@ -39,47 +45,53 @@ def _match(j: int, p: int, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
 
 
 @kernel()
-def _tables(column: IntArray, m: int, lo: IntArray, hi: IntArray, ref: FloatArray,
-            beyond: FloatArray, costs: FloatArray, spare: FloatArray, f: FloatArray,
-            g: FloatArray) -> None:
-    """Fill the forward ``f`` and backward ``g`` tables (K + 1, M + 1) of one column."""
-    skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
-    k_count = lo.size
-    for i in range(m):
-        spare[i] = spare_px if _in_any(column[i], lo, hi) else 0.0
+def _tables(m: int, k_count: int, match: FloatArray, costs: FloatArray, spare: FloatArray,
+            f: FloatArray, g: FloatArray, f_step: npt.NDArray[np.int8],
+            g_step: npt.NDArray[np.int8]) -> None:
+    """Fill the forward ``f`` and backward ``g`` tables (K + 1, M + 1) of one column from
+    the ``match`` costs (K, M) of :func:`_match`, and in ``f_step`` / ``g_step`` the step a
+    cheapest path takes from each cell (TAKE, SKIP, SPARE; a match before a skip before a
+    spare on a tie)."""
+    skip_px = costs[0]
     f[0, 0] = 0.0
     for i in range(1, m + 1):
         f[0, i] = f[0, i - 1] + spare[i - 1]
+        f_step[0, i] = SPARE
     for j in range(1, k_count + 1):
         f[j, 0] = f[j - 1, 0] + skip_px
+        f_step[j, 0] = SKIP
         for i in range(1, m + 1):
-            take = f[j - 1, i - 1] + _match(j - 1, column[i - 1], lo, hi, ref, beyond,
-                                            beyond_px)
-            f[j, i] = min(take, f[j - 1, i] + skip_px, f[j, i - 1] + spare[i - 1])
+            take = f[j - 1, i - 1] + match[j - 1, i - 1]
+            skip = f[j - 1, i] + skip_px
+            here = min(take, skip, f[j, i - 1] + spare[i - 1])
+            f[j, i] = here
+            f_step[j, i] = TAKE if here == take else (SKIP if here == skip else SPARE)
     g[k_count, m] = 0.0
     for i in range(m - 1, -1, -1):
         g[k_count, i] = g[k_count, i + 1] + spare[i]
+        g_step[k_count, i] = SPARE
     for j in range(k_count - 1, -1, -1):
         g[j, m] = g[j + 1, m] + skip_px
+        g_step[j, m] = SKIP
         for i in range(m - 1, -1, -1):
-            take = _match(j, column[i], lo, hi, ref, beyond, beyond_px) + g[j + 1, i + 1]
-            g[j, i] = min(take, g[j + 1, i] + skip_px, g[j, i + 1] + spare[i])
+            take = match[j, i] + g[j + 1, i + 1]
+            skip = g[j + 1, i] + skip_px
+            here = min(take, skip, g[j, i + 1] + spare[i])
+            g[j, i] = here
+            g_step[j, i] = TAKE if here == take else (SKIP if here == skip else SPARE)
 
 
 @kernel()
-def _read_forward(j: int, i: int, column: IntArray, lo: IntArray, hi: IntArray,
-                  ref: FloatArray, beyond: FloatArray, costs: FloatArray, spare: FloatArray,
-                  f: FloatArray, out: IntArray) -> None:
+def _read_forward(j: int, i: int, column: IntArray, f_step: npt.NDArray[np.int8],
+                  out: IntArray) -> None:
     """Rows (``out``, image order) the first j lines take on a cheapest path to F[j, i]."""
-    skip_px, beyond_px = costs[0], costs[2]
     while j > 0:
-        here = f[j, i]
-        if i > 0 and here == f[j - 1, i - 1] + _match(j - 1, column[i - 1], lo, hi, ref,
-                                                      beyond, beyond_px):
+        step = f_step[j, i]
+        if step == TAKE:
             out[j - 1] = column[i - 1]
             j -= 1
             i -= 1
-        elif here == f[j - 1, i] + skip_px:
+        elif step == SKIP:
             out[j - 1] = -1
             j -= 1
         else:
@@ -87,20 +99,17 @@ def _read_forward(j: int, i: int, column: IntArray, lo: IntArray, hi: IntArray,
 
 
 @kernel()
-def _read_backward(j: int, i: int, m: int, column: IntArray, lo: IntArray, hi: IntArray,
-                   ref: FloatArray, beyond: FloatArray, costs: FloatArray,
-                   spare: FloatArray, g: FloatArray, out: IntArray) -> None:
+def _read_backward(j: int, i: int, column: IntArray, g_step: npt.NDArray[np.int8],
+                   out: IntArray) -> None:
     """Rows (``out``, image order) lines j.. take on a cheapest path from G[j, i]."""
-    skip_px, beyond_px = costs[0], costs[2]
-    k_count = lo.size
+    k_count = g_step.shape[0] - 1
     while j < k_count:
-        here = g[j, i]
-        if i < m and here == _match(j, column[i], lo, hi, ref, beyond, beyond_px) + (
-                g[j + 1, i + 1]):
+        step = g_step[j, i]
+        if step == TAKE:
             out[j] = column[i]
             j += 1
             i += 1
-        elif here == g[j + 1, i] + skip_px:
+        elif step == SKIP:
             out[j] = -1
             j += 1
         else:
@@ -124,6 +133,21 @@ def _chosen_cost(rows: IntArray, column: IntArray, m: int, lo: IntArray, hi: Int
     for i in range(m):
         total += spare[i]
     return total - taken
+
+
+@kernel()
+def _known_count(seen: IntArray, seen_count: IntArray, n_seen: int, path: IntArray) -> int:
+    """The count stored with ``path`` (K,) among the first ``n_seen`` rows of ``seen``, -1
+    when it is not there."""
+    for s in range(n_seen):
+        same = True
+        for k in range(path.size):
+            if seen[s, k] != path[k]:
+                same = False
+                break
+        if same:
+            return seen_count[s]
+    return -1
 
 
 @kernel()
@@ -165,12 +189,18 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     spare = np.zeros(m_count)
     f = np.zeros((k_count + 1, m_count + 1))
     g = np.zeros((k_count + 1, m_count + 1))
+    match = np.empty((k_count, m_count))
+    f_step = np.zeros((k_count + 1, m_count + 1), dtype=np.int8)
+    g_step = np.zeros((k_count + 1, m_count + 1), dtype=np.int8)
     image = np.empty(k_count, dtype=np.int64)
     other = np.empty(k_count, dtype=np.int64)
     line_rows = np.empty(k_count, dtype=np.int64)
     z = np.empty(k_count)
     owner = np.empty(m_count, dtype=np.int64)
+    seen = np.empty((SEEN_PATHS, k_count), dtype=np.int64)
+    seen_count = np.empty(SEEN_PATHS, dtype=np.int64)
     for c in columns:
+        n_seen = 0
         m = _sorted_peaks(peaks[:, c], column)
         for i in range(m):
             spare[i] = costs[1] if _in_any(column[i], lo, hi) else 0.0
@@ -185,7 +215,10 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         if has_prior:
             best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
                                                    ground_range_m, image_order, z)
-        _tables(column, m, lo, hi, ref[:, c], beyond, costs, spare, f, g)
+        for j in range(k_count):
+            for i in range(m):
+                match[j, i] = _match(j, column[i], lo, hi, ref[:, c], beyond, costs[2])
+        _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
         owner[:] = -1
         for k in range(k_count):
             if image[k] >= 0:
@@ -196,20 +229,23 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
             for j in range(k_count - 1, -1, -1):  # the lowest line first: the nearest
                 if j == owner[i] or not lo[j] <= column[i] < hi[j]:
                     continue
-                through = f[j, i] + _match(j, column[i], lo, hi, ref[:, c], beyond,
-                                           costs[2]) + g[j + 1, i + 1]
+                through = f[j, i] + match[j, i] + g[j + 1, i + 1]
                 if through >= best + margin:
                     continue  # no assignment giving peak i to line j comes close
                 if has_prior:
                     other[:] = -1
-                    _read_forward(j, i, column, lo, hi, ref[:, c], beyond, costs, spare, f,
-                                  other)
+                    _read_forward(j, i, column, f_step, other)
                     other[j] = column[i]
-                    _read_backward(j + 1, i + 1, m, column, lo, hi, ref[:, c], beyond, costs,
-                                   spare, g, other)
-                    through += costs[3] * _unexplained_column(
-                        _by_line(other, order, line_rows), c, cot_alpha, geometry,
-                        ground_range_m, image_order, z)
+                    _read_backward(j + 1, i + 1, column, g_step, other)
+                    missing = _known_count(seen, seen_count, n_seen, other)
+                    if missing < 0:  # a path not yet priced in this column
+                        missing = _unexplained_column(_by_line(other, order, line_rows), c,
+                                                      cot_alpha, geometry, ground_range_m,
+                                                      image_order, z)
+                        if n_seen < SEEN_PATHS:
+                            seen[n_seen], seen_count[n_seen] = other, missing
+                            n_seen += 1
+                    through += costs[3] * missing
                 if through < best + margin:
                     ambiguous[order[owner[i]], c] = order[max(j, owner[i])]
                     break
