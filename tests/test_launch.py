@@ -7,7 +7,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import can
@@ -60,10 +59,10 @@ def _sleeper(ignore: tuple[str, ...]) -> subprocess.Popen[bytes]:
 
 
 def test_escalation_stops_at_sigint_when_obeyed() -> None:
+    """A process that obeys SIGINT ends by it, however long a loaded machine takes to
+    let it exit (the wait for it is generous; no SIGTERM follows)."""
     process = _sleeper(())
-    start = time.monotonic()
-    assert escalate(process, waits=(2.0, 2.0)) == -signal.SIGINT
-    assert time.monotonic() - start < 2.0
+    assert escalate(process, waits=(30.0, 2.0)) == -signal.SIGINT
 
 
 def test_escalation_goes_to_sigkill_when_ignored() -> None:
