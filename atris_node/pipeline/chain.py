@@ -365,7 +365,9 @@ class Pipeline:
                                            self._prior), blanked)
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(
-            None if nearest is None else nearest.distance_m, dmap.last_time_s)
+            None if nearest is None else nearest.distance_m,
+            0.5 * (dmap.first_time_s + dmap.last_time_s), dmap.last_time_s,
+            0.0 if nearest is None else nearest.sigma_m)
         measurement = Measurement(self._counter, sectors, dmap.last_time_s,
                                   dmap.last_sequence, nearest, closing, ttc)
         found = self._objects(vehicle[obstacle & clean]) if self.config.objects else None

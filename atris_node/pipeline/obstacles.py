@@ -11,6 +11,7 @@ evidence (:mod:`atris_node.pipeline.evidence`).
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -129,37 +130,67 @@ class ClosingTracker:
     """Closing speed (m/s, > 0 approaching) and time to collision (s) of the nearest
     obstacle, from a least-squares slope over the last few frames.
 
+    A map integrates its window, so its distance belongs to the window's middle time;
+    the time to collision is counted from the newest sub-frame (``now_s``): the distance
+    at the middle, less what the obstacle closed since, over the closing speed. A value
+    the fit does not support is None: the closing speed when its standard error (from
+    the fit's residuals and the distances' σ, at least MIN_SIGMA_M, the larger: three
+    points can lie on a line by chance) exceeds max(MAX_REL_SE · |closing|,
+    MAX_ABS_SE_MPS); the time to collision unless the obstacle closes faster than
+    ``min_closing_mps`` with a standard error within TTC_REL_SE of it (a time to
+    collision half the true one needs the closing speed twice the true one: an error of
+    at least 4 standard errors then).
+
     The history restarts when the nearest obstacle disappears, jumps by more than
     ``max_jump_m`` (a different object) or is older than ``window_s``.
     """
+
+    #: largest standard error of a published closing speed, relative and absolute (m/s)
+    MAX_REL_SE = 0.25
+    MAX_ABS_SE_MPS = 0.1
+    #: largest standard error of the closing speed behind a published time to collision
+    TTC_REL_SE = 0.125
+    #: the least distance σ assumed per frame, m
+    MIN_SIGMA_M = 0.02
 
     def __init__(self, window_s: float = 1.0, max_frames: int = 6,
                  max_jump_m: float = 0.75, min_closing_mps: float = 0.05) -> None:
         self.window_s = window_s
         self.max_jump_m = max_jump_m
         self.min_closing_mps = min_closing_mps
-        self._history: deque[tuple[float, float]] = deque(maxlen=max_frames)
+        self._history: deque[tuple[float, float, float]] = deque(maxlen=max_frames)
 
-    def update(self, distance_m: float | None, time_s: float) -> tuple[float | None,
-                                                                       float | None]:
-        """Add one frame; returns (closing speed m/s or None, time to collision s or None)."""
+    def update(self, distance_m: float | None, time_s: float, now_s: float | None = None,
+               sigma_m: float = 0.0) -> tuple[float | None, float | None]:
+        """Add one frame: the distance (m, σ ``sigma_m``) at ``time_s`` (s, the window's
+        middle), the newest sub-frame at ``now_s`` (default ``time_s``). Returns (closing
+        speed m/s or None, time to collision s or None)."""
         if distance_m is None:
             self._history.clear()
             return None, None
         if self._history and abs(distance_m - self._history[-1][1]) > self.max_jump_m:
             self._history.clear()
-        self._history.append((time_s, distance_m))
+        self._history.append((time_s, distance_m, max(sigma_m, self.MIN_SIGMA_M)))
         while self._history and time_s - self._history[0][0] > self.window_s:
             self._history.popleft()
-        return self._estimate(distance_m)
+        return self._estimate(distance_m, time_s, time_s if now_s is None else now_s)
 
-    def _estimate(self, distance_m: float) -> tuple[float | None, float | None]:
+    def _estimate(self, distance_m: float, time_s: float, now_s: float
+                  ) -> tuple[float | None, float | None]:
         if len(self._history) < 3:
             return None, None
-        t, d = np.array(self._history).T
+        t, d, sigma = np.array(self._history).T
         if np.ptp(t) <= 0:
             return None, None
         dt = t - t.mean()  # least-squares slope in closed form (np.polyfit: 10x the time)
-        closing = -float(dt @ (d - d.mean()) / (dt @ dt))
-        ttc = distance_m / closing if closing > self.min_closing_mps else None
-        return closing, ttc
+        spread = float(dt @ dt)
+        closing = -float(dt @ (d - d.mean()) / spread)
+        residual = d - d.mean() + closing * dt
+        se = max(math.sqrt(float(residual @ residual) / max(len(t) - 2, 1) / spread),
+                 float(np.sqrt((sigma * sigma) @ (dt * dt))) / spread)
+        if se > max(self.MAX_REL_SE * abs(closing), self.MAX_ABS_SE_MPS):
+            return None, None
+        if closing <= self.min_closing_mps or se > self.TTC_REL_SE * closing:
+            return closing, None
+        ttc = (distance_m - closing * max(now_s - time_s, 0.0)) / closing
+        return closing, max(ttc, 0.0)
