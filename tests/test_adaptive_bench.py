@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import json
+import time
+from typing import Any
 
+import can
 import pytest
 
+from atris_node.bench.adaptive import _Probe, stepped_unit
 from atris_node.cli import main
+from atris_node.types import DistortionMap, SubFrame
 
 FIELDS = {"scene", "code_length", "output_hz", "ms_per_frame", "range_rmse_m",
           "fixed32_output_hz", "fixed32_range_rmse_m"}
@@ -20,3 +25,54 @@ def test_smoke_bench_adaptive_json(capsys: pytest.CaptureFixture[str]) -> None:
     r = rows[0]
     assert r["scene"] == "indoor_lab" and 0 < r["fixed32_output_hz"] <= 240 / 32 + 1e-9
     assert r["output_hz"] > 0 and r["code_length"] in (4, 8, 16, 32)
+
+
+def _choices(scene: str, read_delay_s: float, sub_frames: int) -> list[Any]:
+    """The N changes (first sub-frame of the first map of each N) and the N of every map
+    of a stepped adaptive unit, each camera read taking ``read_delay_s`` more wall time."""
+    bus = can.Bus(interface="virtual", channel=f"repro-{scene}-{read_delay_s}")
+    unit = stepped_unit(scene, ["adaptive.enabled=true", "code.length=16",
+                                "adaptive.shrink_frames=2"], bus)
+    try:
+        camera = unit.camera
+        assert camera is not None
+        read = camera.read
+
+        def slow_read(timeout_s: float = 1.0) -> SubFrame:
+            time.sleep(read_delay_s)  # a slower or busier machine, not a timing check
+            return read(timeout_s=timeout_s)
+
+        camera.read = slow_read  # type: ignore[method-assign]
+        maps: list[tuple[int, int]] = []
+        probe = _Probe(unit)
+        on_map = unit._on_map
+
+        def recording(dmap: DistortionMap) -> None:
+            maps.append((dmap.first_sequence, dmap.code_length))
+            on_map(dmap)
+
+        unit._on_map = recording  # type: ignore[method-assign]
+        for _ in range(sub_frames):
+            unit.step()
+            unit.check()
+        return [probe.choices, maps]
+    finally:
+        unit.shutdown()
+        bus.shutdown()
+
+
+def test_feature_two_runs_choose_the_same_n_on_a_slower_machine() -> None:
+    """Two runs of one scene and seed choose the same N from the same maps, the second on
+    a machine made slower (3 ms more per sub-frame read).
+
+    The bench steps its unit as fast as the machine allows. With the negotiator's listen
+    and contest windows on the wall clock, the sub-frames a renegotiation stayed dark
+    depended on the machine's speed and load, so the controller judged other maps (other
+    noise) and two runs chose N = 4 and N = 8. The unit now runs every timer on the
+    simulated clock of its camera. Checked: with the negotiator back on ``time.monotonic``
+    (``wiring.make_negotiator`` without the unit's clock) this test fails (the first map
+    starts at another sub-frame)."""
+    first = _choices("outdoor_medium_sun", 0.0, 260)
+    second = _choices("outdoor_medium_sun", 0.003, 260)
+    assert len(first[0]) >= 2, first[0]  # N did change while it ran
+    assert first == second
