@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from atris_node.adaptive.assessment import assess
+from atris_node.adaptive.assessment import RangeModel, assess
 from atris_node.adaptive.controller import AdaptiveController, withheld
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
@@ -171,13 +171,21 @@ class Measurer:
         dmap.extra["foreign_code_energy"] = diag.foreign_energy
         decision = self.adaptive.on_frame(
             assess(dmap, result.samples.snr, diag.line_snr, diag.foreign_energy,
-                   self.last_sub), int(self.negotiator.plan.code_length))
+                   self.last_sub, self._range_model(result)),
+            int(self.negotiator.plan.code_length))
         if decision.exposure_us is not None:
             camera.set_exposure_us(decision.exposure_us)
         if decision.code_length is not None:
             self.negotiator.request_plan(decision.code_length)
         self.low_signal = decision.low_signal
         return withheld(result.measurement) if decision.low_signal else result.measurement
+
+    def _range_model(self, result: Any) -> RangeModel:
+        """The row sigmas behind the valid samples' range sigma (the error bound)."""
+        calibration = self.pipeline.calibration
+        return RangeModel(result.samples.sigma_u_px[result.valid],
+                          float(self.pipeline.config.sigma_u_px),
+                          float(calibration.camera.focal_px * calibration.laser.baseline_m))
 
     def _count_deadline(self, dmap: DistortionMap, camera: Camera | None) -> None:
         """A map not processed within one output period of its newest sub-frame is late."""
