@@ -14,7 +14,9 @@ from atris_node.cli import main
 from atris_node.types import DistortionMap, SubFrame
 
 FIELDS = {"scene", "code_length", "output_hz", "ms_per_frame", "range_rmse_m",
-          "fixed32_output_hz", "fixed32_range_rmse_m"}
+          "fixed32_output_hz", "fixed32_range_rmse_m", "measured_lengths", "choices",
+          "published_valid", "published_rmse_m", "published_phantoms",
+          "fixed32_published_valid", "fixed32_published_rmse_m", "fixed32_published_phantoms"}
 
 
 def test_smoke_bench_adaptive_json(capsys: pytest.CaptureFixture[str]) -> None:
@@ -25,6 +27,10 @@ def test_smoke_bench_adaptive_json(capsys: pytest.CaptureFixture[str]) -> None:
     r = rows[0]
     assert r["scene"] == "indoor_lab" and 0 < r["fixed32_output_hz"] <= 240 / 32 + 1e-9
     assert r["output_hz"] > 0 and r["code_length"] in (4, 8, 16, 32)
+    assert r["measured_lengths"] and r["choices"][0][1] == 16  # the first maps' N
+    # the published distances are scored too: indoor_lab publishes, all of them near truth
+    assert r["published_valid"] > 0 and r["published_phantoms"] == 0
+    assert r["published_rmse_m"] is not None and r["published_rmse_m"] < 0.2
 
 
 def _choices(scene: str, read_delay_s: float, sub_frames: int) -> list[Any]:
