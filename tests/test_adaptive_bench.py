@@ -21,11 +21,13 @@ FIELDS = {"scene", "code_length", "output_hz", "ms_per_frame", "range_rmse_m",
 
 def test_smoke_bench_adaptive_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["bench", "adaptive", "--json", "--scenes", "indoor_lab", "--settle", "16",
-                 "--measure", "80"]) == 0
+                 "--measure", "80", "--seed", "1", "--set", "adaptive.max_range_sigma_m=0.15"
+                 ]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert len(rows) == 1 and set(rows[0]) >= FIELDS
     r = rows[0]
-    assert r["scene"] == "indoor_lab" and 0 < r["fixed32_output_hz"] <= 240 / 32 + 1e-9
+    assert r["scene"] == "indoor_lab" and r["seed"] == 1
+    assert 0 < r["fixed32_output_hz"] <= 240 / 32 + 1e-9
     assert r["output_hz"] > 0 and r["code_length"] in (4, 8, 16, 32)
     assert r["measured_lengths"] and r["choices"][0][1] == 16  # the first maps' N
     # the published distances are scored too: indoor_lab publishes, all of them near truth
@@ -82,3 +84,9 @@ def test_feature_two_runs_choose_the_same_n_on_a_slower_machine() -> None:
     second = _choices("outdoor_medium_sun", 0.003, 260)
     assert len(first[0]) >= 2, first[0]  # N did change while it ran
     assert first == second
+
+
+def test_exception_bench_adaptive_bad_setting(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "adaptive", "--scenes", "indoor_lab", "--settle", "1", "--measure",
+                 "1", "--set", "adaptive.max_range_sigma_m=-1"]) == 1
+    assert "adaptive.max_range_sigma_m" in capsys.readouterr().err

@@ -25,7 +25,9 @@ then ``--measure`` sub-frames measured. Per scene the row holds:
   max(10 %, 20 cm) (:func:`atris_node.bench.safety.score_sector`);
 - ``low_signal``: LOW_SIGNAL set at the end;
 
-beside the same scene at a fixed N = 32 without adaptation (``fixed32_*``).
+beside the same scene at a fixed N = 32 without adaptation (``fixed32_*``). ``--seed``
+sets both runs' noise seed (``driver.seed``, reported as ``seed``); ``--set KEY=VALUE``
+changes a parameter of the adaptive run only (a bad one fails as the CLI's config does).
 """
 
 from __future__ import annotations
@@ -189,11 +191,15 @@ def _figures(unit: Unit, probe: _Probe, maps: int, sub_frames: int) -> dict[str,
             "low_signal": bool(unit.status().faults & FaultBits.LOW_SIGNAL)}
 
 
-def row(scene: str, settle: int, measure: int) -> dict[str, Any]:
-    """The adaptive run and the fixed N = 32 run of one scene."""
-    adaptive = run_scene(scene, ["adaptive.enabled=true", "code.length=16"], settle, measure)
-    fixed = run_scene(scene, ["code.length=32"], settle, measure)
-    return {"scene": scene, **adaptive,
+def row(scene: str, settle: int, measure: int, seed: int = 1,
+        settings: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The adaptive run (``settings``: extra KEY=VALUE for it) and the fixed N = 32 run of
+    one scene, both rendered with noise seed ``seed``."""
+    seeded = [f"driver.seed={seed}"]
+    adaptive = run_scene(scene, [*seeded, "adaptive.enabled=true", "code.length=16",
+                                 *settings], settle, measure)
+    fixed = run_scene(scene, [*seeded, "code.length=32"], settle, measure)
+    return {"scene": scene, "seed": seed, **adaptive,
             **{f"fixed32_{k}": fixed[k] for k in (
                 "output_hz", "ms_per_frame", "range_rmse_m", "published_valid",
                 "published_rmse_m", "published_phantoms")}}
@@ -203,6 +209,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), help="scene names")
     parser.add_argument("--settle", type=int, default=480, help="sub-frames to settle")
     parser.add_argument("--measure", type=int, default=384, help="sub-frames measured")
+    parser.add_argument("--seed", type=int, default=1, help="noise seed of the renders (1)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a parameter of the adaptive run (repeatable), e.g. "
+                             "adaptive.max_range_sigma_m=10")
     parser.add_argument("--json", action="store_true", help="print the rows as JSON")
     parser.add_argument("--skips", action="store_true",
                         help="instead: what leaving out unneeded work saves (bench/skips.py)")
@@ -225,6 +235,7 @@ def run(args: argparse.Namespace) -> int:
     if args.skips:
         print(json.dumps(skips.rows(), indent=1))
         return 0
-    rows = [row(scene, args.settle, args.measure) for scene in args.scenes]
+    rows = [row(scene, args.settle, args.measure, args.seed, tuple(args.set))
+            for scene in args.scenes]
     print(json.dumps(rows, indent=1) if args.json else "\n".join(_text(r) for r in rows))
     return 0
