@@ -11,7 +11,9 @@ import pytest
 
 from atris_node.bench.adaptive import _Probe, stepped_unit
 from atris_node.cli import main
+from atris_node.errors import ConfigError
 from atris_node.types import DistortionMap, SubFrame
+from drivers import sim as sim_driver
 
 FIELDS = {"scene", "code_length", "output_hz", "ms_per_frame", "range_rmse_m",
           "fixed32_output_hz", "fixed32_range_rmse_m", "measured_lengths", "choices",
@@ -90,3 +92,19 @@ def test_exception_bench_adaptive_bad_setting(capsys: pytest.CaptureFixture[str]
     assert main(["bench", "adaptive", "--scenes", "indoor_lab", "--settle", "1", "--measure",
                  "1", "--set", "adaptive.max_range_sigma_m=-1"]) == 1
     assert "adaptive.max_range_sigma_m" in capsys.readouterr().err
+
+
+def test_feature_simulated_clock_counts_sub_frames() -> None:
+    clock = sim_driver.SimulatedClock()
+    camera, _ = sim_driver.open_backend("indoor_lab", clock=clock)
+    try:
+        assert clock() == 0.0
+        subs = [camera.read() for _ in range(3)]
+        assert clock() == pytest.approx(3 / camera.rate_hz)
+        # host times are on the same clock: the newest sub-frame's data is 0 s old
+        assert [s.host_time_s for s in subs] == pytest.approx(
+            [i / camera.rate_hz for i in (1, 2, 3)])
+    finally:
+        camera.close()
+    with pytest.raises(ConfigError, match="realtime"):
+        sim_driver.open_backend("indoor_lab", clock=sim_driver.SimulatedClock(), realtime=True)
