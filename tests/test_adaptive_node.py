@@ -238,3 +238,24 @@ def test_safety_strong_sun_publishes_no_valid_distance_at_any_n(seed: int) -> No
     finally:
         unit.shutdown()
         bus.shutdown()
+
+
+def _lengths_run(bus: can.BusABC, *extra: str) -> set[int]:
+    """The N of every map of a stepped indoor_lab unit with a low SNR target (6)."""
+    unit = stepped_unit("indoor_lab", [*BASE, "code.length=16", "adaptive.shrink_frames=4",
+                                       "adaptive.snr_target=6", *extra], bus)
+    windows = Windows(unit)
+    try:
+        steps(unit, 260)
+        return {m.code_length for m in windows.maps}
+    finally:
+        unit.shutdown()
+
+
+def test_feature_error_bound_stops_the_shrink_the_snr_rule_wants(bus: can.BusABC) -> None:
+    # indoor_lab at SNR target 6: the share rule alone takes N from 16 to 4, where the
+    # published RMSE was 0.111 m against 0.0066 m at N = 32 (docs/benchmarks.md); the range
+    # sigma predicted at 5 m is about 0.16 m at N = 4, over the 0.15 m bound, and 0.12 m
+    # at N = 8. On the simulated clock: the same maps in both runs.
+    assert 4 in _lengths_run(bus, "adaptive.max_range_sigma_m=10")  # the bound off
+    assert min(_lengths_run(bus)) == 8
