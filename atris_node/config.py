@@ -163,6 +163,12 @@ PARAMS: tuple[Param, ...] = (
       "sub-frame period)", in_range(1.0, 1e5)),
     P("adaptive.low_signal_ratio", float, 1.0, "LOW_SIGNAL when laser l <= this * delta",
       in_range(0.0, 100.0)),
+    P("adaptive.low_signal_clear_frames", int, 2, "after LOW_SIGNAL, frames above the limit "
+      "in a row before distances are published again", in_range(1, 1000)),
+    P("adaptive.max_range_sigma_m", float, 0.15, "N never shrinks to a length whose "
+      "predicted range sigma at adaptive.sigma_range_m exceeds this, m", in_range(0.001, 10.0)),
+    P("adaptive.sigma_range_m", float, 5.0, "the range that matters for "
+      "adaptive.max_range_sigma_m, m", in_range(0.1, 200.0)),
 )
 PARAM_BY_KEY: dict[str, Param] = {p.key: p for p in PARAMS}
 

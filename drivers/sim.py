@@ -3,7 +3,11 @@
 Timing: the simulated clock is ``sequence / rate_hz`` (device time = exposure mid-time).
 Host times are the host clock when a sub-frame is handed over (its arrival, as a real
 driver stamps it); simulated time 0 is ``time_origin_s`` on that clock, and with
-``realtime=True`` a read sleeps until ``time_origin_s + sequence / rate_hz``.
+``realtime=True`` a read sleeps until ``time_origin_s + sequence / rate_hz``. A
+:class:`SimulatedClock` given to :func:`open_backend` replaces the host clock with the
+simulated time of the sub-frames handed out: a unit stepped as fast as the machine allows
+(a benchmark, a test) then runs its timers (contest windows, time-outs, data age) on it and
+does the same thing, sub-frame for sub-frame, however fast or loaded the machine is.
 
 The projector's ``strobe(chip, seq)`` sets the chip of sub-frame ``seq + lag_sub_frames``
 (depthai's "next frame" habit with ``lag_sub_frames=1``); a chip holds until the next
@@ -80,6 +84,24 @@ class SimProjector(Projector):
         return log_strobe(self.strobe_log, self.simulator.exposure_us * 1e-6)
 
 
+class SimulatedClock:
+    """Simulated time, s: the end of the newest sub-frame the attached camera handed out
+    (``sub-frames read / rate_hz``; 0.0 before a camera is attached). Call it for the time.
+
+    Example:
+        >>> clock = SimulatedClock()
+        >>> clock()
+        0.0
+    """
+
+    def __init__(self) -> None:
+        self.camera: SimCamera | None = None
+
+    def __call__(self) -> float:
+        camera = self.camera
+        return 0.0 if camera is None else camera.sub_frames_read / camera.rate_hz
+
+
 class SimCamera(Camera):
     """The simulated camera: renders sub-frame after sub-frame with the projector's chips."""
 
@@ -115,6 +137,11 @@ class SimCamera(Camera):
                        chip=self.projector.commanded_chip(sequence))
 
     @property
+    def sub_frames_read(self) -> int:
+        """Sub-frames handed out or dropped so far (the next sequence number)."""
+        return self._sequence
+
+    @property
     def time_origin_s(self) -> float:
         """Host ``time.monotonic()`` at simulated time 0 (sub-frame 0's exposure start)."""
         return self._host_offset_s
@@ -144,15 +171,20 @@ class SimCamera(Camera):
 
 def open_backend(scene: str | Scene, seed: int | None = None, *, lag_sub_frames: int = 0,
                  rate_hz: float | None = None, realtime: bool = False, unit: int = 0,
-                 exposure_us: float | None = None,
+                 exposure_us: float | None = None, clock: SimulatedClock | None = None,
                  **kw: Any) -> tuple[SimCamera, SimProjector]:
     """A simulated camera and projector for ``scene`` (a Scene, a shipped name or a path).
 
-    ``rate_hz`` overrides the scene's sub-frame rate; unknown settings are rejected.
+    ``rate_hz`` overrides the scene's sub-frame rate; ``clock`` (not with ``realtime``)
+    is attached to the camera, whose host times are then simulated time; unknown settings
+    are rejected.
     """
     if kw:
         raise ConfigError(f"sim driver: unknown settings {sorted(kw)}; accepted: scene, seed, "
-                          "lag_sub_frames, rate_hz, realtime, unit, exposure_us")
+                          "lag_sub_frames, rate_hz, realtime, unit, exposure_us, clock")
+    if clock is not None and realtime:
+        raise ConfigError("sim driver: a simulated clock cannot pace a realtime camera; "
+                          "give clock or realtime=True, not both")
     loaded = scene if isinstance(scene, Scene) else load_scene(scene)
     if rate_hz is not None:
         loaded = replace(loaded, camera=replace(loaded.camera, rate_hz=float(rate_hz)))
@@ -161,4 +193,8 @@ def open_backend(scene: str | Scene, seed: int | None = None, *, lag_sub_frames:
         simulator.set_exposure_us(exposure_us)
     projector = SimProjector(simulator, lag_sub_frames)
     logger.info("sim driver: scene %s, unit %d, %.0f Hz", loaded.name, unit, simulator.rate_hz)
-    return SimCamera(simulator, projector, realtime=realtime), projector
+    if clock is None:
+        return SimCamera(simulator, projector, realtime=realtime), projector
+    camera = SimCamera(simulator, projector, clock=clock)
+    clock.camera = camera
+    return camera, projector

@@ -12,6 +12,13 @@ controller wants ``share`` of the line-column places with an SNR of at least ``t
 - the share predicted at a shorter N reaches ``share * (1 + hysteresis)`` for
   ``shrink_frames`` frames in a row: the shortest such N (down to ``min_length``).
 
+Error bound. N never shrinks to a length whose predicted range sigma at the range that
+matters, ``sigma_z(N') = z_ref^2 hypot(sigma_fit / g, sigma_cal) / (f b)`` with
+``g = (N' / N) ** (1 - gamma)`` (see :meth:`SceneAssessment.range_sigma_m`), exceeds
+``max_range_sigma_m``; a frame without a valid sample predicts nothing and shrinks
+nothing. A measured ``sigma_z(N)`` above ``max_range_sigma_m * (1 + hysteresis)`` counts
+as a frame below target (N grows).
+
 Frames of another N or exposure than the newest decision are ignored, so a decision is
 only ever taken on maps of the plan in force.
 
@@ -21,7 +28,9 @@ exposure stays in ``[min_us, max_us]``.
 
 Low signal. When the laser level per sub-frame ``l`` falls to ``low_signal_ratio * delta``
 (the paper's strong-sunlight limit) the decision says ``low_signal``: the unit reports
-``FaultBits.LOW_SIGNAL`` and publishes no distance from that frame.
+``FaultBits.LOW_SIGNAL`` and publishes no distance from that frame, nor from the frames
+after it until ``clear_frames`` frames in a row were above the limit (one lucky frame in
+strong sun is no evidence).
 
 Interference analysis only where someone strobes: :func:`used_chips` keeps the own row
 and the plan's rows claimed on the bus or known in the scene.
@@ -63,7 +72,8 @@ def _power_of_two(value: int) -> bool:
 @dataclass(frozen=True)
 class CodeLengthSettings:
     """Target line SNR on a share (0..1) of line-column places; N limits (powers of
-    two); persistence in output frames; hysteresis (fraction) and noise exponent gamma."""
+    two); persistence in output frames; hysteresis (fraction) and noise exponent gamma;
+    the error bound: the largest range sigma (m) predicted at ``sigma_range_m`` (m)."""
 
     target_snr: float = 8.0
     share: float = 0.2
@@ -73,6 +83,8 @@ class CodeLengthSettings:
     shrink_frames: int = 4
     hysteresis: float = 0.25
     noise_exponent: float = 0.5
+    max_range_sigma_m: float = 0.15
+    sigma_range_m: float = 5.0
 
     def __post_init__(self) -> None:
         _check(self.target_snr > 1.0, "snr_target", self.target_snr, "> 1")
@@ -87,6 +99,9 @@ class CodeLengthSettings:
         _check(self.hysteresis >= 0.0, "hysteresis", self.hysteresis, ">= 0")
         _check(0.0 <= self.noise_exponent < 1.0, "noise_exponent", self.noise_exponent,
                "in [0, 1)")
+        for name in ("max_range_sigma_m", "sigma_range_m"):
+            value = getattr(self, name)
+            _check(math.isfinite(value) and value > 0.0, name, value, "a finite number > 0 (m)")
 
     def lengths(self) -> tuple[int, ...]:
         """The allowed code lengths, shortest first."""
@@ -122,12 +137,28 @@ class CodeLengthController:
         if a.code_length != self.code_length:
             return None
         s = self.settings
-        if a.share_above(s.target_snr) < s.share:
+        if a.share_above(s.target_snr) < s.share or self._over_bound(a):
             self._high = 0
             self._low += 1
             return self._grow() if self._low >= s.grow_frames else None
         self._low = 0
         return self._maybe_shrink(a)
+
+    def predicted_sigma_m(self, a: SceneAssessment, code_length: int) -> float | None:
+        """Range sigma (m) at ``sigma_range_m`` predicted at ``code_length`` from ``a``."""
+        return a.range_sigma_m(self.settings.sigma_range_m, self.gain(code_length))
+
+    def within_bound(self, a: SceneAssessment, code_length: int) -> bool:
+        """True when ``a`` predicts a range sigma within the bound at ``code_length``
+        (False without a prediction: no valid sample)."""
+        sigma = self.predicted_sigma_m(a, code_length)
+        return sigma is not None and sigma <= self.settings.max_range_sigma_m
+
+    def _over_bound(self, a: SceneAssessment) -> bool:
+        """The range sigma measured at the current N exceeds the bound by the margin."""
+        sigma = self.predicted_sigma_m(a, self.code_length)
+        limit = self.settings.max_range_sigma_m * (1.0 + self.settings.hysteresis)
+        return sigma is not None and sigma > limit
 
     def _grow(self) -> int | None:
         longer = min(self.code_length * 2, self.settings.max_length)
@@ -138,7 +169,8 @@ class CodeLengthController:
         s = self.settings
         wanted = s.share * (1.0 + s.hysteresis)
         shorter = [n for n in s.lengths() if n < self.code_length
-                   and a.share_above(s.target_snr, self.gain(n)) >= wanted]
+                   and a.share_above(s.target_snr, self.gain(n)) >= wanted
+                   and self.within_bound(a, n)]
         if not shorter or shorter[0] != self._shrink_to:
             self._shrink_to, self._high = (shorter[0] if shorter else None), 0
         if self._shrink_to is None:
@@ -202,7 +234,8 @@ class ExposureController:
 @dataclass(frozen=True)
 class Decision:
     """What one assessment asks for: a new N and/or exposure (None = keep), and whether
-    the laser is at the level of the remainder delta (no distances from this frame)."""
+    the unit is in LOW_SIGNAL (no distances from this frame): the laser is at the level of
+    the remainder delta now, or was within the last ``clear_frames`` frames."""
 
     code_length: int | None
     exposure_us: float | None
@@ -213,15 +246,26 @@ class AdaptiveController:
     """Code length, exposure and the low-signal verdict from per-frame assessments."""
 
     def __init__(self, code: CodeLengthController, exposure: ExposureController | None,
-                 low_signal_ratio: float = 1.0) -> None:
+                 low_signal_ratio: float = 1.0, clear_frames: int = 1) -> None:
+        _check(clear_frames >= 1, "low_signal_clear_frames", clear_frames, "an integer >= 1")
         self.code = code
         self.exposure = exposure
         self.low_signal_ratio = low_signal_ratio
+        self.clear_frames = clear_frames
+        self._above = clear_frames  # frames above the limit since the last low one
         self.last: SceneAssessment | None = None
 
     def low_signal(self, a: SceneAssessment) -> bool:
         """True when ``l <= low_signal_ratio * delta`` (no laser found counts as 0)."""
         return a.laser_dn <= self.low_signal_ratio * a.delta_dn
+
+    def _withhold(self, a: SceneAssessment) -> bool:
+        """LOW_SIGNAL now, or fewer than ``clear_frames`` frames above it since."""
+        if self.low_signal(a):
+            self._above = 0
+        else:
+            self._above = min(self._above + 1, self.clear_frames)
+        return self._above < self.clear_frames
 
     def on_frame(self, a: SceneAssessment, plan_length: int | None = None) -> Decision:
         """Feed one assessment; ``plan_length`` is the N of the plan in force (the bus may
@@ -238,9 +282,11 @@ class AdaptiveController:
                         a.exposure_us, exposure, a.peak_level, a.saturated_fraction)
         code_length = None if exposure is not None else self.code.observe(a)
         if code_length is not None:
-            logger.info("code length %d -> %d asked for (%s)", a.code_length, code_length,
-                        a.log_fields())
-        return Decision(code_length, exposure, self.low_signal(a))
+            sigma = self.code.predicted_sigma_m(a, code_length)
+            logger.info("code length %d -> %d asked for (range sigma at %.1f m predicted "
+                        "%s m; %s)", a.code_length, code_length, self.code.settings.sigma_range_m,
+                        "-" if sigma is None else f"{sigma:.3f}", a.log_fields())
+        return Decision(code_length, exposure, self._withhold(a))
 
 
 def withheld(measurement: Measurement) -> Measurement:
@@ -262,14 +308,16 @@ def controller_from_config(config: Config, rate_hz: float) -> AdaptiveController
         config["adaptive.min_length"], min(config["adaptive.max_length"],
                                            config["code.max_length"]),
         config["adaptive.grow_frames"], config["adaptive.shrink_frames"],
-        config["adaptive.hysteresis"], config["adaptive.noise_exponent"])
+        config["adaptive.hysteresis"], config["adaptive.noise_exponent"],
+        config["adaptive.max_range_sigma_m"], config["adaptive.sigma_range_m"])
     period_us = 0.95e6 / rate_hz if rate_hz > 0 else math.inf
     exposure = ExposureController(ExposureSettings(
         min_us=config["adaptive.exposure_min_us"],
         max_us=min(config["adaptive.exposure_max_us"], period_us)))
     return AdaptiveController(CodeLengthController(code, int(config["code.length"])),
                               exposure if config["adaptive.exposure"] else None,
-                              config["adaptive.low_signal_ratio"])
+                              config["adaptive.low_signal_ratio"],
+                              config["adaptive.low_signal_clear_frames"])
 
 
 def rows_in_use(plan_rows: Iterable[int], own_row: int, peer_rows: Iterable[int | None],

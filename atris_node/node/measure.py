@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from atris_node.adaptive.assessment import assess
+from atris_node.adaptive.assessment import RangeModel, assess
 from atris_node.adaptive.controller import AdaptiveController, withheld
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
@@ -178,7 +178,8 @@ class Measurer:
         dmap.extra["foreign_code_energy"] = diag.foreign_energy
         decision = self.adaptive.on_frame(
             assess(dmap, result.samples.snr, diag.line_snr, diag.foreign_energy,
-                   self.last_sub), int(self.negotiator.plan.code_length))
+                   self.last_sub, self._range_model(result)),
+            int(self.negotiator.plan.code_length))
         if decision.exposure_us is not None:
             with self._request_lock:
                 self._exposure_request = float(decision.exposure_us)
@@ -193,6 +194,13 @@ class Measurer:
         with self._request_lock:
             request, self._exposure_request = self._exposure_request, None
         return request
+
+    def _range_model(self, result: Any) -> RangeModel:
+        """The row sigmas behind the valid samples' range sigma (the error bound)."""
+        calibration = self.pipeline.calibration
+        return RangeModel(result.samples.sigma_u_px[result.valid],
+                          float(self.pipeline.config.sigma_u_px),
+                          float(calibration.camera.focal_px * calibration.laser.baseline_m))
 
     def _count_deadline(self, dmap: DistortionMap, camera: Camera | None) -> None:
         """A map not processed within one output period of its newest sub-frame is late."""

@@ -128,7 +128,7 @@ class Unit:
         self._services = wiring.make_bus_services(self.config, self.bus)
         self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
-                                                  self._services)
+                                                  self._services, self.clock)
         wiring.connect_output(self._publisher, self._negotiator, self.config)
         adaptive = controller_from_config(self.config,
                                           float(getattr(self._camera, "rate_hz", 0.0)))

@@ -6,6 +6,7 @@ The node calls these once at ``configure()``; nothing here runs per sub-frame.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -222,8 +223,11 @@ def unit_name(config: Config, camera: Camera) -> int:
 
 
 def make_negotiator(config: Config, bus: can.BusABC, camera: Camera,
-                    services: BusServices) -> Negotiator:
-    """The code negotiation service for this unit, on the unit's Notifier."""
+                    services: BusServices, clock: Callable[[], float] = time.monotonic
+                    ) -> Negotiator:
+    """The code negotiation service for this unit, on the unit's Notifier and ``clock``
+    (seconds; the unit's clock, so that its windows and time-outs run on the time its
+    sub-frames are stamped with)."""
     rate = float(camera.rate_hz) or 240.0
     plan = Plan(code_length=config["code.length"], chip_rate_hz=rate, mode=config["code.mode"])
     n = config.section("negotiation")
@@ -232,4 +236,4 @@ def make_negotiator(config: Config, bus: can.BusABC, camera: Camera,
                       silence_timeout_s=n["silence_timeout_s"],
                       max_code_length=config["code.max_length"],
                       can_sync=bool(getattr(camera, "can_trigger", False)),
-                      notifier=services.notifier)
+                      notifier=services.notifier, clock=clock)
