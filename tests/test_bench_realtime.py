@@ -88,7 +88,10 @@ def test_smoke_short_run_reports_every_field() -> None:
     age = row["age_ms"]
     assert age["samples"] > 0 and 0 < age["p50"] <= age["p99"] <= age["max"]
     assert set(row["stages"]) == {"demod", "pipeline", "publish"}
-    assert row["stages"]["demod"]["calls"] == subs["consumed"] or subs["dropped"] > 0
+    # the stage timers count calls inside the counted time span, the camera counts
+    # sub-frames by sequence: at either end up to a queue of frames may be read outside it
+    calls = row["stages"]["demod"]["calls"]
+    assert abs(calls - subs["consumed"]) <= 2 * row["queue_depth"] or subs["dropped"] > 0
     assert row["stages"]["pipeline"]["calls"] > 0
     assert any(t["thread"].startswith("atris-unit") for t in row["threads"])
     assert row["peak_rss_mb"] > row["prerendered_mb"] > 0

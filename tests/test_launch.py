@@ -51,7 +51,11 @@ def test_bad_launch_files_are_clear_errors(tmp_path: Path, text: str, message: s
 
 
 def _sleeper(ignore: tuple[str, ...]) -> subprocess.Popen[bytes]:
-    handlers = "".join(f"signal.signal(signal.{s}, signal.SIG_IGN);" for s in ignore)
+    """A Python child that sleeps; it obeys SIGINT (even when started from a shell that
+    ignores SIGINT for background jobs, which the child would inherit) unless told to
+    ignore it."""
+    handlers = "signal.signal(signal.SIGINT, signal.default_int_handler);" + "".join(
+        f"signal.signal(signal.{s}, signal.SIG_IGN);" for s in ignore)
     code = f"import signal, time, sys; {handlers} print('up', flush=True); time.sleep(60)"
     process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
     assert process.stdout is not None and process.stdout.readline() == b"up\n"
