@@ -128,7 +128,9 @@ def nearest_obstacle(sectors: tuple[SectorDistance, ...], data: SectorInput,
 
 class ClosingTracker:
     """Closing speed (m/s, > 0 approaching) and time to collision (s) of the nearest
-    obstacle, from a least-squares slope over the last few frames.
+    obstacle, from a least-squares fit over the last few frames: a line, or a parabola
+    once four frames show a closing acceleration (ACCELERATION_SIGMAS from zero; the time
+    to collision then solves the motion with it).
 
     A map integrates its window, so its distance belongs to the window's middle time;
     the time to collision is counted from the newest sub-frame (``now_s``): the distance
@@ -182,15 +184,66 @@ class ClosingTracker:
         t, d, sigma = np.array(self._history).T
         if np.ptp(t) <= 0:
             return None, None
-        dt = t - t.mean()  # least-squares slope in closed form (np.polyfit: 10x the time)
-        spread = float(dt @ dt)
-        closing = -float(dt @ (d - d.mean()) / spread)
-        residual = d - d.mean() + closing * dt
-        se = max(math.sqrt(float(residual @ residual) / max(len(t) - 2, 1) / spread),
-                 float(np.sqrt((sigma * sigma) @ (dt * dt))) / spread)
+        accelerating = _accelerating(t - now_s, d, sigma) if len(t) >= 4 else None
+        if accelerating is None:
+            closing, se = _closing_line(t, d, sigma)
+            d_now, accel = distance_m - closing * max(now_s - time_s, 0.0), 0.0
+        else:
+            d_now, closing, accel, se = accelerating
         if se > max(self.MAX_REL_SE * abs(closing), self.MAX_ABS_SE_MPS):
             return None, None
         if closing <= self.min_closing_mps or se > self.TTC_REL_SE * closing:
             return closing, None
-        ttc = (distance_m - closing * max(now_s - time_s, 0.0)) / closing
-        return closing, max(ttc, 0.0)
+        return closing, _time_to_reach(max(d_now, 0.0), closing, accel)
+
+
+#: a closing acceleration is used once it stands this many standard errors from zero
+ACCELERATION_SIGMAS = 5.0
+
+
+def _closing_line(t: FloatArray, d: FloatArray, sigma: FloatArray) -> tuple[float, float]:
+    """Closing speed (m/s, minus the least-squares slope of ``d`` over ``t``) and its
+    standard error (from the residuals and from ``sigma``, the larger)."""
+    dt = t - t.mean()  # closed form (np.polyfit: 10x the time)
+    spread = float(dt @ dt)
+    closing = -float(dt @ (d - d.mean()) / spread)
+    residual = d - d.mean() + closing * dt
+    se = max(math.sqrt(float(residual @ residual) / max(len(t) - 2, 1) / spread),
+             float(np.sqrt((sigma * sigma) @ (dt * dt))) / spread)
+    return closing, se
+
+
+def _accelerating(x: FloatArray, d: FloatArray, sigma: FloatArray
+                  ) -> tuple[float, float, float, float] | None:
+    """(distance now m, closing speed now m/s, closing acceleration m/s², closing speed's
+    standard error) of a parabola ``d = p0 + p1 x + p2 x²`` fitted over ``x`` (s before
+    now, <= 0), when its curvature stands ACCELERATION_SIGMAS standard errors from zero
+    (error from the residuals and from ``sigma``, the larger); None otherwise (a
+    constant closing speed explains the track)."""
+    design = np.stack([np.ones_like(x), x, x * x], axis=1)
+    p, *_ = np.linalg.lstsq(design, d, rcond=None)
+    residual = d - design @ p
+    variance = max(float(residual @ residual) / max(len(x) - 3, 1),
+                   float(np.mean(sigma * sigma)))
+    normal = design.T @ design
+    if abs(float(np.linalg.det(normal))) < 1e-18:
+        return None
+    cov = variance * np.linalg.inv(normal)
+    se_curve, se_slope = math.sqrt(float(cov[2, 2])), math.sqrt(float(cov[1, 1]))
+    if abs(float(p[2])) <= ACCELERATION_SIGMAS * se_curve:
+        return None
+    return float(p[0]), -float(p[1]), -2.0 * float(p[2]), se_slope
+
+
+def _time_to_reach(distance_m: float, closing_mps: float, accel_mps2: float) -> float | None:
+    """Seconds until ``distance_m`` closes at ``closing_mps`` speeding up at
+    ``accel_mps2`` (the first positive root of d - v τ - a τ²/2 = 0); None when it stops
+    closing first."""
+    if abs(accel_mps2) < 1e-9:
+        return distance_m / closing_mps
+    disc = closing_mps * closing_mps + 2.0 * accel_mps2 * distance_m
+    if disc < 0.0:
+        return None  # decelerating: it stops before it arrives
+    roots = [(-closing_mps + sign * math.sqrt(disc)) / accel_mps2 for sign in (1.0, -1.0)]
+    ahead = [r for r in roots if r >= 0.0]
+    return min(ahead) if ahead else None
