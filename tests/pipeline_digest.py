@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import itertools
 import json
 import math
 import pickle
@@ -31,9 +32,7 @@ from typing import Any
 import numpy as np
 
 from atris_node.bench.accuracy import scaled
-from atris_node.bench.safety import LAYOUT, scene_settings
-from atris_node.codes import walsh_chips
-from atris_node.demod import BlockDemodulator
+from atris_node.bench.safety import LAYOUT, block_maps, scene_settings
 from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.sim import Scene, Simulator, load_scene, shipped_scenes, stress_scenes
 from atris_node.types import DistortionMap
@@ -57,17 +56,8 @@ def cases() -> list[tuple[str, Scene, int]]:
 
 def render(scene: Scene, seed: int, maps: int) -> tuple[Simulator, list[DistortionMap]]:
     """The simulator and its first ``maps`` block maps."""
-    chips = walsh_chips(scene.code_length, scene.code_row)
-    sim = Simulator(scene, chips=chips, seed=seed)
-    demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
-    out: list[DistortionMap] = []
-    sequence = 0
-    while len(out) < maps:
-        dmap = demod.push(sim.render(sequence))
-        sequence += 1
-        if dmap is not None:
-            out.append(dmap)
-    return sim, out
+    sim, dmaps = block_maps(scene, seed)
+    return sim, list(itertools.islice(dmaps, maps))
 
 
 def _hash(*arrays: Any) -> str:

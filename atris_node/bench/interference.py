@@ -18,6 +18,7 @@ infinite).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import statistics
@@ -25,11 +26,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
-from atris_node.bench.safety import LAYOUT, scene_settings
-from atris_node.codes import walsh_chips
-from atris_node.demod import BlockDemodulator
+from atris_node.bench.safety import LAYOUT, block_maps, scene_settings
 from atris_node.errors import UsageError
-from atris_node.sim import Simulator, load_scene
+from atris_node.sim import load_scene
 from atris_node.sim.scene import Scene
 
 #: maps per case by default
@@ -88,18 +87,12 @@ def metrics(scene: Scene, maps: int, seed: int) -> tuple[list[float], float]:
 
     config = PipelineConfig(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad),
                             **scene_settings(scene))
-    chips = walsh_chips(scene.code_length, scene.code_row)
-    sim = Simulator(scene, chips=chips, seed=seed)
+    sim, dmaps = block_maps(scene, seed)
     pipe = Pipeline(config, sim.calibration(), sim.mounting, LAYOUT)
-    demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
     out: list[float] = []
-    sequence = 0
-    while len(out) < maps:
-        dmap = demod.push(sim.render(sequence))
-        sequence += 1
-        if dmap is not None:
-            diag = pipe.process(dmap).diagnostics
-            out.append(max(float(diag.foreign_energy), float(diag.unassigned_fraction)))
+    for dmap in itertools.islice(dmaps, maps):
+        diag = pipe.process(dmap).diagnostics
+        out.append(max(float(diag.foreign_energy), float(diag.unassigned_fraction)))
     return out, float(config.foreign_limit)
 
 

@@ -35,9 +35,11 @@ groups.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -48,7 +50,7 @@ from atris_node.demod import BlockDemodulator
 from atris_node.errors import ConfigError
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator, load_scene, shipped_scenes, stress_scenes
-from atris_node.types import Measurement, SectorDistance, SectorState
+from atris_node.types import DistortionMap, Measurement, SectorDistance, SectorState
 
 logger = logging.getLogger(__name__)
 
@@ -195,21 +197,31 @@ def _measure(scene: Any, maps: int, config: Any, seed: int
     ``maps`` maps."""
     from atris_node.pipeline.chain import Pipeline
 
+    sim, dmaps = block_maps(scene, seed)
+    pipe = Pipeline(config, sim.calibration(), sim.mounting, LAYOUT)
+    out: list[tuple[Measurement, int, float, tuple[int, int]]] = []
+    for dmap in itertools.islice(dmaps, maps):
+        result = pipe.process(dmap)
+        out.append((result.measurement, result.diagnostics.ambiguous,
+                    result.diagnostics.timings_ms.get("total", 0.0),
+                    (dmap.first_sequence, dmap.last_sequence)))
+    return out
+
+
+def block_maps(scene: Any, seed: int) -> tuple[Simulator, Iterator[DistortionMap]]:
+    """The simulator of ``scene`` (unit 0, its own code, noise ``seed``) and its block
+    maps one after the other (known lag), as the node's demodulator makes them."""
     chips = walsh_chips(scene.code_length, scene.code_row)
     sim = Simulator(scene, chips=chips, seed=seed)
-    pipe = Pipeline(config, sim.calibration(), sim.mounting, LAYOUT)
-    demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
-    out: list[tuple[Measurement, int, float, tuple[int, int]]] = []
-    sequence = 0
-    while len(out) < maps:
-        dmap = demod.push(sim.render(sequence))
-        sequence += 1
-        if dmap is not None:
-            result = pipe.process(dmap)
-            out.append((result.measurement, result.diagnostics.ambiguous,
-                        result.diagnostics.timings_ms.get("total", 0.0),
-                        (dmap.first_sequence, dmap.last_sequence)))
-    return out
+
+    def maps() -> Iterator[DistortionMap]:
+        demod = BlockDemodulator(chips, bits=scene.camera.bits, lag=0)
+        for sequence in itertools.count():
+            dmap = demod.push(sim.render(sequence))
+            if dmap is not None:
+                yield dmap
+
+    return sim, maps()
 
 
 def _combined(groups: list[tuple[SectorDistance, ...]]) -> tuple[SectorDistance, ...]:
