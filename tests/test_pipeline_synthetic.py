@@ -120,7 +120,7 @@ def test_closing_speed_and_time_to_collision_over_frames() -> None:
         t = 0.1 * i
         scene = Scene(cal, LEVEL, boxes=(Box(4.0 - 1.5 * t, -0.5, 0.5),))
         dmap, _ = render(scene, rng)
-        m = pipe.process(replace(dmap, last_time_s=t)).measurement
+        m = pipe.process(replace(dmap, first_time_s=t - 0.03, last_time_s=t)).measurement
     assert m.closing_speed_mps == pytest.approx(1.5, rel=0.1)
     assert m.time_to_collision_s == pytest.approx((4.0 - 0.75) / 1.5, rel=0.15)
 
