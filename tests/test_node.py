@@ -101,7 +101,8 @@ def test_laser_stays_off_until_code_is_owned_then_valid_distances(
     assert unpermitted_light(projectors, unit.negotiator.timeline) == []
     assert any(chip == 1 for p in projectors for _, chip, _ in p.calls)
     assert measurements, "no measurement after the code was owned"
-    valid = [s for s in measurements[-1].sectors if s.state is SectorState.VALID]
+    # every valid distance in range, and some (one map alone may hold none: noise)
+    valid = [s for m in measurements for s in m.sectors if s.state is SectorState.VALID]
     assert valid and all(0.3 <= s.distance_m <= 10.0 for s in valid)
     assert any(isinstance(s["Distance0"], float) for s in frames.sectors())
 
