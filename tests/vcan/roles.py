@@ -254,6 +254,21 @@ PRELOAD = ("numpy", "can.interfaces.socketcan", "cantools", "canopen", "atris_no
            "atris_node.node.runner", "atris_node.cli.run")
 
 
+def warm_kernels() -> None:
+    """Compile the simulator's, demodulator's and pipeline's numba kernels once, here:
+    forked units inherit them and start at once (in the VM numba may find no writable
+    cache, and each unit compiled for 90 s, over 150 s beside a CPU-heavy process)."""
+    try:
+        from atris_node.bench.safety import LAYOUT, block_maps
+        from atris_node.pipeline.chain import Pipeline, PipelineConfig
+        from atris_node.sim import load_scene
+
+        sim, maps = block_maps(load_scene("indoor_lab"), 1)
+        Pipeline(PipelineConfig(), sim.calibration(), sim.mounting, LAYOUT).process(next(maps))
+    except Exception as exc:  # the units then compile for themselves, as before
+        print(f"zygote: kernels not warmed: {exc!r}", file=sys.stderr)
+
+
 def zygote() -> None:
     """Pre-loads PRELOAD, then forks one unit per JSON request line on stdin.
 
@@ -265,6 +280,7 @@ def zygote() -> None:
             importlib.import_module(name)
         except ImportError as exc:
             print(f"zygote: not preloaded: {name} ({exc})", file=sys.stderr)
+    warm_kernels()
     signal.signal(signal.SIGCHLD, signal.SIG_IGN)
     while line := sys.stdin.readline():
         request = json.loads(line)

@@ -54,9 +54,10 @@ PERIOD_S = 0.05
 UNIT_IDS = (8, 9)
 #: seconds the babblers flood the bus while the test listens
 BABBLE_S = 26.0
-#: seconds each unit may take to start (numba compiles its kernels in the VM, slowly when
-#: another CPU-heavy process runs) before it must be heard NEGOTIATING or RUNNING
-START_S = 150.0
+#: seconds each unit may take to start (the zygote compiles the kernels before forking; if
+#: that failed, each unit compiles its own in the VM, slowly beside a CPU-heavy process)
+#: before it must be heard NEGOTIATING or RUNNING
+START_S = 300.0
 #: the units' --duration, a cap only: the test stops them with SIGINT when it has listened
 RUN_S = START_S + BABBLE_S + 30.0
 
