@@ -101,10 +101,14 @@ class MapThread:
         with self._cond:
             return not self._busy and self._slot is None
 
-    def _take(self) -> tuple[DistortionMap, int] | None:
+    def _set_idle(self) -> None:
         with self._cond:
             self._busy = False
             self._cond.notify_all()
+
+    def _take(self) -> tuple[DistortionMap, int] | None:
+        self._set_idle()
+        with self._cond:
             self._cond.wait_for(lambda: self._slot is not None or self._stopping)
             if self._stopping:
                 return None
@@ -112,17 +116,12 @@ class MapThread:
             return job
 
     def _run(self) -> None:
-        while (job := self._take()) is not None:
-            try:
+        try:
+            while (job := self._take()) is not None:
                 self._measure(*job)
-            except Exception as exc:  # handed to the unit: laser off, FAULT published
-                logger.exception("%s failed", self._name)
-                with self._cond:
-                    self._busy = False
-                    self._cond.notify_all()
-                self._on_error(exc)
-                return
-            self.measured += 1
-        with self._cond:
-            self._busy = False
-            self._cond.notify_all()
+                self.measured += 1
+        except Exception as exc:  # handed to the unit: laser off, FAULT published
+            logger.exception("%s failed", self._name)
+            self._set_idle()
+            self._on_error(exc)
+        self._set_idle()
