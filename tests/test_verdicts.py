@@ -153,3 +153,60 @@ def test_feature_few_or_weak_points_lower_confidence_to_invalid() -> None:
         SectorState.INVALID)
     assert sector_verdicts(_wall(), _evidence(), LAYOUT, SETTINGS)[0].state is (
         SectorState.VALID)
+
+
+def _noisy_wall(rng, range_of_column, sigma_m: float, n: int, lines: int = 2
+                ) -> ObstaclePoints:
+    """``n`` points of a surface whose true range at column c is ``range_of_column(c)``,
+    scattered by ``sigma_m`` (also their stated triangulation σ)."""
+    cols = rng.integers(0, 60, n)
+    return ObstaclePoints(range_of_column(cols) + rng.normal(0, sigma_m, n),
+                          np.zeros(n, np.int64), np.ones(n, bool), rng.integers(0, lines, n),
+                          cols.astype(np.int64), np.full(n, sigma_m), np.full(n, 20.0))
+
+
+def test_feature_noisy_far_wall_is_unbiased_and_its_sigma_honest() -> None:
+    """A flat wall at 9 m seen by 30 points of σ = 0.5 m, 400 draws: the distance is not
+    pulled near (mean error under 4 cm) and its σ is what it claims (within 2σ of the
+    truth in at least 90 % of the draws). Checked to fail with the estimator it replaced
+    (the least of the per-line fronts, a slope counted at 2 residual standard errors, σ
+    of the mean): mean error -0.11 m, 293 of 400 within 2σ (this code: -0.016 m, 370)."""
+    rng = np.random.default_rng(7)
+    errors, covered = [], 0
+    for _ in range(400):
+        wall = _noisy_wall(rng, lambda c: np.full(c.shape, 9.0), 0.5, 30)
+        found = nearest_credible(wall, np.ones(30, bool), 5)
+        assert found is not None and math.isfinite(found.sigma_m) and found.sigma_m > 0
+        errors.append(found.distance_m - 9.0)
+        covered += abs(found.distance_m - 9.0) <= 2.0 * found.sigma_m
+    assert abs(float(np.mean(errors))) < 0.04, np.mean(errors)
+    assert covered >= 0.9 * 400, covered
+
+
+def test_feature_slanted_wall_reads_at_its_nearest_column() -> None:
+    """A wall slanting from 6.0 m (column 0) to 7.2 m (column 60), σ = 0.15 m, 60 points
+    over three lines: the distance is its near end, within max(3 %, 5 cm), in at least
+    19 of 20 draws. Checked to fail without following the surface along its slope
+    (verdicts_kernels._follow skipped): the range window cut the wall short, the fit
+    flattened, 16 of 20 within, up to 6.38 m. The estimator this replaced: 17 of 20."""
+    rng = np.random.default_rng(3)
+    hits = 0
+    for _ in range(20):
+        wall = _noisy_wall(rng, lambda c: 6.0 + 0.02 * c, 0.15, 60, lines=3)
+        found = nearest_credible(wall, np.ones(60, bool), 5)
+        assert found is not None
+        hits += abs(found.distance_m - 6.0) <= 0.18
+    assert hits >= 19, hits
+
+
+def test_feature_distance_the_points_do_not_pin_down_is_invalid() -> None:
+    """Twelve points of σ = 0.5 m at 9 m pin the distance down to about 0.15 m, more than
+    half the 3 % it is held to (0.135 m): INVALID; allowed 5 %, the same points give
+    VALID. Checked to fail with the σ limit taken out of _verdict."""
+    rng = np.random.default_rng(5)
+    far = _noisy_wall(rng, lambda c: np.full(c.shape, 9.0), 0.5, 12)
+    strict = sector_verdicts(far, _evidence(), LAYOUT, SETTINGS)[0]
+    loose = sector_verdicts(far, _evidence(), LAYOUT, SectorSettings(
+        min_points=5, min_confidence=0.6, snr_min=6.0, max_sigma_rel=0.05))[0]
+    assert strict.state is SectorState.INVALID and strict.distance_m == 0.0
+    assert loose.state is SectorState.VALID and loose.sigma_m > 0.135

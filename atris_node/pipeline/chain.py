@@ -89,6 +89,10 @@ class PipelineConfig:
     fov_deg: float = 70.0
     min_points: int = 5
     min_confidence: float = 0.6  # below: INVALID (e.g. only peaks barely above snr_min)
+    #: a VALID distance d has a standard error of at most max(max_sigma_rel·d,
+    #: max_sigma_m): half the accuracy it is held to, max(3 %, 5 cm)
+    max_sigma_rel: float = 0.015
+    max_sigma_m: float = 0.025
     ground_clearance_m: float = 0.1
     ground_plane: str = "calibrated"
     ground_estimate_every: int = 30
@@ -120,7 +124,8 @@ class PipelineConfig:
                f"one of {IDENTITY_MODES}")
         _check(0.0 < self.z_min_m < self.z_max_m, "z_min_m", self.z_min_m,
                f"> 0 and below z_max_m ({self.z_max_m})")
-        for name in ("snr_min", "stripe_sigma_px", "fov_deg", "object_eps_m"):
+        for name in ("snr_min", "stripe_sigma_px", "fov_deg", "object_eps_m", "max_sigma_rel",
+                     "max_sigma_m"):
             _check(getattr(self, name) > 0, name, getattr(self, name), "> 0")
         for name in ("band_margin_px", "sigma_u_px", "foreign_limit", "ground_clearance_m"):
             _check(getattr(self, name) >= 0, name, getattr(self, name), ">= 0")
@@ -141,8 +146,8 @@ class PipelineConfig:
 
     def sectors(self) -> SectorSettings:
         """The sector part of the configuration."""
-        return SectorSettings(self.min_points, self.min_confidence,
-                              self.snr_min)
+        return SectorSettings(self.min_points, self.min_confidence, self.snr_min,
+                              self.max_sigma_rel, self.max_sigma_m)
 
 
 def _check(ok: bool, name: str, value: object, accepted: str) -> None:

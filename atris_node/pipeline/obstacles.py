@@ -70,17 +70,27 @@ def estimate_ground(points: FloatArray, previous: GroundPlane, threshold_m: floa
 @dataclass(frozen=True)
 class SectorSettings:
     """How sector verdicts are made (atris_node.pipeline.verdicts): the points a distance
-    needs, the confidence (0..1) it needs, and the peak SNR threshold."""
+    needs, the confidence (0..1) it needs, the peak SNR threshold, and the largest
+    standard error a VALID distance d may have: max(``max_sigma_rel``·d, ``max_sigma_m``)."""
 
     min_points: int = 5
     min_confidence: float = 0.2
     snr_min: float = 6.0
+    max_sigma_rel: float = 0.015
+    max_sigma_m: float = 0.025
+
+    def sigma_limit_m(self, distance_m: float) -> float:
+        """The largest standard error (m) of a VALID distance ``distance_m``."""
+        return max(self.max_sigma_rel * distance_m, self.max_sigma_m)
 
     def __post_init__(self) -> None:
         if self.min_points < 1:
             raise ConfigError(f"min_points must be >= 1, got {self.min_points}")
         if not 0.0 <= self.min_confidence <= 1.0:
             raise ConfigError(f"min_confidence must be in [0, 1], got {self.min_confidence}")
+        if not (self.max_sigma_rel > 0.0 and self.max_sigma_m > 0.0):
+            raise ConfigError(f"max_sigma_rel and max_sigma_m must be > 0, got "
+                              f"{self.max_sigma_rel} and {self.max_sigma_m}")
 
 
 @dataclass(frozen=True)

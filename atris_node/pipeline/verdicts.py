@@ -6,12 +6,19 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   outwards, the first range r whose window ``[r, r + max(CLUSTER_REL·r, CLUSTER_ABS_M,
   SPREAD_SIGMAS·σ)]`` holds at least ``min_points`` points from more than one line, or
   from one line over SLIVER_COLUMNS·min_points columns (independent evidence: a short run
-  of one line is what a wrong identity looks like). The distance is the lower quartile
-  of the window (its front, on a slanted surface), or, when the window is no wider than
-  its triangulation noise, the median of the points within that noise of the window's
-  median (moved twice: the window opened on the surface's near tail); its σ the standard
-  error (spread or triangulation
-  σ over √n).
+  of one line is what a wrong identity looks like). When the window is no wider than its
+  triangulation noise, the surface is the points within that noise of the window's
+  median (moved twice: the window opened on the surface's near tail). The distance is
+  the front of a straight fit of range against column over all lines of the surface:
+  its mean when the slope is within SLOPE_SIGMAS of zero, else the fit at its nearest
+  column, the surface's points followed along the slope (a range window cuts a slanted
+  surface short); one line's front instead where it lies significantly nearer (the
+  lower lines on a ramp). Its σ is the standard error of that estimate, with one
+  sample's triangulation σ as the least scatter (smoothing along the lines correlates
+  neighbours). A distance whose σ exceeds max(``max_sigma_rel``·d, ``max_sigma_m``)
+  (half the accuracy it is held to) is not pinned down by its points: INVALID. A
+  minimum or a low quantile of noisy points would be biased near by about a σ, a mean
+  over a slanted surface far: neither is used.
   A thin pole at a sector edge is reported by the sector its points fall in; nothing
   nearer is outvoted by a wall behind it. When ``min_points`` or more obstacle points lie
   nearer than the credible cluster without being credible themselves (a sliver, a short
@@ -105,8 +112,8 @@ class ColumnEvidence:
 
 @dataclass(frozen=True)
 class Credible:
-    """The nearest credible cluster of a sector: ``distance_m`` (lower quartile of its
-    points' ranges), ``sigma_m`` (standard error, m), ``support`` (its points) and
+    """The nearest credible cluster of a sector: ``distance_m`` (its front, see the module
+    docstring), ``sigma_m`` (standard error of it, m), ``support`` (its points) and
     ``nearer`` (obstacle points nearer than it that are not credible themselves)."""
 
     distance_m: float
@@ -120,14 +127,8 @@ def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
     """The nearest credible cluster among the obstacle points selected by ``mine`` (see the
     module docstring), None when there is none.
 
-    The window from a point spans max(CLUSTER_REL·r, CLUSTER_ABS_M, SPREAD_SIGMAS·σ) in
-    range, σ the point's triangulation σ. When the window is no wider than its noise, it
-    opened on a noisy surface's near tail: the points within that noise of the window's
-    median (moved twice to the median) are the surface. Its front is the least, over the
-    lines with ``min_points`` points, of a straight fit of range against column at the
-    line's first or last column (a slope within two standard errors counts as flat: the
-    mean), or its lower quartile when no line has that many; never nearer than the
-    window's first point. The loop is compiled
+    The window and the front are those of the module docstring; the front is never
+    nearer than the window's first point. The loop is compiled
     (:func:`atris_node.pipeline.verdicts_kernels.credible`)."""
     idx = np.flatnonzero(mine)
     if idx.size < min_points:
@@ -181,7 +182,9 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
         # guess itself): no distance
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=int(hits.sum()))
     conf = _confidence(int(hits.sum()), snr, settings)
-    if conf < settings.min_confidence:
+    if conf < settings.min_confidence or found.sigma_m > settings.sigma_limit_m(
+            found.distance_m):
+        # too little support, or a distance the points do not pin down
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,
                           found.support, found.sigma_m)

@@ -17,6 +17,20 @@ IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
+#: a fitted slope counts when it is this many standard errors from zero
+SLOPE_SIGMAS = 2.0
+#: one line's front replaces the front of all lines when nearer by this many standard errors
+NEARER_SIGMAS = 2.0
+#: standard error of a normal sample's lower quartile, in σ/√n
+QUANTILE_SE = 1.36
+#: fits of a slanted surface's points, each taking the points near the last
+FOLLOW_PASSES = 2
+#: moves of a noisy surface's centre to the median of the points near it
+CENTRE_PASSES = 8
+#: a noisy surface is the points within this many triangulation σ of its centre (a band
+#: of 2σ would cut its tails unevenly and cost the mean a fifth more scatter)
+SURFACE_SIGMAS = 3.0
+
 
 @kernel()
 def _independent(line: IntArray, column: IntArray, lo: int, hi: int, min_columns: int,
@@ -37,10 +51,13 @@ def _independent(line: IntArray, column: IntArray, lo: int, hi: int, min_columns
 
 
 @kernel()
-def _line_front(cols: FloatArray, ranges: FloatArray) -> float:
-    """Least range of a straight fit of ``ranges`` against ``cols`` over their span, or
-    their mean when the slope is within 2 standard errors of zero; inf when the columns
-    do not spread."""
+def _fit(cols: FloatArray, ranges: FloatArray, noise: float
+         ) -> tuple[float, float, float, float, float]:
+    """(mean column, mean range m, slope m/px, scatter m, Σ(c - c̄)²) of a straight fit of
+    ``ranges`` against ``cols``. The scatter is the residual's or ``noise`` (one sample's
+    triangulation σ), whichever is larger: smoothing along the lines makes neighbouring
+    samples share their noise, so the residual alone would claim more independent samples
+    than there are."""
     n = ranges.size
     c_mean, r_mean = cols.mean(), ranges.mean()
     sxx = sxy = 0.0
@@ -48,31 +65,81 @@ def _line_front(cols: FloatArray, ranges: FloatArray) -> float:
         sxx += (cols[i] - c_mean) ** 2
         sxy += (cols[i] - c_mean) * (ranges[i] - r_mean)
     if sxx == 0.0:
-        return np.inf
+        return c_mean, r_mean, 0.0, noise, 0.0
     slope = sxy / sxx
     rss = 0.0
     for i in range(n):
         rss += (ranges[i] - r_mean - slope * (cols[i] - c_mean)) ** 2
-    error = np.sqrt(rss / max(n - 2, 1) / sxx)
-    if abs(slope) <= 2.0 * error:
-        return r_mean
-    end = cols.min() if slope > 0 else cols.max()
-    return r_mean + slope * (end - c_mean)
+    return c_mean, r_mean, slope, np.sqrt(rss / max(n - 2, 1)), sxx
 
 
 @kernel()
-def _front(r: FloatArray, line: IntArray, column: IntArray, keep: BoolArray,
-           min_points: int, quantile: float) -> float:
-    """Least straight-fit front over the lines with ``min_points`` kept points; the kept
-    ranges' ``quantile`` when no line has that many."""
-    best = np.inf
+def _sloped(slope: float, scatter: float, sxx: float) -> bool:
+    return sxx > 0.0 and abs(slope) > SLOPE_SIGMAS * scatter / np.sqrt(sxx)
+
+
+@kernel()
+def _fit_front(cols: FloatArray, ranges: FloatArray, noise: float) -> tuple[float, float]:
+    """(front m, its standard error m): the least range of a straight fit over the
+    columns' span, or the mean when the slope is within SLOPE_SIGMAS standard errors of
+    zero; (inf, inf) when the columns do not spread."""
+    c_mean, r_mean, slope, residual, sxx = _fit(cols, ranges, noise)
+    n = ranges.size
+    if sxx == 0.0:
+        return np.inf, np.inf
+    scatter = max(residual, noise)
+    if not _sloped(slope, residual, sxx):
+        return r_mean, scatter / np.sqrt(n)
+    end = cols.min() if slope > 0 else cols.max()
+    return (r_mean + slope * (end - c_mean),
+            scatter * np.sqrt(1.0 / n + (end - c_mean) ** 2 / sxx))
+
+
+@kernel()
+def _follow(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise: float,
+            spread: float) -> BoolArray:
+    """The points of a slanted surface: those (from index ``first`` on) within
+    ``spread``·``noise`` of the straight fit of the kept ones, fitted again, FOLLOW_PASSES
+    times. A window in range cuts a slanted surface short and flattens its fit; the
+    surface's own points do not. ``keep`` itself when the fit has no slope."""
+    for _ in range(FOLLOW_PASSES):
+        if keep.sum() < 3:
+            break
+        c_mean, r_mean, slope, scatter, sxx = _fit(cols[keep], r[keep], noise)
+        if not _sloped(slope, scatter, sxx):
+            break
+        along = np.abs(r - r_mean - slope * (cols - c_mean)) <= spread * noise
+        along[:first] = False
+        if along.sum() < 3 or (along == keep).all():
+            break
+        keep = along
+    return keep
+
+
+@kernel()
+def _front(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
+           keep: BoolArray, first: int, min_points: int, params: FloatArray
+           ) -> tuple[float, float, int]:
+    """(front m, standard error m, support) of the surface the kept points start: the
+    straight-fit front of all its points (followed along its slope, :func:`_follow`), or
+    of one line with ``min_points`` of them where that line's front lies nearer by more
+    than NEARER_SIGMAS combined standard errors (the lower lines on a ramp); the window
+    quantile of the ranges when the points do not spread over columns."""
+    cols = column.astype(np.float64)
+    noise = np.median(sigma[keep])
+    keep = _follow(r, cols, keep, first, noise, params[2])
+    best, error = _fit_front(cols[keep], r[keep], noise)
+    count = keep.sum()
+    if not np.isfinite(best):
+        return np.quantile(r[keep], params[4]), QUANTILE_SE * noise / np.sqrt(count), count
     for k in np.unique(line[keep]):
         mine = keep & (line == k)
-        if mine.sum() >= min_points:
-            best = min(best, _line_front(column[mine].astype(np.float64), r[mine]))
-    if np.isfinite(best):
-        return best
-    return np.quantile(r[keep], quantile)
+        if mine.sum() < min_points:
+            continue
+        front, se = _fit_front(cols[mine], r[mine], np.median(sigma[mine]))
+        if front < best - NEARER_SIGMAS * np.sqrt(se * se + error * error):
+            best, error = front, se
+    return best, error, count
 
 
 @kernel("UniTuple(float64, 4)(float64[:], float64[:], int64[:], int64[:], int64, int64, "
@@ -83,7 +150,7 @@ def credible(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
     """(distance m, σ m, support, nearer) of the nearest credible cluster of points sorted
     by range ``r``, or (nan, nan, -1, -1) when there is none. ``params``: (cluster rel,
     cluster abs m, spread σ, sliver columns per min_points, window quantile)."""
-    rel, abs_m, spread, sliver, quantile = params[0], params[1], params[2], params[3], params[4]
+    rel, abs_m, spread, sliver = params[0], params[1], params[2], params[3]
     n = r.size
     seen = np.zeros(width_px + 1, dtype=np.bool_)
     end = 0
@@ -100,13 +167,12 @@ def credible(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
         noise = np.median(sigma[i:end])
         if spread * noise >= width:  # the window opened on a noise tail: the surface
             centre = np.median(r[i:end])
-            for _ in range(2):
-                centre = np.median(r[np.abs(r - centre) <= spread * noise])
-            keep = np.abs(r - centre) <= spread * noise
-        distance = max(_front(r, line, column, keep, min_points, quantile), r[i])
-        support = keep.sum()
-        error = max(np.std(r[keep]), noise) / np.sqrt(support)
-        return distance, error, float(support), float(i)
+            band = SURFACE_SIGMAS * noise
+            for _ in range(CENTRE_PASSES):
+                centre = np.median(r[np.abs(r - centre) <= band])
+            keep = np.abs(r - centre) <= band
+        front, error, support = _front(r, sigma, line, column, keep, i, min_points, params)
+        return max(front, r[i]), error, float(support), float(i)
     return np.nan, np.nan, -1.0, -1.0
 
 
