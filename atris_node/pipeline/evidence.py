@@ -74,7 +74,7 @@ class SectorJudge:
             self.column_sector,
             doubtful=extraction.doubtful_columns + saturated + foreign.astype(np.int64),
             ambiguous=extraction.ambiguous_columns,
-            missing=(expected & ~seen).sum(axis=0).astype(np.int64))
+            missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen)
 
     def _doubt_ranges(self, extraction: Extraction) -> FloatArray:
         """(S,) per sector the nearest horizontal range (m) an ambiguous peak may stand

@@ -19,6 +19,10 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   (half the accuracy it is held to) is not pinned down by its points: INVALID. A
   minimum or a low quantile of noisy points would be biased near by about a σ, a mean
   over a slanted surface far: neither is used.
+  A distance is not published either where a nearer surface may go on unseen: strong
+  lines stop over ``min_points`` or more columns of the sector between their points on
+  both sides, one side nearer than the distance, with nothing seen in those columns
+  nearer or beyond (:func:`unseen_columns`; a black panel lit only in the next sector).
   A thin pole at a sector edge is reported by the sector its points fall in; nothing
   nearer is outvoted by a wall behind it. When ``min_points`` or more obstacle points lie
   nearer than the credible cluster without being credible themselves (a sliver, a short
@@ -68,6 +72,11 @@ DOUBT_ABS_M = 0.20
 SPREAD_SIGMAS = 2.0
 #: a cluster from one line must cover SLIVER_COLUMNS·min_points columns
 SLIVER_COLUMNS = 3
+#: a line whose obstacle points in a sector have a median SNR of at least GAP_SNR·snr_min
+#: would be seen on a surface a third as bright: where it stops, something darker stands
+GAP_SNR = 3.0
+#: a hole in a line is at least this many columns wide (single dropouts are noise)
+GAP_RUN = 3
 #: the constants as the kernel takes them
 _PARAMS = np.array([CLUSTER_REL, CLUSTER_ABS_M, SPREAD_SIGMAS, SLIVER_COLUMNS,
                     WINDOW_QUANTILE])
@@ -102,6 +111,8 @@ class ColumnEvidence:
     doubtful: IntArray
     ambiguous: IntArray
     missing: IntArray
+    #: (K, W) line k has a peak (any range) in column c; None: not known, no hole test
+    seen: BoolArray | None = None
 
     def per_sector(self, counts: IntArray, sectors: int) -> IntArray:
         """(S,) sums of a (W,) per-column count over each sector's columns."""
@@ -155,13 +166,67 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
     doubtful = evidence.per_sector(evidence.doubtful + evidence.missing, count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
-    return tuple(_verdict(s, points, layout, settings, ambiguous=int(ambiguous[s]),
+    return tuple(_verdict(s, points, layout, settings, evidence, ambiguous=int(ambiguous[s]),
                           doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]))
                  for s in range(count))
 
 
+def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
+                   distance_m: float, settings: SectorSettings) -> int:
+    """Columns of sector ``s`` where a nearer surface may stand unseen: inside a *hole*
+    of a strong line, with no obstacle point in them at most ``distance_m`` + max(
+    DOUBT_REL·d, DOUBT_ABS_M) and none of any line beyond that (within GAP_RUN columns:
+    far surfaces return sparsely; a line seen beyond is open that far at its height).
+
+    A strong line has a median SNR of at least GAP_SNR·snr_min on its obstacle points in
+    the sector: it would be seen on a surface a third as bright. Its hole is a run of at
+    least GAP_RUN columns in which it has no peak at all, with its obstacle points on
+    both sides, one of them nearer than d − max(DOUBT_REL·d, DOUBT_ABS_M): a nearer
+    surface ends where the line stops, and may go on, too dark to return it (a black
+    panel whose lit part is in the next sector, a dark box's unlit side). A line that
+    ends on one side only (a wall's edge with the far scene too faint beyond) or between
+    surfaces no nearer than d makes no hole."""
+    if evidence.seen is None:
+        return 0
+    hits = (points.sector == s) & points.obstacle
+    strong = [k for k in np.unique(points.line[hits]) if np.median(
+        points.snr[hits & (points.line == k)]) >= GAP_SNR * settings.snr_min]
+    if not strong:
+        return 0
+    width, margin = evidence.sector.size, max(DOUBT_REL * distance_m, DOUBT_ABS_M)
+    hole = np.zeros(width, dtype=np.bool_)
+    for k in strong:
+        hole |= _holes(points, evidence.seen[k], int(k), distance_m - margin)
+    hole &= evidence.sector == s
+    hole[points.column[hits & (points.range_m <= distance_m + margin)]] = False
+    far = points.column[(points.sector == s) & (points.range_m > distance_m + margin)]
+    for shift in range(-GAP_RUN, GAP_RUN + 1):
+        hole[np.clip(far + shift, 0, width - 1)] = False
+    return int(hole.sum())
+
+
+def _holes(points: ObstaclePoints, seen: BoolArray, line: int, nearer_than_m: float
+           ) -> BoolArray:
+    """(W,) the columns of the holes of line ``line`` (``seen`` (W,) its peaks) with a
+    flank nearer than ``nearer_than_m`` (see :func:`unseen_columns`)."""
+    width = seen.size
+    mine = points.obstacle & (points.line == line)
+    flank = np.full(width, np.nan)
+    flank[points.column[mine]] = points.range_m[mine]
+    out = np.zeros(width, dtype=np.bool_)
+    step = np.diff(np.concatenate(([0], (~seen).astype(np.int8), [0])))
+    for start, stop in zip(np.flatnonzero(step == 1), np.flatnonzero(step == -1), strict=True):
+        if start == 0 or stop == width or stop - start < GAP_RUN:
+            continue
+        left, right = flank[start - 1], flank[stop]
+        if np.isfinite(left) and np.isfinite(right) and min(left, right) < nearer_than_m:
+            out[start:stop] = True
+    return out
+
+
 def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: SectorSettings,
-             *, ambiguous: int, doubtful: int, doubt_m: float) -> SectorDistance:
+             evidence: ColumnEvidence, *, ambiguous: int, doubtful: int, doubt_m: float
+             ) -> SectorDistance:
     bearing = layout.bearing_of(s)
     in_sector = points.sector == s
     samples = int(in_sector.sum())
@@ -185,6 +250,9 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
     if conf < settings.min_confidence or found.sigma_m > settings.sigma_limit_m(
             found.distance_m):
         # too little support, or a distance the points do not pin down
+        return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
+    if unseen_columns(s, points, evidence, found.distance_m, settings) >= settings.min_points:
+        # a nearer surface may go on, too dark for the lines, where they stop
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,
                           found.support, found.sigma_m)
