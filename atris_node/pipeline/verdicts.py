@@ -166,13 +166,45 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
     doubtful = evidence.per_sector(evidence.doubtful + evidence.missing, count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
-    return tuple(_verdict(s, points, layout, settings, evidence, ambiguous=int(ambiguous[s]),
-                          doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]))
+    holes = None if evidence.seen is None else LineHoles.of(points, evidence.seen)
+    return tuple(_verdict(s, points, layout, settings, evidence, holes,
+                          ambiguous=int(ambiguous[s]), doubtful=int(doubtful[s]),
+                          doubt_m=float(doubt_m[s]))
                  for s in range(count))
 
 
+@dataclass(frozen=True)
+class LineHoles:
+    """The runs of at least GAP_RUN columns in which a line has no peak at all, with its
+    obstacle points on both sides, of one map: ``line``, ``start``, ``stop`` (columns,
+    stop exclusive) and ``nearer_m`` (the nearer flank's range) per run, (n,) each."""
+
+    line: IntArray
+    start: IntArray
+    stop: IntArray
+    nearer_m: FloatArray
+
+    @classmethod
+    def of(cls, points: ObstaclePoints, seen: BoolArray) -> LineHoles:
+        """The holes of every line of ``seen`` (K, W)."""
+        lines, width = seen.shape
+        flank = np.full((lines, width), np.nan)
+        flank[points.line[points.obstacle], points.column[points.obstacle]] = (
+            points.range_m[points.obstacle])
+        step = np.diff(np.concatenate([np.zeros((lines, 1), np.int8), (~seen).astype(np.int8),
+                                       np.zeros((lines, 1), np.int8)], axis=1), axis=1)
+        k, start = np.nonzero(step == 1)
+        stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
+        keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
+        k, start, stop = k[keep], start[keep], stop[keep]
+        left, right = flank[k, start - 1], flank[k, np.minimum(stop, width - 1)]
+        keep = np.isfinite(left) & np.isfinite(right)
+        return cls(k[keep].astype(np.int64), start[keep], stop[keep],
+                   np.minimum(left, right)[keep])
+
+
 def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
-                   distance_m: float, settings: SectorSettings) -> int:
+                   holes: LineHoles, distance_m: float, settings: SectorSettings) -> int:
     """Columns of sector ``s`` where a nearer surface may stand unseen: inside a *hole*
     of a strong line, with no obstacle point in them at most ``distance_m`` + max(
     DOUBT_REL·d, DOUBT_ABS_M) and none of any line beyond that (within GAP_RUN columns:
@@ -181,22 +213,25 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     A strong line has a median SNR of at least GAP_SNR·snr_min on its obstacle points in
     the sector: it would be seen on a surface a third as bright. Its hole is a run of at
     least GAP_RUN columns in which it has no peak at all, with its obstacle points on
-    both sides, one of them nearer than d − max(DOUBT_REL·d, DOUBT_ABS_M): a nearer
-    surface ends where the line stops, and may go on, too dark to return it (a black
-    panel whose lit part is in the next sector, a dark box's unlit side). A line that
-    ends on one side only (a wall's edge with the far scene too faint beyond) or between
-    surfaces no nearer than d makes no hole."""
-    if evidence.seen is None:
+    both sides, one of them nearer than d − max(DOUBT_REL·d, DOUBT_ABS_M) (``holes``): a
+    nearer surface ends where the line stops, and may go on, too dark to return it (a
+    black panel whose lit part is in the next sector, a dark box's unlit side). A line
+    that ends on one side only (a wall's edge with the far scene too faint beyond) or
+    between surfaces no nearer than d makes no hole."""
+    columns = np.flatnonzero(evidence.sector == s)
+    margin = max(DOUBT_REL * distance_m, DOUBT_ABS_M)
+    near = ((holes.nearer_m < distance_m - margin) & (holes.start <= columns[-1])
+            & (holes.stop > columns[0])) if columns.size else np.zeros(0, np.bool_)
+    if not near.any():
         return 0
     hits = (points.sector == s) & points.obstacle
-    strong = [k for k in np.unique(points.line[hits]) if np.median(
-        points.snr[hits & (points.line == k)]) >= GAP_SNR * settings.snr_min]
-    if not strong:
-        return 0
-    width, margin = evidence.sector.size, max(DOUBT_REL * distance_m, DOUBT_ABS_M)
+    width = evidence.sector.size
     hole = np.zeros(width, dtype=np.bool_)
-    for k in strong:
-        hole |= _holes(points, evidence.seen[k], int(k), distance_m - margin)
+    for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
+                              strict=True):
+        mine = hits & (points.line == k)
+        if mine.any() and np.median(points.snr[mine]) >= GAP_SNR * settings.snr_min:
+            hole[start:stop] = True
     hole &= evidence.sector == s
     hole[points.column[hits & (points.range_m <= distance_m + margin)]] = False
     far = points.column[(points.sector == s) & (points.range_m > distance_m + margin)]
@@ -205,28 +240,9 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     return int(hole.sum())
 
 
-def _holes(points: ObstaclePoints, seen: BoolArray, line: int, nearer_than_m: float
-           ) -> BoolArray:
-    """(W,) the columns of the holes of line ``line`` (``seen`` (W,) its peaks) with a
-    flank nearer than ``nearer_than_m`` (see :func:`unseen_columns`)."""
-    width = seen.size
-    mine = points.obstacle & (points.line == line)
-    flank = np.full(width, np.nan)
-    flank[points.column[mine]] = points.range_m[mine]
-    out = np.zeros(width, dtype=np.bool_)
-    step = np.diff(np.concatenate(([0], (~seen).astype(np.int8), [0])))
-    for start, stop in zip(np.flatnonzero(step == 1), np.flatnonzero(step == -1), strict=True):
-        if start == 0 or stop == width or stop - start < GAP_RUN:
-            continue
-        left, right = flank[start - 1], flank[stop]
-        if np.isfinite(left) and np.isfinite(right) and min(left, right) < nearer_than_m:
-            out[start:stop] = True
-    return out
-
-
 def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: SectorSettings,
-             evidence: ColumnEvidence, *, ambiguous: int, doubtful: int, doubt_m: float
-             ) -> SectorDistance:
+             evidence: ColumnEvidence, holes: LineHoles | None, *, ambiguous: int,
+             doubtful: int, doubt_m: float) -> SectorDistance:
     bearing = layout.bearing_of(s)
     in_sector = points.sector == s
     samples = int(in_sector.sum())
@@ -251,7 +267,8 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
             found.distance_m):
         # too little support, or a distance the points do not pin down
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if unseen_columns(s, points, evidence, found.distance_m, settings) >= settings.min_points:
+    if holes is not None and unseen_columns(s, points, evidence, holes, found.distance_m,
+                                            settings) >= settings.min_points:
         # a nearer surface may go on, too dark for the lines, where they stop
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,
