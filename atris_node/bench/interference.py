@@ -1,14 +1,16 @@
 """``atris bench interference [--maps N] [--seed S] [--cases NAME ...] [--json]``: how far
 the foreign-light verdict sits from its limit, both ways.
 
-The pipeline flags foreign light when ``max(foreign_energy, unassigned_fraction)`` (the
-*metric*, docs/pipeline.md section 4) exceeds ``foreign_limit``. A unit on our own code
-must be flagged at any fractional phase at which its pulses overlap our exposures; our own
-moving stripes, flickering lamps and units on other (orthogonal) codes must not. For each
-case, ``--maps`` maps of a simulated scene (block demodulation, known lag, the pipeline's
-defaults) give the metric per map; the *margin* is ``min metric / limit`` for a case that
-must be flagged and ``limit / max metric`` for one that must not (infinite when the metric
-is 0). Below 1 the verdict is wrong on some map; the target is 3 both ways.
+The pipeline flags foreign light (``Diagnostics.interference``) when ``max(foreign_energy,
+unassigned_fraction - moving_fraction)`` (the *metric*, docs/pipeline.md section 4: the
+unassigned peaks that are not moving edges of own stripes) exceeds ``foreign_limit``. A
+unit on our own code must be flagged at any fractional phase at which its pulses overlap
+our exposures; our own moving stripes, flickering lamps and units on other (orthogonal)
+codes must not. For each case, ``--maps`` maps of a simulated scene (block demodulation,
+known lag, the pipeline's defaults) give the metric per map; the *margin* is ``min metric
+/ limit`` for a case that must be flagged and ``limit / max metric`` for one that must not
+(infinite when the metric is 0). Below 1 the verdict is wrong on some map; the target is 3
+both ways.
 
 Rows (JSON keys): ``case``, ``scene``, ``must_flag``, ``maps``, ``metric_min``,
 ``metric_median``, ``metric_max``, ``flagged`` (maps), ``limit``, ``margin`` (null when
@@ -92,8 +94,14 @@ def metrics(scene: Scene, maps: int, seed: int) -> tuple[list[float], float]:
     out: list[float] = []
     for dmap in itertools.islice(dmaps, maps):
         diag = pipe.process(dmap).diagnostics
-        out.append(max(float(diag.foreign_energy), float(diag.unassigned_fraction)))
+        out.append(foreign_metric(diag))
     return out, float(config.foreign_limit)
+
+
+def foreign_metric(diag: Any) -> float:
+    """The metric the pipeline's ``interference`` flag compares with ``foreign_limit``."""
+    return max(float(diag.foreign_energy),
+               float(diag.unassigned_fraction) - float(diag.moving_fraction))
 
 
 def margin(values: list[float], limit: float, must_flag: bool) -> float:

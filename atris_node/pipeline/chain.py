@@ -168,11 +168,17 @@ class Diagnostics:
     rows_read: int
     line_snr: tuple[float, ...]
     foreign_energy: float
+    #: peaks in the bands that belong to no line, per line slot (moving edges included)
     unassigned_fraction: float
     foreign_columns: int  # columns with foreign light in or next to them
+    #: foreign light: the energy or the unassigned peaks that are not moving edges of
+    #: own stripes exceed ``foreign_limit`` (another projector, a same-code unit)
     interference: bool
     ground: GroundPlane
     timings_ms: dict[str, float] = field(default_factory=dict)
+    #: of ``unassigned_fraction``, the peaks set aside as moving edges (own light moved
+    #: within the window: they blank their columns' sectors but are not interference)
+    moving_fraction: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -386,6 +392,9 @@ class Pipeline:
         slots = len(self.bands) * extraction.foreign_columns.size
         energy, columns = foreign
         unassigned = extraction.unassigned / slots
+        foreign_unassigned = (extraction.unassigned - extraction.moving) / slots
+        # the blanking above counts moving edges too (they may hide the nearest obstacle);
+        # the flag says foreign light, which own moving stripes are not
         return Diagnostics(
             noise_floor_dn=extraction.noise_floor_dn,
             valid_fraction=float(valid.sum()) / slots,
@@ -394,8 +403,9 @@ class Pipeline:
             no_return=int((~valid).sum()), rows_read=extraction.rows_read,
             line_snr=extraction.line_snr, foreign_energy=energy,
             unassigned_fraction=unassigned, foreign_columns=columns,
-            interference=max(energy, unassigned) > self.config.foreign_limit,
-            ground=self._ground, timings_ms=timings)
+            interference=max(energy, foreign_unassigned) > self.config.foreign_limit,
+            ground=self._ground, timings_ms=timings,
+            moving_fraction=extraction.moving / slots)
 
     def _objects(self, obstacle_points: FloatArray) -> tuple[objects_mod.ObjectBox, ...]:
         return objects_mod.cluster_objects(obstacle_points, self.config.object_eps_m,

@@ -128,6 +128,9 @@ class Extraction:
     #: among their hypotheses that puts them nearest (atris_node.pipeline.rivals.Identity)
     doubts: tuple[IntArray, IntArray, IntArray]
     narrowed: bool = False  # peaks were looked for on the ``search`` rows only
+    #: of ``unassigned``, the peaks set aside as moving edges (not own light in place,
+    #: atris_node.pipeline.temporal): own stripes of a moving object, not foreign light
+    moving: int = 0
 
 
 # --------------------------------------------------------------------------- rows read
@@ -287,6 +290,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     peaks = strong_maxima(values, where.scan, local, settings.snr_min, settings.min_separation_px,
                           len(bands) + EXTRA_PEAKS, where.inside)
     lone = np.zeros(peaks.shape[1], dtype=np.int64)
+    moved = np.zeros(peaks.shape[1], dtype=np.int64)
     striped = peaks
     aligned = settings.identity == "aligned"
     doubts = _NO_DOUBTS
@@ -314,7 +318,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       unassigned=int(unassigned.sum()), foreign_columns=unassigned > 0,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
                       narrowed=where.inside is not None, ambiguous_columns=unsure,
-                      doubtful_columns=lone + _unsampled(rows, samples), doubts=doubts)
+                      doubtful_columns=lone + _unsampled(rows, samples), doubts=doubts,
+                      moving=int(np.minimum(moved, unassigned).sum()))
 
 
 def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> FloatArray:
