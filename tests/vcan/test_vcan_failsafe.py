@@ -43,8 +43,11 @@ from atris_node.bus.can.ids import FrameKind, frame_id
 pytestmark = pytest.mark.vcan
 
 REANNOUNCE_S = 1.0
-#: link-down cycles tried until one catches the unit strobing (one, unless the VM starves it)
-ATTEMPTS = 3
+#: link-down cycles tried until one catches the unit strobing: one on a quiet machine; a
+#: VM starved beside a CPU-heavy process leaves the unit silent for 3-4 s at times, after
+#: which it drops its laser and claims again (its own safety rule), and three attempts once
+#: all missed its lit spells; the precondition only, the bounds below are not relaxed
+ATTEMPTS = 8
 STATE_RUNNING = 2
 #: the largest distance a valid sector carries, m (raw 65532; above: no-sector, no-return,
 #: invalid codes)
@@ -87,7 +90,9 @@ def link_down(iface: str) -> Iterator[float]:
 def test_a_unit_whose_link_goes_down_stops_strobing_within_its_lease(
         spawn: Any, record_property: Any) -> None:
     unit = spawn("negotiator", "vcan1", "0x4000", "4", "16")
+    attempts = 0
     for _ in range(ATTEMPTS):
+        attempts += 1
         wait_lit(unit)
         with link_down("vcan1") as down_at:
             time.sleep(REANNOUNCE_S + 1.0)
@@ -97,6 +102,7 @@ def test_a_unit_whose_link_goes_down_stops_strobing_within_its_lease(
         if lit_at_down:
             break
     final = unit.stop()
+    record_property("attempts", attempts)
     assert lit_at_down, "the unit was not strobing when the link went down: proves nothing"
     dark_after_s = lit_at_down[0][1] - down_at
     record_property("link_down_to_dark_s", round(dark_after_s, 3))
