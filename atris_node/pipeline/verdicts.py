@@ -7,8 +7,9 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   SPREAD_SIGMAS·σ)]`` holds at least ``min_points`` points from more than one line, or
   from one line over SLIVER_COLUMNS·min_points columns (independent evidence: a short run
   of one line is what a wrong identity looks like). When the window is no wider than its
-  triangulation noise, the surface is the points within that noise of the window's
-  median (moved twice: the window opened on the surface's near tail). The distance is
+  triangulation noise, it opened on a noisy surface's near tail: the surface is the
+  points within SURFACE_SIGMAS·σ of a centre moved from the window's median to the
+  median of the points near it (verdicts_kernels). The distance is
   the front of a straight fit of range against column over all lines of the surface:
   its mean when the slope is within SLOPE_SIGMAS of zero, else the fit at its nearest
   column, the surface's points followed along the slope (a range window cuts a slanted
@@ -197,7 +198,7 @@ class LineHoles:
         stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
         keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
         k, start, stop = k[keep], start[keep], stop[keep]
-        left, right = flank[k, start - 1], flank[k, np.minimum(stop, width - 1)]
+        left, right = flank[k, start - 1], flank[k, stop]
         keep = np.isfinite(left) & np.isfinite(right)
         return cls(k[keep].astype(np.int64), start[keep], stop[keep],
                    np.minimum(left, right)[keep])
@@ -219,7 +220,7 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     that ends on one side only (a wall's edge with the far scene too faint beyond) or
     between surfaces no nearer than d makes no hole."""
     columns = np.flatnonzero(evidence.sector == s)
-    margin = max(DOUBT_REL * distance_m, DOUBT_ABS_M)
+    margin = _doubt_margin_m(distance_m)
     near = ((holes.nearer_m < distance_m - margin) & (holes.start <= columns[-1])
             & (holes.stop > columns[0])) if columns.size else np.zeros(0, np.bool_)
     if not near.any():
@@ -240,6 +241,11 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     return int(hole.sum())
 
 
+def _doubt_margin_m(distance_m: float) -> float:
+    """max(DOUBT_REL·d, DOUBT_ABS_M): how near a doubt must come to a distance d (m)."""
+    return max(DOUBT_REL * distance_m, DOUBT_ABS_M)
+
+
 def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: SectorSettings,
              evidence: ColumnEvidence, holes: LineHoles | None, *, ambiguous: int,
              doubtful: int, doubt_m: float) -> SectorDistance:
@@ -257,7 +263,7 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
                               SectorState.INVALID, 0.0, conf, samples)
     found = nearest_credible(points, hits, settings.min_points)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
-            found.distance_m + max(DOUBT_REL * found.distance_m, DOUBT_ABS_M)):
+            found.distance_m + _doubt_margin_m(found.distance_m)):
         # nothing credible, or something nearer that is not credible, or a peak whose
         # line could not be told may stand as near (the cluster found may be one such
         # guess itself): no distance

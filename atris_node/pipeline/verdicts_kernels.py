@@ -51,13 +51,10 @@ def _independent(line: IntArray, column: IntArray, lo: int, hi: int, min_columns
 
 
 @kernel()
-def _fit(cols: FloatArray, ranges: FloatArray, noise: float
-         ) -> tuple[float, float, float, float, float]:
-    """(mean column, mean range m, slope m/px, scatter m, Σ(c - c̄)²) of a straight fit of
-    ``ranges`` against ``cols``. The scatter is the residual's or ``noise`` (one sample's
-    triangulation σ), whichever is larger: smoothing along the lines makes neighbouring
-    samples share their noise, so the residual alone would claim more independent samples
-    than there are."""
+def _fit(cols: FloatArray, ranges: FloatArray) -> tuple[float, float, float, float, float]:
+    """(mean column, mean range m, slope m/px, residual scatter m, Σ(c - c̄)²) of a
+    straight fit of ``ranges`` against ``cols``; slope and scatter 0 when the columns do
+    not spread."""
     n = ranges.size
     c_mean, r_mean = cols.mean(), ranges.mean()
     sxx = sxy = 0.0
@@ -65,7 +62,7 @@ def _fit(cols: FloatArray, ranges: FloatArray, noise: float
         sxx += (cols[i] - c_mean) ** 2
         sxy += (cols[i] - c_mean) * (ranges[i] - r_mean)
     if sxx == 0.0:
-        return c_mean, r_mean, 0.0, noise, 0.0
+        return c_mean, r_mean, 0.0, 0.0, 0.0
     slope = sxy / sxx
     rss = 0.0
     for i in range(n):
@@ -82,8 +79,11 @@ def _sloped(slope: float, scatter: float, sxx: float) -> bool:
 def _fit_front(cols: FloatArray, ranges: FloatArray, noise: float) -> tuple[float, float]:
     """(front m, its standard error m): the least range of a straight fit over the
     columns' span, or the mean when the slope is within SLOPE_SIGMAS standard errors of
-    zero; (inf, inf) when the columns do not spread."""
-    c_mean, r_mean, slope, residual, sxx = _fit(cols, ranges, noise)
+    zero; (inf, inf) when the columns do not spread. The error's scatter is the
+    residual's or ``noise`` (one sample's triangulation σ), whichever is larger:
+    smoothing along the lines makes neighbouring samples share their noise, so the
+    residual alone would claim more independent samples than there are."""
+    c_mean, r_mean, slope, residual, sxx = _fit(cols, ranges)
     n = ranges.size
     if sxx == 0.0:
         return np.inf, np.inf
@@ -105,7 +105,7 @@ def _follow(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise:
     for _ in range(FOLLOW_PASSES):
         if keep.sum() < 3:
             break
-        c_mean, r_mean, slope, scatter, sxx = _fit(cols[keep], r[keep], noise)
+        c_mean, r_mean, slope, scatter, sxx = _fit(cols[keep], r[keep])
         if not _sloped(slope, scatter, sxx):
             break
         along = np.abs(r - r_mean - slope * (cols - c_mean)) <= spread * noise
