@@ -57,12 +57,17 @@ def _assert_never_wrong(row: dict) -> None:
 #: scenes the pipeline does not yet get right, and what they still do (strict expected
 #: failures: a scene that starts passing fails here until it is taken off)
 KNOWN_WRONG: dict[str, str] = {
-    "ramp_and_kerb": "far: sector 3 reports the wall (5.9-6.0 m) through the 15 cm kerb at "
-                     "1.98 m, whose face only line 76 deg meets, 12.7 cm up, just over the "
-                     "10 cm ground clearance; sector 6 reports the wall (6.2 m) over the 10 deg "
-                     "ramp at 3.19 m, which lines 82 and 85 deg meet 15-26 cm up. The nearest "
-                     "credible obstacle is not taken from a low, gently rising or one-line "
-                     "surface (issue 18 point 3)",
+    "ramp_and_kerb": "far: sector 6 reports the wall (6.2 m) over the 10 deg ramp at 3.19 m: "
+                     "lines 82-88 deg, which should meet the ramp or the ground before it, "
+                     "are missing over the whole sector, and only line 76 deg is seen, on "
+                     "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
+                     "up, no line seen above) is INVALID since pipeline.tops (far on seed "
+                     "11 still: 3 sector-frames of 32, was 4)",
+    "dark_kerb_turned": "far: in sector 7 the turned kerb shows only at the sector's edge "
+                        "columns, one line 8.7 cm up (0.9 rows off its ground row, under "
+                        "the 1.5 rows a wall-foot stripe can make) with no line seen above: "
+                        "the wall at 4.2 m is read for the kerb at 3.04 m in 1 map of 4 "
+                        "(3 far sector-frames before pipeline.tops)",
 }
 #: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
 #: not a pipeline fault (the unit cannot know its calibration is off), strict expected

@@ -107,6 +107,28 @@ def test_feature_ramp_truth_starts_ten_centimetres_up() -> None:
     assert truth[2] == pytest.approx(1.82, abs=0.02)  # the kerb face, 12.7 cm up
 
 
+def _kerb_scene(height_m: float, front_m: float = 1.8) -> Any:
+    """ramp_and_kerb with its kerb ``height_m`` tall, its face at ``front_m``."""
+    from dataclasses import replace
+
+    scene = load_scene("ramp_and_kerb")
+    shapes = tuple(replace(s, center_m=(front_m + 0.5 * s.size_m[0], s.center_m[1],
+                                        0.5 * height_m),
+                           size_m=(s.size_m[0], s.size_m[1], height_m))
+                   if s.name.startswith("kerb") else s for s in scene.shapes)
+    return replace(scene, shapes=shapes)
+
+
+def test_feature_shape_below_the_clearance_is_no_obstacle() -> None:
+    """A 9 cm kerb is cleared by the vehicle (clearance 10 cm): not sector truth; the
+    same kerb 15 cm tall is, at its face. Checked to fail with CLEARANCE_M = -1 (every
+    shape an obstacle, the truth before): the 9 cm kerb was truth at 1.82 m."""
+    low = Simulator(_kerb_scene(0.09)).truth(0, LAYOUT).sector_distance_m
+    tall = Simulator(_kerb_scene(0.15)).truth(0, LAYOUT).sector_distance_m
+    assert tall[2] == pytest.approx(1.82, abs=0.02)
+    assert low[2] is None or low[2] > 2.0
+
+
 def test_exception_bad_ramp_names_key() -> None:
     ramp = {"start_m": [2.0, 0.0, 0.0], "length_m": 1.0, "width_m": 1.0, "slope_deg": 95.0}
     with pytest.raises(ConfigError, match=r"ramp\[0\]\.slope_deg: must be in \[0\.1, 90\.0\]"):

@@ -276,7 +276,7 @@ class Pipeline:
         self._counter = 0
         self._width = cam.width_px
         self._judge = SectorJudge(calibration, mounting, layout, self._sectors,
-                                  (config.z_min_m, config.z_max_m))
+                                  (config.z_min_m, config.z_max_m), config.ground_clearance_m)
         self.roi = (RoiTracker(self.bands, RoiSettings(
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
@@ -373,7 +373,7 @@ class Pipeline:
         data = (SectorInput(vehicle, obstacle, samples.snr) if clean.all() else
                 SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean]))
         sectors = _blank(self._judge.judge(extraction, points, data, clean, foreign,
-                                           self._prior), blanked)
+                                           self._prior, self._ground), blanked)
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(
             None if nearest is None else nearest.distance_m,

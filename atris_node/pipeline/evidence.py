@@ -9,6 +9,8 @@ calibration and mounting. Counts are int64 (W,), ranges float64 m, inf where non
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import numpy.typing as npt
 
@@ -16,9 +18,10 @@ from atris_node.calibration import Calibration
 from atris_node.mounting import Mounting
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
-from atris_node.pipeline.obstacles import SectorInput, SectorSettings
+from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
 from atris_node.pipeline.peaks import Extraction, per_column
 from atris_node.pipeline.sectors import SectorLayout
+from atris_node.pipeline.tops import height_sigma_m, unseen_tops
 from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import SectorDistance
 
@@ -34,34 +37,66 @@ class SectorJudge:
         calibration, mounting, layout: the unit's.
         settings: the sector part of the pipeline configuration.
         z_range_m: (z_min, z_max) of the operating range, m.
+        clearance_m: the ground clearance, m: lower surfaces are ground.
     """
 
     def __init__(self, calibration: Calibration, mounting: Mounting, layout: SectorLayout,
-                 settings: SectorSettings, z_range_m: tuple[float, float]) -> None:
+                 settings: SectorSettings, z_range_m: tuple[float, float],
+                 clearance_m: float = 0.1) -> None:
         self.calibration = calibration
         self.mounting = mounting
         self.layout = layout
         self.settings = settings
         self.z_range_m = z_range_m
+        self.clearance_m = clearance_m
         self.column_sector = sectors_by_column(calibration, mounting, layout)
+        self.projector_m = mounting.camera_to_vehicle(
+            np.array([[0.0, -calibration.laser.baseline_m, 0.0]]))[0]
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
         return {int(i) for i in np.unique(self.column_sector[columns]) if i >= 0}
 
     def judge(self, extraction: Extraction, points: Points, data: SectorInput,
-              clean: BoolArray, foreign: BoolArray, prior: VisibilityPrior
-              ) -> tuple[SectorDistance, ...]:
+              clean: BoolArray, foreign: BoolArray, prior: VisibilityPrior,
+              ground: GroundPlane | None = None) -> tuple[SectorDistance, ...]:
         """The verdicts for the ``clean`` samples (``data`` holds them, ``points`` has
         every sample), with the evidence of every column (``foreign`` (W,) columns with
-        foreign light) under the visibility ``prior``."""
+        foreign light) under the visibility ``prior``; with the ``ground`` plane, low
+        surfaces whose top no line saw count as doubts (:mod:`atris_node.pipeline.tops`)."""
         samples = extraction.samples
         sector, range_m = data.placed(self.layout)
         found = ObstaclePoints(range_m, sector, data.obstacle, samples.line[clean],
                                samples.col_px[clean].astype(np.int64),
                                points.sigma_z_m[clean], data.snr)
-        return sector_verdicts(found, self._evidence(extraction, foreign, prior),
-                               self.layout, self.settings, self._doubt_ranges(extraction))
+        evidence = self._evidence(extraction, foreign, prior)
+        top_m = np.full(self.layout.count, np.inf)
+        if ground is not None:
+            tops = self._unseen_tops(found, data, points.valid[clean], ground)
+            evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
+                found.column[tops].astype(np.float64), self.column_sector.size))
+            inside = tops & (sector >= 0)
+            np.minimum.at(top_m, sector[inside], range_m[inside])
+        return sector_verdicts(found, evidence, self.layout, self.settings,
+                               self._doubt_ranges(extraction), top_m)
+
+    def _unseen_tops(self, found: ObstaclePoints, data: SectorInput, valid: BoolArray,
+                     ground: GroundPlane) -> BoolArray:
+        """(n,) the valid samples below the clearance whose top no line above bounds."""
+        height = ground.height(data.points)
+        origin = self.projector_m
+        distance = np.hypot(data.points[:, 0] - origin[0], data.points[:, 1] - origin[1])
+        camera = self.mounting.translation
+        sigma_h = height_sigma_m(
+            found.sigma_m, height, float(ground.height(camera[None, :])[0]),
+            np.hypot(data.points[:, 0] - camera[0], data.points[:, 1] - camera[1]))
+        return unseen_tops(found.line, found.column, distance, height, found.sigma_m,
+                           data.obstacle, valid, lines=len(self.calibration.laser.alpha_rad),
+                           width=self.column_sector.size, clearance_m=self.clearance_m,
+                           projector_height_m=float(ground.height(origin[None, :])[0]),
+                           height_sigma=sigma_h, focal_baseline_px_m=(
+                               self.calibration.camera.focal_px
+                               * self.calibration.laser.baseline_m))
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
                   prior: VisibilityPrior) -> ColumnEvidence:

@@ -28,12 +28,15 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   nearer is outvoted by a wall behind it. When ``min_points`` or more obstacle points lie
   nearer than the credible cluster without being credible themselves (a sliver, a short
   run of a doubtful identity), the sector is INVALID: they may be the nearest obstacle.
+  A low surface whose top no line saw (:mod:`atris_node.pipeline.tops`: a kerb the
+  lines only graze below the clearance) more than max(TOP_REL·d, TOP_ABS_M) nearer than
+  d may rise above the clearance there: INVALID.
 - NO_RETURN (free up to z_max) only when it is earned: no obstacle point, no ambiguous,
-  lone, dropped or saturated sample in its columns, no foreign light, and every line that
-  meets the ground within z_max was seen in every one of its columns (on the ground,
-  where the obstacle-free scene puts it). A line that would be missing where it is
-  expected means something may stand there unseen (too dark, too thin, an ambiguous
-  stripe): the sector is INVALID.
+  lone, dropped or saturated sample and no low surface with an unseen top in its
+  columns, no foreign light, and every line that meets the ground within z_max was seen
+  in every one of its columns (on the ground, where the obstacle-free scene puts it).
+  A line that would be missing where it is expected means something may stand there
+  unseen (too dark, too thin, an ambiguous stripe): the sector is INVALID.
 - INVALID otherwise, and whenever a peak whose line could not be told may stand as near
   as the distance found: its nearest hypothesis, triangulated, is not farther than
   d + max(DOUBT_REL·d, DOUBT_ABS_M). It may be the nearest obstacle, and the cluster
@@ -69,6 +72,11 @@ WINDOW_QUANTILE = 0.25
 #: beyond the distance d found (or nearer) makes the sector INVALID
 DOUBT_REL = 0.10
 DOUBT_ABS_M = 0.20
+#: a low surface whose top no line saw (:mod:`atris_node.pipeline.tops`) at a range more
+#: than max(TOP_REL·d, TOP_ABS_M) nearer than the distance d found makes the sector
+#: INVALID: it may rise above the clearance there (nearer than that, d is accurate for it)
+TOP_REL = 0.03
+TOP_ABS_M = 0.05
 #: a cluster window is at least this many triangulation σ of its first point wide
 SPREAD_SIGMAS = 2.0
 #: a cluster from one line must cover SLIVER_COLUMNS·min_points columns
@@ -157,20 +165,24 @@ def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
 
 
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
-                    settings: SectorSettings, doubt_m: FloatArray | None = None
-                    ) -> tuple[SectorDistance, ...]:
+                    settings: SectorSettings, doubt_m: FloatArray | None = None,
+                    top_m: FloatArray | None = None) -> tuple[SectorDistance, ...]:
     """One :class:`SectorDistance` per sector of ``layout`` (index 0 at the right edge).
     ``doubt_m`` (S,) is the nearest range (m) an ambiguous peak may stand for in each
-    sector (inf: none; None: every ambiguous peak may stand for anything)."""
+    sector (inf: none; None: every ambiguous peak may stand for anything); ``top_m`` (S,)
+    the nearest range of a low surface whose top no line saw (inf or None: none; the
+    samples are in ``evidence.doubtful`` too)."""
     count = layout.count
     ambiguous = evidence.per_sector(evidence.ambiguous, count)
     doubtful = evidence.per_sector(evidence.doubtful + evidence.missing, count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
     holes = None if evidence.seen is None else LineHoles.of(points, evidence.seen)
+    if top_m is None:
+        top_m = np.full(count, np.inf)
     return tuple(_verdict(s, points, layout, settings, evidence, holes,
                           ambiguous=int(ambiguous[s]), doubtful=int(doubtful[s]),
-                          doubt_m=float(doubt_m[s]))
+                          doubt_m=float(doubt_m[s]), top_m=float(top_m[s]))
                  for s in range(count))
 
 
@@ -248,7 +260,7 @@ def _doubt_margin_m(distance_m: float) -> float:
 
 def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: SectorSettings,
              evidence: ColumnEvidence, holes: LineHoles | None, *, ambiguous: int,
-             doubtful: int, doubt_m: float) -> SectorDistance:
+             doubtful: int, doubt_m: float, top_m: float) -> SectorDistance:
     bearing = layout.bearing_of(s)
     in_sector = points.sector == s
     samples = int(in_sector.sum())
@@ -263,10 +275,12 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
                               SectorState.INVALID, 0.0, conf, samples)
     found = nearest_credible(points, hits, settings.min_points)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
-            found.distance_m + _doubt_margin_m(found.distance_m)):
+            found.distance_m + _doubt_margin_m(found.distance_m)) or top_m < (
+            found.distance_m - max(TOP_REL * found.distance_m, TOP_ABS_M)):
         # nothing credible, or something nearer that is not credible, or a peak whose
         # line could not be told may stand as near (the cluster found may be one such
-        # guess itself): no distance
+        # guess itself), or a low surface nearer may rise above the clearance unseen:
+        # no distance
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=int(hits.sum()))
     conf = _confidence(int(hits.sum()), snr, settings)
     if conf < settings.min_confidence or found.sigma_m > settings.sigma_limit_m(

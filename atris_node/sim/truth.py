@@ -14,7 +14,11 @@ those points on obstacles only (never the ground plane), in the vehicle frame, a
 the smallest horizontal range per sector of :class:`atris_node.pipeline.sectors.SectorLayout`.
 On a ramp only points at least ``RAMP_MIN_HEIGHT_M`` above the ground count: a surface
 rising gently out of the ground is ground below the sensor's stated floor (the pipeline's
-default ``ground_clearance_m``); other shapes count at every height, as before.
+default ``ground_clearance_m``). A shape whose top stays below that clearance (a 9 cm
+kerb) is not an obstacle at all: the vehicle clears it. On the other shapes points count
+from ``FLOOR_M`` above the ground up: a line meeting a kerb at its foot, 1 cm up, sees
+ground, as any sensor would (the pipeline tells a surface from the ground from 3 cm up,
+:mod:`atris_node.pipeline.tops`); the kerb is the truth where a line meets it higher.
 """
 
 from __future__ import annotations
@@ -29,13 +33,17 @@ from atris_node.pipeline.geometry import undistort_pixels
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim.layers import Surface, see
 from atris_node.sim.optics import sheet_angles
-from atris_node.sim.raycast import Ramp, occluded
+from atris_node.sim.raycast import Ramp, Shape, occluded
 from atris_node.sim.scene import Scene
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 #: ramp points lower than this above the ground (z = 0) are not sector truth, m
 RAMP_MIN_HEIGHT_M = 0.1
+#: a shape whose highest point is lower than this (m) is not an obstacle (the clearance)
+CLEARANCE_M = RAMP_MIN_HEIGHT_M
+#: points of other shapes lower than this above the ground (m) are not sector truth
+FLOOR_M = 0.03
 
 
 @dataclass(frozen=True)
@@ -122,6 +130,12 @@ def sector_distances(points_vehicle: FloatArray, layout: SectorLayout) -> tuple[
     return tuple(out)
 
 
+def _top_m(shape: Shape, time_s: float) -> float:
+    """The height (m) of the shape's highest point at ``time_s`` (inf when unbounded)."""
+    bounds = shape.bounds(time_s)
+    return float("inf") if bounds is None else float(bounds[1][2])
+
+
 def compute_truth(scene: Scene, mounting: Mounting, dirs_cam: FloatArray,
                   dirs_world: FloatArray, *, sequence: int, time_s: float,
                   layout: SectorLayout) -> Truth:
@@ -133,8 +147,9 @@ def compute_truth(scene: Scene, mounting: Mounting, dirs_cam: FloatArray,
     k_count, width = len(scene.projector.alpha_rad), scene.camera.width_px
     rows, visible = np.zeros((k_count, width)), np.zeros((k_count, width), bool)
     points, obstacle = np.zeros((k_count, width, 3)), np.zeros((k_count, width), bool)
-    is_obstacle = np.array([s.obstacle for s in scene.shapes] + [False])
-    floor = np.array([RAMP_MIN_HEIGHT_M if isinstance(s, Ramp) else -np.inf
+    is_obstacle = np.array([s.obstacle and _top_m(s, time_s) >= CLEARANCE_M
+                            for s in scene.shapes] + [False])
+    floor = np.array([RAMP_MIN_HEIGHT_M if isinstance(s, Ramp) else FLOOR_M
                       for s in scene.shapes] + [0.0])
     floor_m = np.full((k_count, width), -np.inf)
     cols = np.arange(width)

@@ -1,0 +1,168 @@
+"""Low surfaces whose top no line has seen: a kerb may be an obstacle the lines only graze.
+
+A sample below the ground clearance is ground for the sector verdicts. But a sample that
+stands clearly *above* the ground (a kerb's face hit 9 cm up, a dark step whose top the
+next line misses) shows a surface rising out of the ground whose top the sample does not
+give: it may go on above the clearance, out of this line's reach. Only the lines above it
+can tell. Line k's light sheet and an image column meet in a straight line through the
+projector (the projector lies on the camera's y axis, which every column plane holds),
+so a line k' above k that lands *beyond* the sample in the same column passed over it at
+the height of that straight line at the sample's distance: the surface's top there is
+below that height. The lines above are walked from k − 1 upwards:
+
+- a line that meets an obstacle point not farther than max(FOOT_REL·d, FOOT_M,
+  FOOT_PX·d²/(f·b)) beyond the sample: the surface is seen (the sample is its foot,
+  triangulated short by the mixed stripe at the corner), nothing to add;
+- a line that lands on the same low surface (not farther than the sample by more than
+  SAME_SURFACE_M or SAME_SIGMAS of its σ): it bounds nothing, the next line up is asked;
+- a line that lands beyond (on the ground or on anything else): it passed over at
+  height h. h at most the clearance: the
+  surface is below the clearance, ground. Else its top is unknown;
+- no line above in the column (within one column either side), or no line left: unknown
+  when the rise is more than RISE_PX rows (below).
+
+A sample whose top is unknown is an *unseen top*: something may stand there as tall as
+an obstacle, at the sample's range. A sector holding one is not free, and not VALID at a
+distance beyond it (:mod:`atris_node.pipeline.evidence` counts it as doubtful and as a
+doubt range, as an ambiguous peak is).
+
+A sample is clearly above the ground when its height exceeds max(RISE_MIN_M,
+RISE_SIGMAS·σ_h), σ_h its height σ (its range σ times the slope of its viewing ray).
+Where no line above is seen, the rise must also lie more than RISE_PX rows from where
+its sheet meets the ground (:func:`rows_off_ground`): a stripe half on the ground, half
+on a wall's foot peaks up to a pixel off and triangulates short of the wall, a few
+centimetres up, and a wall too dark for the line above cannot rule that out. A line
+above seen landing beyond the foot does rule it out. Units: metres; arrays (n,).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: a sample this high above the ground plane (m) is a surface, not ground noise: the
+#: ground fit's inlier band (obstacles.estimate_ground's threshold)
+RISE_MIN_M = 0.03
+#: ... and at least this many of its height σ above it
+RISE_SIGMAS = 4.0
+#: ... and at least this many image rows from where its sheet meets the ground (a stripe
+#: half on the ground, half on a wall's foot peaks up to a pixel off: the measured
+#: quantity is a row, and a pixel far away is a metre of range and centimetres of height)
+RISE_PX = 1.5
+#: a line landing at most this much (m) or SAME_SIGMAS of its range σ beyond the sample
+#: is on the same surface and bounds nothing
+SAME_SURFACE_M = 0.05
+SAME_SIGMAS = 3.0
+#: a line above that meets an obstacle at most max(FOOT_REL·d, FOOT_M) beyond the sample
+#: shows the surface the sample is the foot of (a stripe at a wall's foot, half on the
+#: ground, half on the wall, peaks in between and triangulates short of the wall): seen
+#: (the phantom tolerance of a distance)
+FOOT_REL = 0.10
+FOOT_M = 0.20
+#: ... or the range FOOT_PX rows of the stripe make at the sample (d²/(f·b) per row): the
+#: mixed stripe's peak is off by up to a pixel, which is metres far away
+FOOT_PX = 1.5
+
+
+def height_sigma_m(range_sigma_m: FloatArray, height_m: FloatArray, camera_height_m: float,
+                   distance_m: FloatArray) -> FloatArray:
+    """(n,) height σ (m) of samples whose range σ is ``range_sigma_m``, seen from a camera
+    ``camera_height_m`` above the ground at horizontal ``distance_m`` (floored at 1 cm)."""
+    slope = np.abs(camera_height_m - height_m) / np.maximum(distance_m, 0.01)
+    return np.asarray(range_sigma_m * slope, dtype=np.float64)
+
+
+def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height_m: FloatArray,
+                sigma_m: FloatArray, obstacle: BoolArray, valid: BoolArray, *, lines: int,
+                width: int, clearance_m: float, projector_height_m: float,
+                height_sigma: FloatArray, focal_baseline_px_m: float) -> BoolArray:
+    """(n,) True for the valid samples that stand clearly above the ground, below
+    ``clearance_m``, and whose top no line above them bounds (see the module docstring).
+
+    Args:
+        line, column: (n,) the sample's line (0 = top of the image) and image column.
+        distance_m: (n,) horizontal distance (m) from the projector.
+        height_m: (n,) height (m) above the ground plane.
+        sigma_m: (n,) range σ (m); height_sigma: (n,) height σ (m).
+        focal_baseline_px_m: f·b (px·m): a surface at distance d moves a stripe f·b/d²
+            rows per metre of range.
+        obstacle, valid: (n,) above the clearance; triangulated at all.
+        projector_height_m: the projector's height (m) above the ground plane.
+    """
+    n = line.size
+    rise = valid & ~obstacle & (height_m > np.maximum(RISE_MIN_M, RISE_SIGMAS * height_sigma))
+    strong = rows_off_ground(distance_m, height_m, projector_height_m,
+                             focal_baseline_px_m) > RISE_PX
+    out = np.zeros(n, dtype=np.bool_)
+    idx = np.flatnonzero(rise)
+    if idx.size == 0:
+        return out
+    grid_d, grid_h, grid_o = _grids(line[valid], column[valid], distance_m[valid],
+                                    height_m[valid], obstacle[valid], lines, width)
+    k, c, sure = line[idx], column[idx], strong[idx]
+    d, same = distance_m[idx], np.maximum(SAME_SURFACE_M, SAME_SIGMAS * sigma_m[idx])
+    foot = np.maximum(np.maximum(FOOT_REL * d, FOOT_M), FOOT_PX * d * d / focal_baseline_px_m)
+    unknown = np.zeros(idx.size, dtype=np.bool_)
+    pending = np.ones(idx.size, dtype=np.bool_)
+    for step in range(1, lines + 1):
+        above = k - step
+        ended = pending & (above < 0)
+        unknown |= ended & sure
+        pending &= ~ended
+        if not pending.any():
+            break
+        j = np.flatnonzero(pending)
+        dist, high, hit = _nearest_in_column(grid_d, grid_h, grid_o, above[j], c[j])
+        missing = ~np.isfinite(dist)
+        hit &= ~missing & (dist <= d[j] + foot[j])
+        beyond = ~missing & ~hit & (dist > d[j] + same[j])
+        passed = projector_height_m + (d[j] / np.where(beyond, dist, 1.0)) * (
+            high - projector_height_m)
+        unknown[j[(missing & sure[j]) | (beyond & (passed > clearance_m))]] = True
+        pending[j[missing | hit | beyond]] = False
+    out[idx[unknown]] = True
+    return out
+
+
+def rows_off_ground(distance_m: FloatArray, height_m: FloatArray, projector_height_m: float,
+                    focal_baseline_px_m: float) -> FloatArray:
+    """(n,) how many image rows a sample at ``distance_m`` from the projector and
+    ``height_m`` above the ground lies from where its sheet meets the ground: the sheet
+    falls linearly from the projector's height to 0 at d_g = d·h0/(h0 − h), and a stripe
+    moves f·b/r² rows per metre, so f·b·(1/d − 1/d_g) = f·b·h/(d·h0)."""
+    h0 = max(projector_height_m, 1e-3)
+    return np.asarray(focal_baseline_px_m * height_m / (np.maximum(distance_m, 1e-3) * h0),
+                      dtype=np.float64)
+
+
+def _grids(line: IntArray, column: IntArray, distance_m: FloatArray, height_m: FloatArray,
+           obstacle: BoolArray, lines: int, width: int
+           ) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """(K, W) distance (nan where no sample), height and obstacle per line and column."""
+    grid_d = np.full((lines, width), np.nan)
+    grid_h = np.zeros((lines, width))
+    grid_o = np.zeros((lines, width), dtype=np.bool_)
+    keep = (line >= 0) & (line < lines) & (column >= 0) & (column < width)
+    k, c = line[keep], column[keep]
+    grid_d[k, c], grid_h[k, c], grid_o[k, c] = distance_m[keep], height_m[keep], obstacle[keep]
+    return grid_d, grid_h, grid_o
+
+
+def _nearest_in_column(grid_d: FloatArray, grid_h: FloatArray, grid_o: BoolArray,
+                       k: IntArray, c: IntArray) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Line ``k``'s sample in column ``c``, else in c − 1, else in c + 1: (distance (nan:
+    none), height, obstacle), (m,) each."""
+    width = grid_d.shape[1]
+    dist = np.full(k.size, np.nan)
+    high = np.zeros(k.size)
+    hit = np.zeros(k.size, dtype=np.bool_)
+    for shift in (0, -1, 1):
+        col = np.clip(c + shift, 0, width - 1)
+        take = ~np.isfinite(dist) & np.isfinite(grid_d[k, col])
+        dist[take], high[take], hit[take] = grid_d[k, col][take], grid_h[k, col][take], (
+            grid_o[k, col][take])
+    return dist, high, hit

@@ -1,0 +1,153 @@
+"""Low surfaces whose top no line saw (atris_node.pipeline.tops) and what they do to the
+sector verdicts, on synthetic columns with known geometry.
+
+The geometry of every case: the projector 0.5 m above flat ground, f·b = 381 px x 0.075 m,
+clearance 0.1 m. A sheet falls linearly from 0.5 m at the projector to the ground, so a
+sample at distance d and height h lies f·b·h/(d·0.5) rows from its sheet's ground row.
+
+Checked to fail without their protections (each taken out once, the tests run, put
+back): with ``unseen_tops`` flagging nothing, the three tests that expect a flag fail;
+with the ``top_m`` condition taken out of ``verdicts._verdict``, the 2 m case of
+test_feature_unseen_top_nearer_than_the_distance_makes_it_invalid is VALID at the wall;
+with RISE_PX applied to every rise (a version tried first),
+test_feature_kerb_before_the_line_passing_over_is_flagged fails (a 0.7-row rise before
+a wall the line above reaches: a dark kerb 0.87 m below the unit); with FOOT_PX = 0,
+test_feature_stripe_at_a_wall_foot_is_not_a_kerb fails.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from atris_node.pipeline.obstacles import SectorSettings
+from atris_node.pipeline.sectors import SectorLayout
+from atris_node.pipeline.tops import rows_off_ground, unseen_tops
+from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
+from atris_node.types import SectorState
+
+FB = 381.0 * 0.075
+H0 = 0.5
+CLEARANCE = 0.1
+WIDTH = 40
+
+
+def _sheet_height(distance: float, ground: float) -> float:
+    """Height of a sheet that meets the ground at ``ground`` m, at ``distance`` m."""
+    return H0 * (1.0 - distance / ground)
+
+
+def _column(samples: list[tuple[int, float, float, bool]], columns: int = 10):
+    """Samples (line, distance, height, obstacle), repeated over ``columns`` columns."""
+    rows = [(k, c, d, h, o) for c in range(columns) for k, d, h, o in samples]
+    line, column, d, h, o = (np.array(v) for v in zip(*rows, strict=True))
+    return (line.astype(np.int64), column.astype(np.int64), d.astype(float),
+            h.astype(float), o.astype(bool))
+
+
+def _tops(samples, columns: int = 10, sigma_m: float = 0.005) -> np.ndarray:
+    line, column, d, h, o = _column(samples, columns)
+    n = line.size
+    return unseen_tops(line, column, d, h, np.full(n, sigma_m), o, np.ones(n, bool),
+                       lines=8, width=WIDTH, clearance_m=CLEARANCE, projector_height_m=H0,
+                       height_sigma=np.full(n, 0.002), focal_baseline_px_m=FB)
+
+
+def test_feature_kerb_with_no_line_above_is_flagged() -> None:
+    """ramp_and_kerb's case: the lowest line meets a kerb face 9 cm up at 1.93 m (2.8
+    rows off its ground row) and no line above is seen there."""
+    assert rows_off_ground(np.array([1.93]), np.array([0.09]), H0, FB)[0] > 2.5
+    flags = _tops([(7, 1.93, 0.09, False)])
+    assert flags.all()
+
+
+def test_feature_kerb_before_the_line_passing_over_is_flagged() -> None:
+    """A kerb face hit 7 cm up at 3.5 m (0.7 rows: a small rise) and the line above
+    landing on a wall at 4.4 m: that line passed over the kerb 14 cm up, above the
+    clearance, so the kerb's top is unknown."""
+    above = 0.3  # the wall hit of the line above
+    passed = H0 + (3.5 / 4.4) * (above - H0)
+    assert passed > CLEARANCE and rows_off_ground(np.array([3.5]), np.array([0.07]), H0,
+                                                  FB)[0] < 1.5
+    flags = _tops([(6, 3.5, 0.07, False), (5, 4.4, above, True)])
+    assert flags[::2].all() and not flags[1::2].any()
+
+
+def test_feature_line_passing_low_over_a_bump_bounds_its_top() -> None:
+    """A 6 cm bump at 2.0 m, the line above landing on the ground at 2.2 m: at 2.0 m it
+    was 4.5 cm up, under the clearance, so the bump is lower than the clearance."""
+    assert _sheet_height(2.0, 2.2) < CLEARANCE
+    assert not _tops([(6, 2.0, 0.06, False), (5, 2.2, 0.0, False)]).any()
+
+
+def test_feature_line_passing_high_over_a_bump_leaves_it_unknown() -> None:
+    """The same bump, the line above landing on the ground at 4 m: 25 cm up at 2 m."""
+    assert _sheet_height(2.0, 4.0) > CLEARANCE
+    flags = _tops([(6, 2.0, 0.06, False), (5, 4.0, 0.0, False)])
+    assert flags[::2].all()
+
+
+def test_feature_face_the_line_above_meets_is_seen() -> None:
+    """The foot of a box (5 cm up) whose face the line above meets 30 cm up at the same
+    distance: the obstacle is seen, nothing to add."""
+    assert not _tops([(6, 2.5, 0.05, False), (5, 2.5, 0.30, True)]).any()
+
+
+def test_feature_stripe_at_a_wall_foot_is_not_a_kerb() -> None:
+    """window_sun: line 6 meets the wall at its foot; its stripe, half on the ground,
+    triangulates 0.3-0.4 m short of the wall 4 cm up (0.8 rows). The line above meets
+    the wall 0.4 m beyond it: more than 10 % of the range, within a pixel and a half of
+    range (0.47 m at 3 m), the wall's foot."""
+    assert not _tops([(6, 3.0, 0.04, False), (5, 3.4, 0.15, True)]).any()
+    # with no line above, a 0.8-row rise is what such a stripe makes: not a kerb
+    assert not _tops([(6, 3.0, 0.04, False)]).any()
+
+
+def test_feature_ground_noise_is_not_a_rise() -> None:
+    """Ground samples 1-2 cm up (under RISE_MIN_M) or under 4 height σ flag nothing."""
+    assert not _tops([(7, 2.0, 0.02, False)]).any()
+    line, column, d, h, o = _column([(7, 2.0, 0.05, False)])
+    n = line.size
+    noisy = unseen_tops(line, column, d, h, np.full(n, 0.005), o, np.ones(n, bool),
+                        lines=8, width=WIDTH, clearance_m=CLEARANCE,
+                        projector_height_m=H0, height_sigma=np.full(n, 0.02),
+                        focal_baseline_px_m=FB)
+    assert not noisy.any()
+
+
+@pytest.mark.parametrize("top_m, state", [(None, SectorState.VALID),
+                                          (2.0, SectorState.INVALID),
+                                          (3.95, SectorState.VALID)])
+def test_feature_unseen_top_nearer_than_the_distance_makes_it_invalid(top_m, state) -> None:
+    """A wall at 4 m; a low surface with an unseen top at 2 m makes the sector INVALID,
+    one at 3.95 m (within 3 % of 4 m) leaves the distance standing."""
+    n = 60
+    points = ObstaclePoints(np.full(n, 4.0), np.zeros(n, np.int64), np.ones(n, bool),
+                            np.arange(n) % 4, np.arange(n) // 4, np.full(n, 0.01),
+                            np.full(n, 20.0))
+    layout = SectorLayout(1, math.radians(70.0))
+    evidence = ColumnEvidence(np.zeros(WIDTH, np.int64), *(np.zeros(WIDTH, np.int64),) * 3)
+    tops = None if top_m is None else np.array([top_m])
+    verdict = sector_verdicts(points, evidence, layout, SectorSettings(), np.full(1, np.inf),
+                              tops)[0]
+    assert verdict.state is state
+
+
+def test_feature_unseen_top_blocks_free() -> None:
+    """Ground only, and one column doubtful for an unseen top: not free."""
+    n = 60
+    points = ObstaclePoints(np.full(n, 2.0), np.zeros(n, np.int64), np.zeros(n, bool),
+                            np.arange(n) % 4, np.arange(n) // 4, np.full(n, 0.01),
+                            np.full(n, 20.0))
+    layout = SectorLayout(1, math.radians(70.0))
+    zero = np.zeros(WIDTH, np.int64)
+    free = sector_verdicts(points, ColumnEvidence(zero, zero, zero, zero), layout,
+                           SectorSettings())[0]
+    assert free.state is SectorState.NO_RETURN
+    doubtful = zero.copy()
+    doubtful[3] = 1
+    blocked = sector_verdicts(points, ColumnEvidence(zero, doubtful, zero, zero), layout,
+                              SectorSettings(), None, np.array([2.0]))[0]
+    assert blocked.state is SectorState.INVALID
