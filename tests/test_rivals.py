@@ -81,6 +81,31 @@ def test_feature_anchored_neighbours_settle_the_tie_and_never_copy_a_shift(
     assert (ambiguous[:, 200:220] >= 0).any(axis=0).all()
 
 
+def test_feature_anchors_that_disagree_do_not_vouch_for_the_columns_between(
+        pipe: Pipeline) -> None:
+    """The box (a tie between its true and its shifted comb) stands 50 columns from a
+    wall anchored on its left and 50 from a farther wall anchored on its right whose
+    comb lies one line spacing (20 px) higher, over most of the image. The median of a
+    line's anchored rows is then the far wall's row, which is the next line's row on the
+    near wall: it vouched for the shifted comb, a phantom (turned_wall_sun_sphere: 1.4 m
+    for a wall at 5.7 m). Between anchors that disagree there is no reference, and the
+    box columns stay ambiguous. (With the line-wide median as the reference between
+    anchors, the rivals.py of commit 27efb17, all 60 box columns kept the shifted comb.)"""
+    far = [w - 20 for w in WALL]
+    peaks = np.full((12, 640), -1, np.int64)
+    rows = np.full((8, 640), -1, np.int64)
+    peaks[:, 100:130], rows[:, 100:130] = _column(WALL)[:, None], np.array(WALL)[:, None]
+    peaks[:, 330:600], rows[:, 330:600] = _column(far)[:, None], np.array(far)[:, None]
+    peaks[:, 180:280] = _column(BOX_PEAKS)[:, None]
+    rows[:, 180:280] = np.array(BOX_SHIFTED)[:, None]
+    out, ambiguous = unique_identity(peaks, pipe.bands, rows, pipe._prior)
+    assert not (ambiguous[:, 100:130] >= 0).any() and not (ambiguous[:, 330:600] >= 0).any()
+    box = out[:, 200:260]
+    truth = np.array(BOX_TRUTH)[:, None]
+    assert not ((box >= 0) & (box != truth)).any()
+    assert (ambiguous[:, 200:260] >= 0).any(axis=0).all()
+
+
 def test_feature_isolated_maxima_do_not_enter_identity() -> None:
     """A maximum with no maximum within 6 rows in the 2 columns each side is dropped
     before identity and counted; a stripe is kept, and each column stays sorted down

@@ -12,7 +12,8 @@ test_feature_unseen_top_nearer_than_the_distance_makes_it_invalid is VALID at th
 with RISE_PX applied to every rise (a version tried first),
 test_feature_kerb_before_the_line_passing_over_is_flagged fails (a 0.7-row rise before
 a wall the line above reaches: a dark kerb 0.87 m below the unit); with FOOT_PX = 0,
-test_feature_stripe_at_a_wall_foot_is_not_a_kerb fails.
+test_feature_stripe_at_a_wall_foot_is_not_a_kerb fails; with a missing line above
+ending the walk, test_feature_a_missing_line_above_passes_the_question_up fails.
 """
 
 from __future__ import annotations
@@ -73,6 +74,16 @@ def test_feature_kerb_before_the_line_passing_over_is_flagged() -> None:
                                                   FB)[0] < 1.5
     flags = _tops([(6, 3.5, 0.07, False), (5, 4.4, above, True)])
     assert flags[::2].all() and not flags[1::2].any()
+
+
+def test_feature_a_missing_line_above_passes_the_question_up() -> None:
+    """dark_kerb_turned's case: the kerb face 7 cm up at 3.0 m (1.3 rows here, under
+    RISE_PX), the line above not seen, the one above that on the wall at 4.2 m, 20 cm
+    up: it passed over the kerb 29 cm up, so the kerb's top is unknown. (Stopping at the
+    missing line, as a version did, left this small rise unflagged and the wall VALID.)"""
+    assert rows_off_ground(np.array([3.0]), np.array([0.07]), H0, FB)[0] < 1.5
+    flags = _tops([(6, 3.0, 0.07, False), (4, 4.2, 0.20, True)])
+    assert flags[::2].all()
 
 
 def test_feature_line_passing_low_over_a_bump_bounds_its_top() -> None:

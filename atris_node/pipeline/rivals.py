@@ -64,6 +64,8 @@ LONE_STEP_PX = 6
 CONTINUITY_REACH = 16
 #: rounds of the continuity pass (a resolved column anchors the next round)
 CONTINUITY_ROUNDS = 3
+#: px; anchored rows of a line on both sides of a gap bridge it when they agree this well
+BRIDGE_PX = 4.0
 
 
 def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
@@ -238,13 +240,45 @@ def _has_peaks(rows: IntArray) -> IntArray:
 def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     """(K, W) continuity reference by line: the row in the nearest anchored column within
     CONTINUITY_REACH; where there is none, the median of the anchored rows of the line in
-    the column's block of CONTINUITY_BLOCK columns (or of the whole line), inf where
-    neither exists."""
+    the column's block of CONTINUITY_BLOCK columns; where there is none either and the
+    line has anchored columns on both sides, its row there when they agree within
+    BRIDGE_PX (the stripe runs on between them), else none; beyond the line's last
+    anchored column, the median of all its anchored rows (MIN_LINE_SAMPLES at least);
+    inf where none of these holds. Between anchors that disagree the line's median is
+    no reference: it mixes surfaces at different ranges, and a comb shifted by one line
+    can match it better than the true one (a wall turned away, its far part a line
+    spacing higher in the image: a phantom at 1.4 m for a wall at 5.7 m)."""
     local = rivals_kernels.local_reference(rows, anchored, CONTINUITY_REACH)
     good = np.ascontiguousarray((rows >= 0) & anchored[None, :])
-    wide = identity_kernels.continuity_reference(rows, good, CONTINUITY_BLOCK,
-                                                 MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES)
+    block = identity_kernels.continuity_reference(rows, good, CONTINUITY_BLOCK,
+                                                  MIN_BLOCK_SAMPLES, rows.shape[1] + 1)
+    line = identity_kernels.continuity_reference(rows, good, rows.shape[1],
+                                                 MIN_LINE_SAMPLES, MIN_LINE_SAMPLES)
+    bridge, sides = _bridge(rows, good)
+    # between anchors the bridge (or nothing where they disagree); the line's median
+    # only beyond its last anchor
+    wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
     return np.where(np.isfinite(local), local, wide)
+
+
+def _bridge(rows: IntArray, good: BoolArray) -> tuple[npt.NDArray[np.float64], IntArray]:
+    """(K, W) per line the row of the nearest ``good`` column on the left and on the
+    right: their nearer one when both exist and agree within BRIDGE_PX, inf otherwise;
+    and (K, W) how many of the two sides have one."""
+    k_count, width = rows.shape
+    cols = np.broadcast_to(np.arange(width), (k_count, width))
+    left = np.maximum.accumulate(np.where(good, cols, -1), axis=1)
+    right = np.minimum.accumulate(np.where(good, cols, width)[:, ::-1], axis=1)[:, ::-1]
+    k = np.arange(k_count)[:, None]
+    row_l = np.where(left >= 0, rows[k, np.maximum(left, 0)], np.inf).astype(np.float64)
+    row_r = np.where(right < width, rows[k, np.minimum(right, width - 1)],
+                     np.inf).astype(np.float64)
+    both = np.isfinite(row_l) & np.isfinite(row_r)
+    nearer = np.where(cols - left <= right - cols, row_l, row_r)
+    with np.errstate(invalid="ignore"):
+        agree = np.abs(row_l - row_r) <= BRIDGE_PX
+    sides = np.isfinite(row_l).astype(np.int64) + np.isfinite(row_r).astype(np.int64)
+    return np.where(both & agree, nearer, np.inf), sides
 
 
 def _test(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray], rows: IntArray,

@@ -18,8 +18,9 @@ below that height. The lines above are walked from k − 1 upwards:
 - a line that lands beyond (on the ground or on anything else): it passed over at
   height h. h at most the clearance: the
   surface is below the clearance, ground. Else its top is unknown;
-- no line above in the column (within one column either side), or no line left: unknown
-  when the rise is more than RISE_PX rows (below).
+- a line above not seen in the column (within one column either side) tells nothing:
+  the next line up is asked;
+- no line left above: unknown when the rise is more than RISE_PX rows (below).
 
 A sample whose top is unknown is an *unseen top*: something may stand there as tall as
 an obstacle, at the sample's range. A sector holding one is not free, and not VALID at a
@@ -28,7 +29,7 @@ doubt range, as an ambiguous peak is).
 
 A sample is clearly above the ground when its height exceeds max(RISE_MIN_M,
 RISE_SIGMAS·σ_h), σ_h its height σ (its range σ times the slope of its viewing ray).
-Where no line above is seen, the rise must also lie more than RISE_PX rows from where
+Where no line above bounds it, the rise must also lie more than RISE_PX rows from where
 its sheet meets the ground (:func:`rows_off_ground`): a stripe half on the ground, half
 on a wall's foot peaks up to a pixel off and triangulates short of the wall, a few
 centimetres up, and a wall too dark for the line above cannot rule that out. A line
@@ -122,8 +123,8 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
         beyond = ~missing & ~hit & (dist > d[j] + same[j])
         passed = projector_height_m + (d[j] / np.where(beyond, dist, 1.0)) * (
             high - projector_height_m)
-        unknown[j[(missing & sure[j]) | (beyond & (passed > clearance_m))]] = True
-        pending[j[missing | hit | beyond]] = False
+        unknown[j[beyond & (passed > clearance_m)]] = True
+        pending[j[hit | beyond]] = False  # missing or on the same surface: ask the next
     out[idx[unknown]] = True
     return out
 
