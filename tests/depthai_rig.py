@@ -32,6 +32,7 @@ import struct
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any, BinaryIO
 
 import depthai as dai
@@ -53,17 +54,22 @@ CONTROL_LENGTH = struct.Struct("!H")
 
 
 class EmitterLevels:
-    """The ``Device`` the Script sees: the two IR emitter levels, and a count of updates."""
+    """The ``Device`` the Script sees: the two IR emitter levels, and a count of updates.
+    ``dot_since`` is the Script's count of frame events since its newest control message
+    when it set the dot level (``lease_age`` reads it from the running Script)."""
 
     def __init__(self) -> None:
         self.dot = 0.0
         self.flood = 0.0
         self.updates = 0
+        self.dot_since = 0
+        self.lease_age: Callable[[], int] = lambda: 0
         self.changed = threading.Condition()
 
     def setIrLaserDotProjectorIntensity(self, level: float) -> None:  # noqa: N802 - Script API
         with self.changed:
             self.dot, self.updates = level, self.updates + 1
+            self.dot_since = self.lease_age()
             self.changed.notify_all()
 
     def setIrFloodLightIntensity(self, level: float) -> None:  # noqa: N802 - Script API
@@ -94,6 +100,7 @@ class ScriptHost(dai.node.ThreadedHostNode):
 
     def run(self) -> None:
         env: dict[str, Any] = {"Device": self.device}
+        self.device.lease_age = lambda: int(env.get("since", 0))
         last: list[int] = []
         host = self
 
@@ -171,6 +178,8 @@ class SimulatedMono(dai.node.ThreadedHostNode):
         self.dropped: tuple[int, ...] = ()
         self.exposed_at: dict[int, float] = {}
         self.levels: dict[int, float] = {}
+        #: the Script's lease age when it set the level sub-frame ``seq`` was exposed with
+        self.set_since: dict[int, int] = {}
 
     def _control(self) -> None:
         control = self.control.tryGet()
@@ -178,8 +187,12 @@ class SimulatedMono(dai.node.ThreadedHostNode):
             self.exposure_us = int(control.getExposureTime().total_seconds() * 1e6)
 
     def _expose(self, seq: int) -> dai.ImgFrame:
-        level = self.script.device.dot if self.script is not None else 0.0
+        level, since = 0.0, 0
+        if self.script is not None:
+            with self.script.device.changed:
+                level, since = self.script.device.dot, self.script.device.dot_since
         self.exposed_at[seq], self.levels[seq] = time.monotonic(), level
+        self.set_since[seq] = since
         return mono_frame(seq, level, self.exposure_us)
 
     def run(self) -> None:
@@ -267,7 +280,7 @@ def device_main(log_path: str, count: int, period_s: float, frames_fd: int,
     pipeline.stop()
     pipeline.wait()
     events = [{"seq": seq, "t": mono.exposed_at[seq], "level": mono.levels[seq],
-               "since": script.since.get(seq - 1)} for seq in sorted(mono.levels)]
+               "since": mono.set_since[seq]} for seq in sorted(mono.levels)]
     with open(log_path, "w", encoding="utf-8") as log:
         json.dump(events, log)
 

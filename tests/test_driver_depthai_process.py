@@ -6,7 +6,8 @@ DepthaiProjector, strobing every sub-frame as the node does) are separate proces
 by pipes, as an OAK and its host are joined by XLink. The test stops the host with a
 signal and reads the device's log of every sub-frame: the emitter level at its exposure
 (time.monotonic, one clock for every process on Linux) and how many frame events the
-Script had seen since the host's newest message when it set that level.
+Script had seen since the host's newest message when it set that level (read with the
+level at exposure).
 """
 
 from __future__ import annotations
@@ -66,7 +67,11 @@ def test_feature_the_device_goes_dark_within_its_lease_when_the_host_dies_or_han
 
     Checked by giving the Script a lease of 10**6 frames (LEASE_FRAMES edited): the
     device strobed to its last frame after the host was killed, and the dark asserts
-    failed for both signals.
+    failed for both signals; and with the Script ignoring its lease (``if enabled:``),
+    the first assert failed. A lit sub-frame's ``since`` is the Script's lease age when
+    it set the level the sub-frame was exposed with (read with the level, at exposure):
+    indexed by the frame event before the exposure instead, a Script thread that fell
+    behind the camera on a loaded host failed this test without ever strobing unleased.
     """
     stopped_at = run_and_stop_host(tmp_path / "device.json", stop)
     events = json.loads((tmp_path / "device.json").read_text(encoding="utf-8"))

@@ -17,7 +17,9 @@ sector-frames in 4 maps each (dark_box_before_wall 20 phantoms, pole_16cm_far 4 
 approach_6mps 3 false free); this code none. turned_wall_sun_sphere (a stress scene from
 a randomly drawn one) had 2 near phantoms (1.38 m for the wall at 5.77 m) with the
 line-wide median as the continuity reference between anchors that disagree (rivals.py of
-commit 27efb17). With the sector distance taken as the least
+commit 27efb17); grazing_stripe_dark_ground had one (8.2 m where
+nothing stands within 10 m) with every sample over the clearance an obstacle point (the
+evidence.py of commit abf41e3). With the sector distance taken as the least
 of the per-line fronts (its σ the standard error of a mean, no limit on it; the code
 before the σ-limited front of verdicts.py), parking_pedestrian read the building at 9 m
 as 8.55 m (σ 0.10) and pole_16cm_far the wall at 8.92 m as 8.64 m: 94.4 % and 94.7 %

@@ -25,7 +25,7 @@ import pytest
 
 from atris_node.pipeline.obstacles import SectorSettings
 from atris_node.pipeline.sectors import SectorLayout
-from atris_node.pipeline.tops import rows_off_ground, unseen_tops
+from atris_node.pipeline.tops import corroborated, rows_off_ground, unseen_tops
 from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import SectorState
 
@@ -126,6 +126,27 @@ def test_feature_ground_noise_is_not_a_rise() -> None:
                         projector_height_m=H0, height_sigma=np.full(n, 0.02),
                         focal_baseline_px_m=FB)
     assert not noisy.any()
+
+
+def test_feature_a_lone_stripe_near_its_ground_row_is_not_an_obstacle() -> None:
+    """r3_050 of the random scenes: a stripe grazing dark ground 11.8 m away peaks 0.9
+    rows off and triangulates at 8.5 m, 12 cm up: over the clearance, but 1.2 rows from
+    its sheet's ground row, with no other line seen: not corroborated, so no obstacle
+    point (it read 8.2 m in a sector whose truth is 13.4 m). The same sample with a
+    second line meeting an obstacle clearly at 8.6 m in its column is a surface.
+    (With every sample over the clearance an obstacle point, the code before, the
+    sector was VALID at 8.2 m: atris bench safety on that scene, seed 1, map 2.)"""
+    assert rows_off_ground(np.array([8.5]), np.array([0.12]), 0.42, 381.0 * 0.098)[0] < 1.5
+    line = np.array([3, 1], np.int64)
+    column = np.array([160, 160], np.int64)
+    distance = np.array([8.5, 8.6])
+    ask = np.array([True, False])
+    alone = corroborated(line, column, distance, np.array([False, False]), ask, lines=8,
+                         width=640, focal_baseline_px_m=381.0 * 0.098)
+    assert not alone.any()
+    seen = corroborated(line, column, distance, np.array([False, True]), ask, lines=8,
+                        width=640, focal_baseline_px_m=381.0 * 0.098)
+    assert seen[0]
 
 
 @pytest.mark.parametrize("top_m, state", [(None, SectorState.VALID),

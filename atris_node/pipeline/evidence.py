@@ -9,7 +9,7 @@ calibration and mounting. Counts are int64 (W,), ranges float64 m, inf where non
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -21,13 +21,36 @@ from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
 from atris_node.pipeline.peaks import Extraction, per_column
 from atris_node.pipeline.sectors import SectorLayout
-from atris_node.pipeline.tops import height_sigma_m, unseen_tops
+from atris_node.pipeline.tops import (
+    GROUND_ROW_PX,
+    corroborated,
+    height_sigma_m,
+    rows_off_ground,
+    unseen_tops,
+)
 from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import SectorDistance
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class Sheet:
+    """Each sample (n,) on its light sheet, from the ground plane: ``height_m`` above it,
+    horizontal ``distance_m`` from the projector and ``seen_from_m`` from the camera,
+    ``rows_off`` (image rows from where the sheet meets the ground,
+    :func:`atris_node.pipeline.tops.rows_off_ground`); the camera's and the projector's
+    heights (m) and f·b (px·m)."""
+
+    height_m: FloatArray
+    distance_m: FloatArray
+    seen_from_m: FloatArray
+    camera_height_m: float
+    projector_height_m: float
+    focal_baseline: float
+    rows_off: FloatArray
 
 
 class SectorJudge:
@@ -62,17 +85,22 @@ class SectorJudge:
               ground: GroundPlane | None = None) -> tuple[SectorDistance, ...]:
         """The verdicts for the ``clean`` samples (``data`` holds them, ``points`` has
         every sample), with the evidence of every column (``foreign`` (W,) columns with
-        foreign light) under the visibility ``prior``; with the ``ground`` plane, low
-        surfaces whose top no line saw count as doubts (:mod:`atris_node.pipeline.tops`)."""
+        foreign light) under the visibility ``prior``. With the ``ground`` plane, a
+        sample within GROUND_ROW_PX rows of where its sheet meets the ground is an
+        obstacle point only where another line corroborates it, and low surfaces whose
+        top no line saw count as doubts (:mod:`atris_node.pipeline.tops`)."""
         samples = extraction.samples
         sector, range_m = data.placed(self.layout)
-        found = ObstaclePoints(range_m, sector, data.obstacle, samples.line[clean],
-                               samples.col_px[clean].astype(np.int64),
+        sheet = None if ground is None else self._sheet(data, ground)
+        line, column = samples.line[clean], samples.col_px[clean].astype(np.int64)
+        obstacle = data.obstacle if sheet is None else self._credible_obstacle(
+            data.obstacle, line, column, sheet)
+        found = ObstaclePoints(range_m, sector, obstacle, line, column,
                                points.sigma_z_m[clean], data.snr)
         evidence = self._evidence(extraction, foreign, prior)
         top_m = np.full(self.layout.count, np.inf)
-        if ground is not None:
-            tops = self._unseen_tops(found, data, points.valid[clean], ground)
+        if sheet is not None:
+            tops = self._unseen_tops(found, points.valid[clean], sheet)
             evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
                 found.column[tops].astype(np.float64), self.column_sector.size))
             inside = tops & (sector >= 0)
@@ -80,23 +108,44 @@ class SectorJudge:
         return sector_verdicts(found, evidence, self.layout, self.settings,
                                self._doubt_ranges(extraction), top_m)
 
-    def _unseen_tops(self, found: ObstaclePoints, data: SectorInput, valid: BoolArray,
-                     ground: GroundPlane) -> BoolArray:
-        """(n,) the valid samples below the clearance whose top no line above bounds."""
+    def _credible_obstacle(self, obstacle: BoolArray, line: IntArray, column: IntArray,
+                           sheet: Sheet) -> BoolArray:
+        """``obstacle`` without the samples within GROUND_ROW_PX rows of their sheet's
+        ground row that no other line corroborates (:func:`tops.corroborated`)."""
+        clear = obstacle & (sheet.rows_off > GROUND_ROW_PX)
+        doubtful = obstacle & ~clear
+        if not doubtful.any():
+            return obstacle
+        return clear | corroborated(line, column, sheet.distance_m, clear, doubtful,
+                                    lines=len(self.calibration.laser.alpha_rad),
+                                    width=self.column_sector.size,
+                                    focal_baseline_px_m=sheet.focal_baseline)
+
+    def _sheet(self, data: SectorInput, ground: GroundPlane) -> Sheet:
+        """Where each sample lies on its sheet, measured from the ``ground`` plane."""
         height = ground.height(data.points)
         origin = self.projector_m
         distance = np.hypot(data.points[:, 0] - origin[0], data.points[:, 1] - origin[1])
         camera = self.mounting.translation
-        sigma_h = height_sigma_m(
-            found.sigma_m, height, float(ground.height(camera[None, :])[0]),
-            np.hypot(data.points[:, 0] - camera[0], data.points[:, 1] - camera[1]))
-        return unseen_tops(found.line, found.column, distance, height, found.sigma_m,
-                           data.obstacle, valid, lines=len(self.calibration.laser.alpha_rad),
+        camera_h = float(ground.height(camera[None, :])[0])
+        projector_h = float(ground.height(origin[None, :])[0])
+        fb = self.calibration.camera.focal_px * self.calibration.laser.baseline_m
+        seen_from = np.hypot(data.points[:, 0] - camera[0], data.points[:, 1] - camera[1])
+        return Sheet(height, distance, seen_from, camera_h, projector_h, fb,
+                     rows_off_ground(distance, height, projector_h, fb))
+
+    def _unseen_tops(self, found: ObstaclePoints, valid: BoolArray, sheet: Sheet
+                     ) -> BoolArray:
+        """(n,) the valid samples that are no obstacle point and whose top no line
+        above bounds."""
+        sigma_h = height_sigma_m(found.sigma_m, sheet.height_m, sheet.camera_height_m,
+                                 sheet.seen_from_m)
+        return unseen_tops(found.line, found.column, sheet.distance_m, sheet.height_m,
+                           found.sigma_m, found.obstacle, valid,
+                           lines=len(self.calibration.laser.alpha_rad),
                            width=self.column_sector.size, clearance_m=self.clearance_m,
-                           projector_height_m=float(ground.height(origin[None, :])[0]),
-                           height_sigma=sigma_h, focal_baseline_px_m=(
-                               self.calibration.camera.focal_px
-                               * self.calibration.laser.baseline_m))
+                           projector_height_m=sheet.projector_height_m,
+                           height_sigma=sigma_h, focal_baseline_px_m=sheet.focal_baseline)
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
                   prior: VisibilityPrior) -> ColumnEvidence:

@@ -54,6 +54,13 @@ RISE_SIGMAS = 4.0
 #: half on the ground, half on a wall's foot peaks up to a pixel off: the measured
 #: quantity is a row, and a pixel far away is a metre of range and centimetres of height)
 RISE_PX = 1.5
+#: a sample above the clearance but within this many rows of where its sheet meets the
+#: ground may be the ground seen a pixel off (a stripe grazing the ground 11 m away, its
+#: peak 0.9 rows off, triangulates 3 m short and 12 cm up): it is an obstacle point only
+#: where another line meets an obstacle clearly (farther from its ground row) at about
+#: its distance in its column (:func:`corroborated`); else a rise whose top is asked of
+#: the lines above
+GROUND_ROW_PX = RISE_PX
 #: a line landing at most this much (m) or SAME_SIGMAS of its range σ beyond the sample
 #: is on the same surface and bounds nothing
 SAME_SURFACE_M = 0.05
@@ -126,6 +133,29 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
         unknown[j[beyond & (passed > clearance_m)]] = True
         pending[j[hit | beyond]] = False  # missing or on the same surface: ask the next
     out[idx[unknown]] = True
+    return out
+
+
+def corroborated(line: IntArray, column: IntArray, distance_m: FloatArray, clear: BoolArray,
+                 ask: BoolArray, *, lines: int, width: int, focal_baseline_px_m: float
+                 ) -> BoolArray:
+    """(n,) True for the ``ask`` samples whose column (or a neighbour) holds a ``clear``
+    sample of another line within max(FOOT_REL·d, FOOT_M, FOOT_PX·d²/(f·b)) of their
+    distance: a surface two lines meet, not one line's stripe on the ground."""
+    out = np.zeros(line.size, dtype=np.bool_)
+    idx = np.flatnonzero(ask)
+    if idx.size == 0:
+        return out
+    grid = np.full((lines, width), np.nan)
+    keep = clear & (line >= 0) & (line < lines)
+    grid[line[keep], column[keep]] = distance_m[keep]
+    d = distance_m[idx]
+    reach = np.maximum(np.maximum(FOOT_REL * d, FOOT_M), FOOT_PX * d * d / focal_baseline_px_m)
+    for shift in (-1, 0, 1):
+        near = grid[:, np.clip(column[idx] + shift, 0, width - 1)]  # (K, m)
+        other = np.arange(lines)[:, None] != line[idx][None, :]
+        with np.errstate(invalid="ignore"):
+            out[idx] |= (other & (np.abs(near - d[None, :]) <= reach[None, :])).any(axis=0)
     return out
 
 
