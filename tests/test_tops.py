@@ -25,7 +25,7 @@ import pytest
 
 from atris_node.pipeline.obstacles import SectorSettings
 from atris_node.pipeline.sectors import SectorLayout
-from atris_node.pipeline.tops import corroborated, rows_off_ground, unseen_tops
+from atris_node.pipeline.tops import below_ground, corroborated, rows_off_ground, unseen_tops
 from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import SectorState
 
@@ -147,6 +147,20 @@ def test_feature_a_lone_stripe_near_its_ground_row_is_not_an_obstacle() -> None:
     seen = corroborated(line, column, distance, np.array([False, True]), ask, lines=8,
                         width=640, focal_baseline_px_m=381.0 * 0.098)
     assert seen[0]
+
+
+def test_feature_a_sample_under_the_ground_is_no_evidence_of_free() -> None:
+    """A sample 1.2 m under the ground plane at 4.9 m (a stripe given the wrong line, as
+    in r2_049 of the random scenes) or 20 cm under it at 3 m (ground falling away) is
+    flagged, and its column then cannot be NO_RETURN (counted doubtful by
+    evidence.SectorJudge); ground noise 1 cm under, or 4 cm under at 8 m (within 1.5 rows
+    of its ground row: a pixel of peak bias), is not. (Checked to fail with
+    below_ground flagging nothing.)"""
+    height = np.array([-1.2, -0.2, -0.01, -0.04])
+    distance = np.array([4.9, 3.0, 2.0, 8.0])
+    rows = rows_off_ground(distance, height, H0, FB)
+    flags = below_ground(height, rows, np.full(4, 0.002), np.ones(4, bool))
+    assert flags.tolist() == [True, True, False, False]
 
 
 @pytest.mark.parametrize("top_m, state", [(None, SectorState.VALID),

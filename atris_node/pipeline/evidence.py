@@ -23,6 +23,7 @@ from atris_node.pipeline.peaks import Extraction, per_column
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.pipeline.tops import (
     GROUND_ROW_PX,
+    below_ground,
     corroborated,
     height_sigma_m,
     rows_off_ground,
@@ -87,8 +88,9 @@ class SectorJudge:
         every sample), with the evidence of every column (``foreign`` (W,) columns with
         foreign light) under the visibility ``prior``. With the ``ground`` plane, a
         sample within GROUND_ROW_PX rows of where its sheet meets the ground is an
-        obstacle point only where another line corroborates it, and low surfaces whose
-        top no line saw count as doubts (:mod:`atris_node.pipeline.tops`)."""
+        obstacle point only where another line corroborates it, low surfaces whose top
+        no line saw count as doubts, and samples clearly below the ground keep their
+        columns from being free (:mod:`atris_node.pipeline.tops`)."""
         samples = extraction.samples
         sector, range_m = data.placed(self.layout)
         sheet = None if ground is None else self._sheet(data, ground)
@@ -100,9 +102,13 @@ class SectorJudge:
         evidence = self._evidence(extraction, foreign, prior)
         top_m = np.full(self.layout.count, np.inf)
         if sheet is not None:
-            tops = self._unseen_tops(found, points.valid[clean], sheet)
+            valid = points.valid[clean]
+            tops = self._unseen_tops(found, valid, sheet)
+            sigma_h = height_sigma_m(found.sigma_m, sheet.height_m, sheet.camera_height_m,
+                                     sheet.seen_from_m)
+            under = below_ground(sheet.height_m, sheet.rows_off, sigma_h, valid)
             evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
-                found.column[tops].astype(np.float64), self.column_sector.size))
+                found.column[tops | under].astype(np.float64), self.column_sector.size))
             inside = tops & (sector >= 0)
             np.minimum.at(top_m, sector[inside], range_m[inside])
         return sector_verdicts(found, evidence, self.layout, self.settings,

@@ -136,6 +136,17 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
     return out
 
 
+def below_ground(height_m: FloatArray, rows_off: FloatArray, height_sigma: FloatArray,
+                 valid: BoolArray) -> BoolArray:
+    """(n,) valid samples clearly *below* the ground plane: deeper than max(RISE_MIN_M,
+    RISE_SIGMAS·σ_h) and more than RISE_PX rows beyond where their sheet meets the
+    ground. Light does not go on under the ground: such a sample is a stripe given the
+    wrong line, or the ground falls away (a ditch, a drop): either way its column is not
+    free."""
+    deep = height_m < -np.maximum(RISE_MIN_M, RISE_SIGMAS * height_sigma)
+    return np.asarray(valid & deep & (rows_off < -RISE_PX), dtype=np.bool_)
+
+
 def corroborated(line: IntArray, column: IntArray, distance_m: FloatArray, clear: BoolArray,
                  ask: BoolArray, *, lines: int, width: int, focal_baseline_px_m: float
                  ) -> BoolArray:
