@@ -19,7 +19,9 @@ a randomly drawn one) had 2 near phantoms (1.38 m for the wall at 5.77 m) with t
 line-wide median as the continuity reference between anchors that disagree (rivals.py of
 commit 27efb17); grazing_stripe_dark_ground had one (8.2 m where
 nothing stands within 10 m) with every sample over the clearance an obstacle point (the
-evidence.py of commit abf41e3). With the sector distance taken as the least
+evidence.py of commit abf41e3); dark_low_box_before_box read the box behind (4.05 m for
+1.54 m) in one sector-frame with samples under the ground counted against NO_RETURN only
+(commit 45697e6). With the sector distance taken as the least
 of the per-line fronts (its σ the standard error of a mean, no limit on it; the code
 before the σ-limited front of verdicts.py), parking_pedestrian read the building at 9 m
 as 8.55 m (σ 0.10) and pole_16cm_far the wall at 8.92 m as 8.64 m: 94.4 % and 94.7 %

@@ -100,6 +100,7 @@ class SectorJudge:
         found = ObstaclePoints(range_m, sector, obstacle, line, column,
                                points.sigma_z_m[clean], data.snr)
         evidence = self._evidence(extraction, foreign, prior)
+        doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
         if sheet is not None:
             valid = points.valid[clean]
@@ -109,10 +110,11 @@ class SectorJudge:
             under = below_ground(sheet.height_m, sheet.rows_off, sigma_h, valid)
             evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
                 found.column[tops | under].astype(np.float64), self.column_sector.size))
+            doubt_m = np.minimum(doubt_m, self._any_line_ranges(
+                samples.row_px[clean][under], samples.col_px[clean][under]))
             inside = tops & (sector >= 0)
             np.minimum.at(top_m, sector[inside], range_m[inside])
-        return sector_verdicts(found, evidence, self.layout, self.settings,
-                               self._doubt_ranges(extraction), top_m)
+        return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m)
 
     def _credible_obstacle(self, obstacle: BoolArray, line: IntArray, column: IntArray,
                            sheet: Sheet) -> BoolArray:
@@ -165,6 +167,27 @@ class SectorJudge:
             doubtful=extraction.doubtful_columns + saturated + foreign.astype(np.int64),
             ambiguous=extraction.ambiguous_columns,
             missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen)
+
+    def _any_line_ranges(self, row_px: FloatArray, col_px: FloatArray) -> FloatArray:
+        """(S,) per sector the nearest horizontal range (m) the given peaks stand for
+        under any line that puts them within the operating range (a sample under the
+        ground was given the wrong line: it may be any of them), inf where none."""
+        out = np.full(self.layout.count, np.inf)
+        lines = len(self.calibration.laser.alpha_rad)
+        if row_px.size == 0:
+            return out
+        cam = self.calibration.camera
+        u, v = undistort_pixels(np.repeat(row_px, lines), np.repeat(col_px, lines), cam)
+        line = np.tile(np.arange(lines, dtype=np.int64), row_px.size)
+        points = triangulate(u, v, line, cam, self.calibration.laser,
+                             z_max_m=self.z_range_m[1], sigma_u_px=np.zeros(line.size))
+        ok = points.valid & (points.xyz_m.reshape(-1, 3)[:, 2] >= self.z_range_m[0])
+        vehicle = self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))[ok]
+        sector = self.layout.index_of(vehicle[:, 0], vehicle[:, 1])
+        inside = sector >= 0
+        np.minimum.at(out, sector[inside], self.layout.horizontal_range(
+            vehicle[:, 0], vehicle[:, 1])[inside])
+        return out
 
     def _doubt_ranges(self, extraction: Extraction) -> FloatArray:
         """(S,) per sector the nearest horizontal range (m) an ambiguous peak may stand
