@@ -53,7 +53,8 @@ def _tops(samples, columns: int = 10, sigma_m: float = 0.005) -> np.ndarray:
     n = line.size
     return unseen_tops(line, column, d, h, np.full(n, sigma_m), o, np.ones(n, bool),
                        lines=8, width=WIDTH, clearance_m=CLEARANCE, projector_height_m=H0,
-                       height_sigma=np.full(n, 0.002), focal_baseline_px_m=FB)
+                       height_sigma=np.full(n, 0.002),
+                       rows_off=rows_off_ground(d, h, H0, FB), focal_baseline_px_m=FB)
 
 
 def test_feature_kerb_with_no_line_above_is_flagged() -> None:
@@ -124,7 +125,7 @@ def test_feature_ground_noise_is_not_a_rise() -> None:
     noisy = unseen_tops(line, column, d, h, np.full(n, 0.005), o, np.ones(n, bool),
                         lines=8, width=WIDTH, clearance_m=CLEARANCE,
                         projector_height_m=H0, height_sigma=np.full(n, 0.02),
-                        focal_baseline_px_m=FB)
+                        rows_off=rows_off_ground(d, h, H0, FB), focal_baseline_px_m=FB)
     assert not noisy.any()
 
 

@@ -39,16 +39,15 @@ BoolArray = npt.NDArray[np.bool_]
 
 @dataclass(frozen=True)
 class Sheet:
-    """Each sample (n,) on its light sheet, from the ground plane: ``height_m`` above it,
-    horizontal ``distance_m`` from the projector and ``seen_from_m`` from the camera,
+    """Each sample (n,) on its light sheet, from the ground plane: ``height_m`` above it
+    and its σ ``height_sigma_m``, horizontal ``distance_m`` from the projector,
     ``rows_off`` (image rows from where the sheet meets the ground,
-    :func:`atris_node.pipeline.tops.rows_off_ground`); the camera's and the projector's
-    heights (m) and f·b (px·m)."""
+    :func:`atris_node.pipeline.tops.rows_off_ground`); the projector's height (m) and
+    f·b (px·m)."""
 
     height_m: FloatArray
+    height_sigma_m: FloatArray
     distance_m: FloatArray
-    seen_from_m: FloatArray
-    camera_height_m: float
     projector_height_m: float
     focal_baseline: float
     rows_off: FloatArray
@@ -93,21 +92,19 @@ class SectorJudge:
         columns from being free (:mod:`atris_node.pipeline.tops`)."""
         samples = extraction.samples
         sector, range_m = data.placed(self.layout)
-        sheet = None if ground is None else self._sheet(data, ground)
+        sigma_m = points.sigma_z_m[clean]
+        sheet = None if ground is None else self._sheet(data, ground, sigma_m)
         line, column = samples.line[clean], samples.col_px[clean].astype(np.int64)
         obstacle = data.obstacle if sheet is None else self._credible_obstacle(
             data.obstacle, line, column, sheet)
-        found = ObstaclePoints(range_m, sector, obstacle, line, column,
-                               points.sigma_z_m[clean], data.snr)
+        found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr)
         evidence = self._evidence(extraction, foreign, prior)
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
         if sheet is not None:
             valid = points.valid[clean]
             tops = self._unseen_tops(found, valid, sheet)
-            sigma_h = height_sigma_m(found.sigma_m, sheet.height_m, sheet.camera_height_m,
-                                     sheet.seen_from_m)
-            under = below_ground(sheet.height_m, sheet.rows_off, sigma_h, valid)
+            under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
             evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
                 found.column[tops | under].astype(np.float64), self.column_sector.size))
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
@@ -129,31 +126,32 @@ class SectorJudge:
                                     width=self.column_sector.size,
                                     focal_baseline_px_m=sheet.focal_baseline)
 
-    def _sheet(self, data: SectorInput, ground: GroundPlane) -> Sheet:
-        """Where each sample lies on its sheet, measured from the ``ground`` plane."""
+    def _sheet(self, data: SectorInput, ground: GroundPlane, sigma_m: FloatArray) -> Sheet:
+        """Where each sample (range σ ``sigma_m``) lies on its sheet, measured from the
+        ``ground`` plane."""
         height = ground.height(data.points)
         origin = self.projector_m
         distance = np.hypot(data.points[:, 0] - origin[0], data.points[:, 1] - origin[1])
         camera = self.mounting.translation
-        camera_h = float(ground.height(camera[None, :])[0])
+        sigma_h = height_sigma_m(
+            sigma_m, height, float(ground.height(camera[None, :])[0]),
+            np.hypot(data.points[:, 0] - camera[0], data.points[:, 1] - camera[1]))
         projector_h = float(ground.height(origin[None, :])[0])
         fb = self.calibration.camera.focal_px * self.calibration.laser.baseline_m
-        seen_from = np.hypot(data.points[:, 0] - camera[0], data.points[:, 1] - camera[1])
-        return Sheet(height, distance, seen_from, camera_h, projector_h, fb,
+        return Sheet(height, sigma_h, distance, projector_h, fb,
                      rows_off_ground(distance, height, projector_h, fb))
 
     def _unseen_tops(self, found: ObstaclePoints, valid: BoolArray, sheet: Sheet
                      ) -> BoolArray:
         """(n,) the valid samples that are no obstacle point and whose top no line
         above bounds."""
-        sigma_h = height_sigma_m(found.sigma_m, sheet.height_m, sheet.camera_height_m,
-                                 sheet.seen_from_m)
         return unseen_tops(found.line, found.column, sheet.distance_m, sheet.height_m,
                            found.sigma_m, found.obstacle, valid,
                            lines=len(self.calibration.laser.alpha_rad),
                            width=self.column_sector.size, clearance_m=self.clearance_m,
                            projector_height_m=sheet.projector_height_m,
-                           height_sigma=sigma_h, focal_baseline_px_m=sheet.focal_baseline)
+                           height_sigma=sheet.height_sigma_m, rows_off=sheet.rows_off,
+                           focal_baseline_px_m=sheet.focal_baseline)
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
                   prior: VisibilityPrior) -> ColumnEvidence:
@@ -172,36 +170,33 @@ class SectorJudge:
         """(S,) per sector the nearest horizontal range (m) the given peaks stand for
         under any line that puts them within the operating range (a sample under the
         ground was given the wrong line: it may be any of them), inf where none."""
-        out = np.full(self.layout.count, np.inf)
         lines = len(self.calibration.laser.alpha_rad)
-        if row_px.size == 0:
-            return out
-        cam = self.calibration.camera
-        u, v = undistort_pixels(np.repeat(row_px, lines), np.repeat(col_px, lines), cam)
         line = np.tile(np.arange(lines, dtype=np.int64), row_px.size)
-        points = triangulate(u, v, line, cam, self.calibration.laser,
-                             z_max_m=self.z_range_m[1], sigma_u_px=np.zeros(line.size))
-        ok = points.valid & (points.xyz_m.reshape(-1, 3)[:, 2] >= self.z_range_m[0])
-        vehicle = self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))[ok]
-        sector = self.layout.index_of(vehicle[:, 0], vehicle[:, 1])
-        inside = sector >= 0
-        np.minimum.at(out, sector[inside], self.layout.horizontal_range(
-            vehicle[:, 0], vehicle[:, 1])[inside])
-        return out
+        return self._nearest_per_sector(np.repeat(row_px, lines), np.repeat(col_px, lines),
+                                        line, self.z_range_m[0])
 
     def _doubt_ranges(self, extraction: Extraction) -> FloatArray:
         """(S,) per sector the nearest horizontal range (m) an ambiguous peak may stand
         for (its nearest hypothesis triangulated), inf where none."""
         row, col, line = extraction.doubts
+        return self._nearest_per_sector(row.astype(np.float64), col.astype(np.float64),
+                                        line, 0.0)
+
+    def _nearest_per_sector(self, row_px: FloatArray, col_px: FloatArray, line: IntArray,
+                            z_min_m: float) -> FloatArray:
+        """(S,) per sector the nearest horizontal range (m) of the peaks (row, column)
+        triangulated with the given lines, camera z in [``z_min_m``, z_max]; inf where
+        none."""
         out = np.full(self.layout.count, np.inf)
-        if row.size == 0:
+        if row_px.size == 0:
             return out
         cam = self.calibration.camera
-        u, v = undistort_pixels(row.astype(np.float64), col.astype(np.float64), cam)
+        u, v = undistort_pixels(row_px, col_px, cam)
         points = triangulate(u, v, line, cam, self.calibration.laser,
-                             z_max_m=self.z_range_m[1], sigma_u_px=np.zeros(row.size))
-        vehicle = self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))
-        x, y = vehicle[points.valid, 0], vehicle[points.valid, 1]
+                             z_max_m=self.z_range_m[1], sigma_u_px=np.zeros(line.size))
+        xyz = points.xyz_m.reshape(-1, 3)
+        vehicle = self.mounting.camera_to_vehicle(xyz)[points.valid & (xyz[:, 2] >= z_min_m)]
+        x, y = vehicle[:, 0], vehicle[:, 1]
         sector = self.layout.index_of(x, y)
         inside = sector >= 0
         np.minimum.at(out, sector[inside], self.layout.horizontal_range(x, y)[inside])

@@ -87,7 +87,8 @@ def height_sigma_m(range_sigma_m: FloatArray, height_m: FloatArray, camera_heigh
 def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height_m: FloatArray,
                 sigma_m: FloatArray, obstacle: BoolArray, valid: BoolArray, *, lines: int,
                 width: int, clearance_m: float, projector_height_m: float,
-                height_sigma: FloatArray, focal_baseline_px_m: float) -> BoolArray:
+                height_sigma: FloatArray, rows_off: FloatArray, focal_baseline_px_m: float
+                ) -> BoolArray:
     """(n,) True for the valid samples that stand clearly above the ground, below
     ``clearance_m``, and whose top no line above them bounds (see the module docstring).
 
@@ -96,15 +97,15 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
         distance_m: (n,) horizontal distance (m) from the projector.
         height_m: (n,) height (m) above the ground plane.
         sigma_m: (n,) range σ (m); height_sigma: (n,) height σ (m).
+        rows_off: (n,) rows from the sheet's ground row (:func:`rows_off_ground`).
         focal_baseline_px_m: f·b (px·m): a surface at distance d moves a stripe f·b/d²
             rows per metre of range.
         obstacle, valid: (n,) above the clearance; triangulated at all.
         projector_height_m: the projector's height (m) above the ground plane.
     """
     n = line.size
-    rise = valid & ~obstacle & (height_m > np.maximum(RISE_MIN_M, RISE_SIGMAS * height_sigma))
-    strong = rows_off_ground(distance_m, height_m, projector_height_m,
-                             focal_baseline_px_m) > RISE_PX
+    rise = valid & ~obstacle & (height_m > _off_ground_m(height_sigma))
+    strong = rows_off > RISE_PX
     out = np.zeros(n, dtype=np.bool_)
     idx = np.flatnonzero(rise)
     if idx.size == 0:
@@ -136,6 +137,12 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
     return out
 
 
+def _off_ground_m(height_sigma: FloatArray) -> FloatArray:
+    """(n,) how far (m) a sample must stand from the ground plane to be off it:
+    max(RISE_MIN_M, RISE_SIGMAS·σ_h)."""
+    return np.maximum(RISE_MIN_M, RISE_SIGMAS * height_sigma)
+
+
 def below_ground(height_m: FloatArray, rows_off: FloatArray, height_sigma: FloatArray,
                  valid: BoolArray) -> BoolArray:
     """(n,) valid samples clearly *below* the ground plane: deeper than max(RISE_MIN_M,
@@ -143,7 +150,7 @@ def below_ground(height_m: FloatArray, rows_off: FloatArray, height_sigma: Float
     ground. Light does not go on under the ground: such a sample is a stripe given the
     wrong line, or the ground falls away (a ditch, a drop): either way its column is not
     free."""
-    deep = height_m < -np.maximum(RISE_MIN_M, RISE_SIGMAS * height_sigma)
+    deep = height_m < -_off_ground_m(height_sigma)
     return np.asarray(valid & deep & (rows_off < -RISE_PX), dtype=np.bool_)
 
 
