@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from atris_node.pipeline.chain import Pipeline, PipelineConfig
-from atris_node.pipeline.rivals import stripe_peaks, unique_identity
+from atris_node.pipeline.rivals import _reference, stripe_peaks, unique_identity
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator, load_scene
 
@@ -135,3 +135,21 @@ def test_feature_a_moving_edge_does_not_shift_the_identity() -> None:
 
     row = score_scene("approach_2mps", 2, seed=11).row()
     assert row["near_phantom"] == row["far"] == row["false_free"] == 0
+
+
+def test_feature_a_far_line_median_vouches_only_for_the_comb_on_it() -> None:
+    """Beyond a line's last anchored column its median row is the continuity reference
+    only in columns whose chosen comb lies on the medians: a comb 20 px off them is
+    another surface's (beyond_zmax_stripe: the medians of a box at 0.7 m settled, at the
+    other edge of the image, a stripe from beyond z_max as the next line at 1.5 m, a
+    phantom). Checked to fail with the MEDIAN_PX condition taken out of _reference (the
+    off-median column got the medians)."""
+    rows = np.full((8, 640), -1, np.int64)
+    rows[:, 100:300] = np.array(WALL)[:, None]
+    anchored = np.zeros(640, bool)
+    anchored[100:300] = True
+    rows[:, 500] = BOX_SHIFTED
+    rows[:, 520] = np.array(WALL) + 2
+    ref = _reference(rows, anchored)
+    assert np.isinf(ref[:, 500]).all()
+    assert ref[:, 520] == pytest.approx(np.array(WALL, float))

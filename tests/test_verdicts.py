@@ -253,3 +253,44 @@ def test_feature_line_ending_at_a_farther_surface_or_seen_through_is_no_hole(
     points, evidence = _hole_scene(right_m, through_m)
     out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)
     assert out[0].state is SectorState.VALID and out[0].distance_m == pytest.approx(3.5)
+
+
+def test_feature_a_line_lost_in_noise_is_no_evidence_of_free() -> None:
+    """Line 0 meets nothing within z_max (it is not expected on the ground) and is not
+    seen: that says nothing stands in its way only where its band is quiet enough to
+    show it. With its band too noisy over sector 0's columns (flicker left in the map
+    across a step, flicker_hidden_top_sheet: a dark wall at 7-8 m read free in every
+    map), sector 0 is INVALID; sector 1, quiet, stays NO_RETURN. Checked to fail with
+    ``evidence.unclean`` left out of the doubtful count in sector_verdicts."""
+    points = _join(_ground(0), _ground(1))
+    seen = np.zeros((5, WIDTH), bool)
+    seen[points.line, points.column] = True
+    expected = seen.copy()
+    noisy = np.zeros((5, WIDTH), bool)
+    noisy[4, :32] = True  # line 4 (not on the ground) in sector 0
+    zero = np.zeros(WIDTH, np.int64)
+    quiet = ColumnEvidence(_evidence().sector, zero, zero, zero, seen=seen,
+                           noisy=np.zeros_like(noisy), expected=expected)
+    lost = ColumnEvidence(_evidence().sector, zero, zero, zero, seen=seen, noisy=noisy,
+                          expected=expected)
+    assert [s.state for s in sector_verdicts(points, quiet, LAYOUT, SETTINGS)] == [
+        SectorState.NO_RETURN] * 2
+    out = sector_verdicts(points, lost, LAYOUT, SETTINGS)
+    assert [s.state for s in out] == [SectorState.INVALID, SectorState.NO_RETURN]
+
+
+def test_feature_a_run_lost_in_noise_blocks_the_surface_behind() -> None:
+    """The lines stop over seven columns between two parts of one wall at 3.5 m: no
+    nearer surface ends there, so it is no hole (the wall reads 3.5 m). With the lines'
+    band too noisy over those columns the run is not known to be empty (a pole before a
+    wall under a threshold raised by flicker, flicker_hidden_pole: the wall read 46 %
+    beyond the pole): sector 0 is INVALID. Checked to fail with ``holes.noisy`` left out
+    of unseen_columns."""
+    points, evidence = _hole_scene(3.5)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.VALID
+    noisy = np.zeros((5, WIDTH), bool)
+    noisy[:, 25:32] = True
+    lost = ColumnEvidence(evidence.sector, evidence.doubtful, evidence.ambiguous,
+                          evidence.missing, seen=evidence.seen, noisy=noisy,
+                          expected=np.zeros((5, WIDTH), bool))
+    assert sector_verdicts(points, lost, LAYOUT, SETTINGS)[0].state is SectorState.INVALID

@@ -32,6 +32,12 @@ from atris_node.pipeline.tops import (
 from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
 from atris_node.types import SectorDistance
 
+#: a line is not seen for lack of a surface only where its band's noise σ is at most
+#: CLEAN_NOISE times the map's typical tile noise (a return that the rest of the map
+#: would show may be lost under more: a sun patch, the edge of a surface under flicker
+#: that the code does not cancel)
+CLEAN_NOISE = 2.0
+
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -160,11 +166,14 @@ class SectorJudge:
         seen = np.zeros(expected.shape, dtype=np.bool_)
         seen[samples.line, samples.col_px.astype(np.int64)] = True
         saturated = per_column(samples.col_px[samples.saturated], width)
+        noisy = None if extraction.band_noise_dn is None else (
+            extraction.band_noise_dn > CLEAN_NOISE * extraction.tile_noise_dn)
         return ColumnEvidence(
             self.column_sector,
             doubtful=extraction.doubtful_columns + saturated + foreign.astype(np.int64),
             ambiguous=extraction.ambiguous_columns,
-            missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen)
+            missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen,
+            noisy=noisy, expected=expected)
 
     def _any_line_ranges(self, row_px: FloatArray, col_px: FloatArray) -> FloatArray:
         """(S,) per sector the nearest horizontal range (m) the given peaks stand for

@@ -131,6 +131,15 @@ class Extraction:
     #: of ``unassigned``, the peaks set aside as moving edges (not own light in place,
     #: atris_node.pipeline.temporal): own stripes of a moving object, not foreign light
     moving: int = 0
+    #: (K, W) float32, DN: the highest local noise σ over the rows of line k's band in
+    #: column c (where a return within the operating range would show it); None: not
+    #: measured. A band much noisier than ``tile_noise_dn`` hides a return the rest of
+    #: the map would show (:func:`band_noise`)
+    band_noise_dn: npt.NDArray[np.float32] | None = None
+    #: DN, the median over the tiles read of their local noise σ: the map's typical noise
+    #: (``noise_floor_dn`` pools every tile, and a background that changes from tile to
+    #: tile, such as flicker left by the demodulation, inflates it)
+    tile_noise_dn: float = 0.0
 
 
 # --------------------------------------------------------------------------- rows read
@@ -319,7 +328,24 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       line_snr=_median_per_line(samples.line, samples.snr, len(bands)),
                       narrowed=where.inside is not None, ambiguous_columns=unsure,
                       doubtful_columns=lone + _unsampled(rows, samples), doubts=doubts,
-                      moving=int(np.minimum(moved, unassigned).sum()))
+                      moving=int(np.minimum(moved, unassigned).sum()),
+                      band_noise_dn=band_noise(local, bands),
+                      tile_noise_dn=float(np.median(local.sigma_tiles[:-1]))
+                      if local.sigma_tiles.shape[0] > 1 else noise)
+
+
+def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float32]:
+    """(K, W) float32, DN: per line and column the highest tile σ of ``local`` over the
+    line's band rows (0 for an empty band): the noise a return anywhere in the operating
+    range has to rise above."""
+    out = np.zeros((len(bands), local.width), dtype=np.float32)
+    columns = np.arange(local.width) // NOISE_TILE_PX
+    for k, band in enumerate(bands):
+        if band.empty:
+            continue
+        tiles = np.unique(local.tile_row[band.row_lo:band.row_hi])
+        out[k] = local.sigma_tiles[tiles].max(axis=0)[columns]
+    return out
 
 
 def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> FloatArray:

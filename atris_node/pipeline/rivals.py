@@ -10,7 +10,8 @@ one of these; they cannot tell that the choice was a guess.
 :func:`unique_identity` asks, in every column, whether some assignment that gives a peak
 another line costs less than the chosen assignment plus ``RIVAL_MARGIN_PX``. The cost is
 the alignment cost of :mod:`atris_node.pipeline.identity` (continuity to the reference
-rows, a line skipped, a peak left spare, a row past z_max) plus the visibility prior's
+rows, a line skipped, a peak left spare; not a row past z_max: a surface beyond the range
+returns the lines as well as a near one) plus the visibility prior's
 cost of every line missing without a reason (a surface at the hypothesised range would
 show that line, in the image, above the ground): the comb's ends and the ground anchor
 the identity where continuity cannot. The cheapest rival for each (peak, line) pair is a
@@ -46,7 +47,6 @@ from atris_node.pipeline.identity import (
     MIN_LINE_SAMPLES,
     SWITCH_PX,
     VisibilityPrior,
-    beyond_rows,
     identify_lines,
     prior_arrays,
 )
@@ -66,6 +66,9 @@ CONTINUITY_REACH = 16
 CONTINUITY_ROUNDS = 3
 #: px; anchored rows of a line on both sides of a gap bridge it when they agree this well
 BRIDGE_PX = 4.0
+#: px; beyond a line's last anchor its median row is a reference only in columns whose
+#: chosen rows all lie this near their lines' medians (elsewhere it is another surface's)
+MEDIAN_PX = 6.0
 
 
 def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
@@ -85,7 +88,10 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
     rows = np.array(rows, dtype=np.int64, order="C")
     shape = rows.shape
     ambiguous = np.full(shape, -1, dtype=np.int64)
-    beyond = beyond_rows(prior, order)
+    # no BEYOND_PX here: a stripe from past its line's z_max (the ground or a wall beyond
+    # the range) is as good an explanation as the next line at a near range, and the
+    # rival test must see that tie (the identity's choice may still prefer the near one)
+    beyond = np.full(order.size, np.inf)
     loose = np.full(shape, np.inf)  # pass 1: no continuity
     _test(peaks, (lo, hi, order), rows, ambiguous, _has_peaks(rows), loose, beyond, prior)
     left = -1
@@ -256,7 +262,10 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
                                                  MIN_LINE_SAMPLES, MIN_LINE_SAMPLES)
     bridge, sides = _bridge(rows, good)
     # between anchors the bridge (or nothing where they disagree); the line's median
-    # only beyond its last anchor
+    # only beyond its last anchor, and only in columns whose chosen comb lies on it
+    far = ~np.isfinite(local) & ~np.isfinite(block) & (sides < 2)
+    off = far & (rows >= 0) & (np.abs(rows - line) > MEDIAN_PX)
+    line = np.where(off.any(axis=0)[None, :], np.inf, line)
     wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
     return np.where(np.isfinite(local), local, wide)
 

@@ -34,7 +34,10 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
 - NO_RETURN (free up to z_max) only when it is earned: no obstacle point, no ambiguous,
   lone, dropped or saturated sample and no low surface with an unseen top in its
   columns, no foreign light, and every line that meets the ground within z_max was seen
-  in every one of its columns (on the ground, where the obstacle-free scene puts it).
+  in every one of its columns (on the ground, where the obstacle-free scene puts it);
+  a line that meets nothing within z_max shows that nothing stands in its way only where
+  a return would have stood out of the noise: its band (the rows of the whole operating
+  range) no noisier than CLEAN_NOISE times the map's noise floor.
   A line that would be missing where it is expected means something may stand there
   unseen (too dark, too thin, an ambiguous stripe): the sector is INVALID.
 - INVALID otherwise, and whenever a peak whose line could not be told may stand as near
@@ -113,8 +116,9 @@ class ColumnEvidence:
     its sector (-1 outside), ``doubtful`` (W,) lone, dropped or saturated samples and
     foreign light, ``ambiguous`` (W,) peaks whose line could not be told, and ``missing``
     (W,) lines expected on the ground within z_max but not seen. Any of them in a sector
-    blocks NO_RETURN; an ambiguous peak blocks VALID too where its nearest hypothesis may
-    stand as near as the distance (``doubt_m`` of :func:`sector_verdicts`)."""
+    blocks NO_RETURN, and so does a line not seen where its band is ``noisy`` (it may be
+    lost in the noise, not free); an ambiguous peak blocks VALID too where its nearest
+    hypothesis may stand as near as the distance (``doubt_m`` of :func:`sector_verdicts`)."""
 
     sector: IntArray
     doubtful: IntArray
@@ -122,6 +126,18 @@ class ColumnEvidence:
     missing: IntArray
     #: (K, W) line k has a peak (any range) in column c; None: not known, no hole test
     seen: BoolArray | None = None
+    #: (K, W) line k's band in column c is too noisy to show the line (evidence.CLEAN_NOISE)
+    noisy: BoolArray | None = None
+    #: (K, W) line k meets the ground within the operating range in column c
+    expected: BoolArray | None = None
+
+    @property
+    def unclean(self) -> IntArray:
+        """(W,) lines not seen, not expected on the ground (``missing`` counts those),
+        whose band is too noisy to show that nothing stands in their way."""
+        if self.noisy is None or self.seen is None or self.expected is None:
+            return np.zeros(self.sector.size, dtype=np.int64)
+        return (self.noisy & ~self.seen & ~self.expected).sum(axis=0).astype(np.int64)
 
     def per_sector(self, counts: IntArray, sectors: int) -> IntArray:
         """(S,) sums of a (W,) per-column count over each sector's columns."""
@@ -174,10 +190,12 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
     samples are in ``evidence.doubtful`` too)."""
     count = layout.count
     ambiguous = evidence.per_sector(evidence.ambiguous, count)
-    doubtful = evidence.per_sector(evidence.doubtful + evidence.missing, count)
+    doubtful = evidence.per_sector(evidence.doubtful + evidence.missing + evidence.unclean,
+                                   count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
-    holes = None if evidence.seen is None else LineHoles.of(points, evidence.seen)
+    holes = None if evidence.seen is None else LineHoles.of(points, evidence.seen,
+                                                            evidence.noisy)
     if top_m is None:
         top_m = np.full(count, np.inf)
     return tuple(_verdict(s, points, layout, settings, evidence, holes,
@@ -189,17 +207,22 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
 @dataclass(frozen=True)
 class LineHoles:
     """The runs of at least GAP_RUN columns in which a line has no peak at all, with its
-    obstacle points on both sides, of one map: ``line``, ``start``, ``stop`` (columns,
-    stop exclusive) and ``nearer_m`` (the nearer flank's range) per run, (n,) each."""
+    obstacle points on both sides (or, where its band is too noisy to show it, any of
+    its samples), of one map: ``line``, ``start``, ``stop`` (columns,
+    stop exclusive), ``nearer_m`` (the nearer flank's range) and ``noisy`` (the line's
+    band is too noisy to show it in most of the run) per run, (n,) each."""
 
     line: IntArray
     start: IntArray
     stop: IntArray
     nearer_m: FloatArray
+    noisy: BoolArray
 
     @classmethod
-    def of(cls, points: ObstaclePoints, seen: BoolArray) -> LineHoles:
-        """The holes of every line of ``seen`` (K, W)."""
+    def of(cls, points: ObstaclePoints, seen: BoolArray, noisy: BoolArray | None = None
+           ) -> LineHoles:
+        """The holes of every line of ``seen`` (K, W) (``noisy`` (K, W): where its band
+        is too noisy to show it; None: nowhere)."""
         lines, width = seen.shape
         flank = np.full((lines, width), np.nan)
         flank[points.line[points.obstacle], points.column[points.obstacle]] = (
@@ -211,9 +234,16 @@ class LineHoles:
         keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
         k, start, stop = k[keep], start[keep], stop[keep]
         left, right = flank[k, start - 1], flank[k, stop]
-        keep = np.isfinite(left) & np.isfinite(right)
-        return cls(k[keep].astype(np.int64), start[keep], stop[keep],
-                   np.minimum(left, right)[keep])
+        flanked = np.isfinite(left) & np.isfinite(right)
+        hidden = np.zeros(k.size, dtype=np.bool_)
+        if noisy is not None and k.size:
+            inside = np.cumsum(np.concatenate([np.zeros((lines, 1), np.int64),
+                                               noisy.astype(np.int64)], axis=1), axis=1)
+            hidden = 2 * (inside[k, stop] - inside[k, start]) >= stop - start
+        keep = flanked | hidden  # a noisy run needs the line seen on both sides only
+        nearer = np.where(flanked, np.minimum(left, right), np.inf)
+        return cls(k[keep].astype(np.int64), start[keep], stop[keep], nearer[keep],
+                   hidden[keep])
 
 
 def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
@@ -230,22 +260,27 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     nearer surface ends where the line stops, and may go on, too dark to return it (a
     black panel whose lit part is in the next sector, a dark box's unlit side). A line
     that ends on one side only (a wall's edge with the far scene too faint beyond) or
-    between surfaces no nearer than d makes no hole."""
+    between surfaces no nearer than d makes no hole, unless its band is too noisy to show
+    it over most of the run: then what stands there is not known (a pole before a wall,
+    its stripes under a threshold that flicker left by the demodulation raised)."""
     columns = np.flatnonzero(evidence.sector == s)
     margin = _doubt_margin_m(distance_m)
-    near = ((holes.nearer_m < distance_m - margin) & (holes.start <= columns[-1])
+    near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
+            & (holes.start <= columns[-1])
             & (holes.stop > columns[0])) if columns.size else np.zeros(0, np.bool_)
     if not near.any():
         return 0
     hits = (points.sector == s) & points.obstacle
     width = evidence.sector.size
     hole = np.zeros(width, dtype=np.bool_)
-    for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
-                              strict=True):
+    whole = np.zeros(width, dtype=np.bool_)  # noisy runs count beyond the sector's edge
+    for k, start, stop, noisy in zip(holes.line[near], holes.start[near], holes.stop[near],
+                                     holes.noisy[near], strict=True):
         mine = hits & (points.line == k)
         if mine.any() and np.median(points.snr[mine]) >= GAP_SNR * settings.snr_min:
             hole[start:stop] = True
-    hole &= evidence.sector == s
+            whole[start:stop] |= noisy
+    hole &= (evidence.sector == s) | whole
     hole[points.column[hits & (points.range_m <= distance_m + margin)]] = False
     far = points.column[(points.sector == s) & (points.range_m > distance_m + margin)]
     for shift in range(-GAP_RUN, GAP_RUN + 1):
