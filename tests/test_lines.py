@@ -94,6 +94,44 @@ def test_flat_topped_saturated_stripe_gives_its_centre() -> None:
         assert np.isfinite(ex.samples.sigma_u_px).all()
 
 
+def test_feature_a_peak_at_the_edge_of_blinded_pixels_is_no_stripe() -> None:
+    """Rows 42-79 are full scale in every sub-frame (sunlit ground, 8 bits): they
+    demodulate to 0 and the saturation mask covers them. A faint maximum just above
+    them (20 DN, far above the noise tile of a map that is 0 almost everywhere) was
+    taken for a flat-topped stripe and centred in the blinded run: a line sample at the
+    band's edge, a phantom at z_min (0.30 m in a randomly drawn sunlit scene). The run
+    holds no laser light, so the peak gives no sample (it is dropped); a stripe clipped at
+    full scale still does (test above). Checked to fail with the _lit_run condition taken
+    out of peaks_kernels.line_samples (one sample per column)."""
+    rng = np.random.default_rng(7)
+    values = np.round(rng.normal(0.0, 2.0, (80, WIDTH))).astype(np.int32)
+    values[42:, :] = 0
+    values[41, :] = 20
+    saturated = np.zeros(values.shape, bool)
+    saturated[42:, :] = True
+    ex = extract_lines(values, saturated, (Band(0, 20, 60),),
+                       ExtractorSettings("gaussian", stripe_sigma_px=1.0))
+    assert len(ex.samples) == 0
+    assert ex.dropped >= WIDTH // 2
+
+
+def test_feature_blinded_pixels_mark_the_bands_they_lie_in() -> None:
+    """Saturated pixels that demodulate below the threshold (blinded in every sub-frame)
+    hide any line whose band crosses them: ``Extraction.blinded`` marks those (line,
+    column) pairs, and the sector verdicts count a line not seen there as lost, not as
+    absent (tests/test_verdicts.py, lines lost in noise). A clipped stripe (saturated and
+    bright) marks nothing. Checked to fail with ``blinded=None`` in extract_lines."""
+    values = np.zeros((80, WIDTH), np.int32)
+    saturated = np.zeros(values.shape, bool)
+    saturated[70:, 10:20] = True  # blinded: 0 DN
+    values[30, 40:50], saturated[30, 40:50] = 3000, True  # a clipped stripe
+    bands = (Band(0, 20, 60), Band(1, 40, 78))
+    ex = extract_lines(values, saturated, bands, ExtractorSettings("gaussian"))
+    assert ex.blinded is not None
+    assert not ex.blinded[0].any()
+    assert ex.blinded[1, 10:20].all() and ex.blinded[1].sum() == 10
+
+
 def test_unknown_peak_method_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match="peak_method"):
         ExtractorSettings("centroid")

@@ -27,7 +27,9 @@ flicker_hidden_pole read the wall 46 % beyond the pole in 2 (a run of columns wh
 lines are lost in the noise counted as empty), and
 beyond_zmax_stripe had 2 near phantoms (1.53 m for 3.95 m), which came back with either
 the rival test's BEYOND_PX cost or the far line-median reference of rivals._reference
-put back alone. With the sector distance taken as the least
+put back alone; sunlit_blinded_edge had one (0.30 m where nothing stands: a faint
+maximum at the edge of pixels blinded in every sub-frame taken for a clipped stripe).
+With the sector distance taken as the least
 of the per-line fronts (its σ the standard error of a mean, no limit on it; the code
 before the σ-limited front of verdicts.py), parking_pedestrian read the building at 9 m
 as 8.55 m (σ 0.10) and pole_16cm_far the wall at 8.92 m as 8.64 m: 94.4 % and 94.7 %

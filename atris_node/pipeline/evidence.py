@@ -168,6 +168,8 @@ class SectorJudge:
         saturated = per_column(samples.col_px[samples.saturated], width)
         noisy = None if extraction.band_noise_dn is None else (
             extraction.band_noise_dn > CLEAN_NOISE * extraction.tile_noise_dn)
+        if noisy is not None and extraction.blinded is not None:
+            noisy = noisy | extraction.blinded
         return ColumnEvidence(
             self.column_sector,
             doubtful=extraction.doubtful_columns + saturated + foreign.astype(np.int64),

@@ -140,6 +140,9 @@ class Extraction:
     #: (``noise_floor_dn`` pools every tile, and a background that changes from tile to
     #: tile, such as flicker left by the demodulation, inflates it)
     tile_noise_dn: float = 0.0
+    #: (K, W) line k's band in column c holds pixels blinded in every sub-frame (saturated
+    #: without laser light above the threshold): the line cannot be seen there; None: none
+    blinded: BoolArray | None = None
 
 
 # --------------------------------------------------------------------------- rows read
@@ -331,7 +334,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       moving=int(np.minimum(moved, unassigned).sum()),
                       band_noise_dn=band_noise(local, bands),
                       tile_noise_dn=float(np.median(local.sigma_tiles[:-1]))
-                      if local.sigma_tiles.shape[0] > 1 else noise)
+                      if local.sigma_tiles.shape[0] > 1 else noise,
+                      blinded=blinded_bands(values, saturated, local, bands, settings.snr_min))
 
 
 def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float32]:
@@ -345,6 +349,24 @@ def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float
             continue
         tiles = np.unique(local.tile_row[band.row_lo:band.row_hi])
         out[k] = local.sigma_tiles[tiles].max(axis=0)[columns]
+    return out
+
+
+def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray, local: NoiseMap,
+                  bands: tuple[Band, ...], snr_min: float) -> BoolArray | None:
+    """(K, W) True where line k's band holds, in column c, a saturated pixel below its
+    tile's threshold: full scale in the OFF sub-frames too (sunlit, blinded), it carries
+    no laser light and would hide the line; None when no pixel is saturated."""
+    row, col = np.nonzero(saturated)
+    if row.size == 0:
+        return None
+    threshold = local.threshold_tiles(snr_min)[local.tile_row[row], col // NOISE_TILE_PX]
+    dark = np.asarray(values[row, col], dtype=np.float64) < threshold
+    row, col = row[dark], col[dark]
+    out = np.zeros((len(bands), local.width), dtype=np.bool_)
+    for k, band in enumerate(bands):
+        inside = (row >= band.row_lo) & (row < band.row_hi)
+        out[k, col[inside]] = True
     return out
 
 

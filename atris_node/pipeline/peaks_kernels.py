@@ -264,6 +264,23 @@ def _saturated_centre(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int
 
 
 @kernel()
+def _lit_run(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_], row: int,
+             c: int, r: int) -> bool:
+    """True when the saturated pixels within ±r rows of (row, c) hold, on average, at
+    least half the value at (row, c): a stripe clipped at full scale. Pixels full in the
+    OFF sub-frames as well (sunlit, blinded) demodulate to about 0: the run holds no
+    laser light, and a peak at its edge is no stripe."""
+    height = saturated.shape[0]
+    count = total = 0.0
+    for d in range(-r, r + 1):
+        i = min(max(row + d, 0), height - 1)
+        if saturated[i, c]:
+            count += 1.0
+            total += np.float64(values[i, c])
+    return bool(total >= 0.5 * count * np.float64(values[row, c]))
+
+
+@kernel()
 def _flat_top(saturated: npt.NDArray[np.bool_], row: int, c: int) -> bool:
     """True when (row, c) or a pixel above or below it is saturated."""
     height = saturated.shape[0]
@@ -289,9 +306,10 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
     (:data:`METHOD_CODES`) reads the column profile of half width ``r``; a peak next to a
     saturated pixel (looked for only with ``any_saturated``) is flat-topped and takes the
     centre of the saturated run within ``saturation_window`` rows and σ_u
-    ``saturated_sigma``; other peaks σ_u ``crlb / max(SNR, 1)``. A sample is kept when
-    its profile lies inside the image and it is flat-topped or a local maximum with an
-    offset within ±1 px."""
+    ``saturated_sigma`` when that run holds laser light (:func:`_lit_run`; a peak at the
+    edge of pixels blinded in every sub-frame is dropped); other peaks σ_u
+    ``crlb / max(SNR, 1)``. A sample is kept when its profile lies inside the image and
+    it is flat-topped or a local maximum with an offset within ±1 px."""
     k_count, width = rows.shape
     height = values.shape[0]
     size = k_count * width
@@ -317,6 +335,8 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
             if not (centre - r >= 0 and centre + r < height):
                 continue
             if flat:
+                if not _lit_run(values, saturated, centre, c, saturation_window):
+                    continue  # next to blinded pixels, not a clipped stripe: dropped
                 row, sigma_u = _saturated_centre(saturated, centre, c, saturation_window), (
                     saturated_sigma)
             else:
