@@ -114,6 +114,7 @@ class Unit:
         self._counter = 0
         self._output_errors = 0  # the output's refused frames, as last seen
         self._output_sent = 0  # and its frames taken
+        self._lapses = 0  # the projector's lapses, as last seen
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
 
@@ -122,13 +123,13 @@ class Unit:
         """Open every component with the laser off."""
         if self.lifecycle != Lifecycle.UNCONFIGURED:
             return
-        self._camera, self._projector = wiring.open_driver(self.config, self._open_backend)
-        self._projector.off()
+        self._camera, self._projector = self._open_driver()
         pipeline = wiring.make_pipeline(self.config, self._camera)
         self._services = wiring.make_bus_services(self.config, self.bus)
         self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
                                                   self._services, self.clock)
+        self._negotiator.on_change = self._on_negotiation_change
         wiring.connect_output(self._publisher, self._negotiator, self.config)
         adaptive = controller_from_config(self.config,
                                           float(getattr(self._camera, "rate_hz", 0.0)))
@@ -225,6 +226,21 @@ class Unit:
         """The unit's output: the DBC cycle Publisher or the CanopenDevice."""
         return self._publisher
 
+    def _open_driver(self) -> tuple[Camera, Projector]:
+        """Camera and projector, the laser off; the projector takes a strobe only while the
+        negotiation permits it and goes dark by itself when the loop stops strobing."""
+        return wiring.open_driver(self.config, self._open_backend, self._may_light, self.clock)
+
+    def _may_light(self) -> bool:
+        return self._negotiator is not None and bool(self._negotiator.may_strobe)
+
+    def _on_negotiation_change(self, *change: object) -> None:
+        """The negotiation changed (state, row or plan), in whatever thread it learnt it:
+        the laser goes off at once when it may no longer strobe, not at the next sub-frame
+        (the loop may be blocked in a camera read)."""
+        if not self._may_light():
+            self._laser_off()
+
     # ----------------------------------------------------------------- the loop
     def _guarded_loop(self) -> None:
         try:
@@ -287,7 +303,8 @@ class Unit:
             self.faults &= ~FaultBits.CAMERA_LOST
             self._emcy("emcy_reset")
         self.stats.sub_frames += 1
-        dmap = self._demodulate(sub) if chips is not None else None
+        lapsed = self._strobe_lapsed()
+        dmap = self._demodulate(sub) if chips is not None and not lapsed else None
         if dmap is not None:
             self._on_map(dmap)
         elif chips is None:
@@ -338,6 +355,8 @@ class Unit:
         except DriverError as exc:
             self._on_laser_fault(exc)
             return None
+        if not projector.is_lit:  # the permission went between asking and strobing
+            return None
         if self.faults & FaultBits.LASER_FAULT:
             logger.info("unit %s: the projector takes commands again", self.label)
             self.faults &= ~FaultBits.LASER_FAULT
@@ -353,6 +372,21 @@ class Unit:
         self._laser_off()
         if self._measure is not None:
             self._measure.reset()
+
+    def _strobe_lapsed(self) -> bool:
+        """True when the projector went dark by itself since the last sub-frame (no strobe
+        for its lease: the loop stalled): this sub-frame may have been exposed dark, so
+        the window restarts without it."""
+        lapses = int(getattr(self._projector, "lapses", 0))
+        if lapses == self._lapses:
+            return False
+        self._lapses = lapses
+        self.stats.strobe_lapses += 1
+        logger.warning("unit %s: the loop stalled, the projector went dark; window restarted",
+                       self.label)
+        if self._measure is not None:
+            self._measure.reset()
+        return True
 
     def _read(self) -> SubFrame:
         assert self._camera is not None
@@ -438,7 +472,7 @@ class Unit:
         try:
             if self._camera is not None:
                 self._camera.close()
-            self._camera, projector = wiring.open_driver(self.config, self._open_backend)
+            self._camera, projector = self._open_driver()
         except AtrisError as exc:
             logger.warning("unit %s: reconnect failed: %s", self.label, exc)
             return
@@ -446,6 +480,7 @@ class Unit:
             self._projector.close()
         self._projector = projector
         self._projector.off()
+        self._lapses = 0
         self.stats.reconnects += 1
 
     def _emcy(self, name: str) -> None:
