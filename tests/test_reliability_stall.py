@@ -19,12 +19,15 @@ from typing import Any
 
 import can
 import pytest
+from cycle_frames import CycleFrames
 from strobe_audit import AuditedProjector, audited
 
 from atris_node import config as cfg
 from atris_node.bus.negotiation import frames as nf
-from atris_node.node.unit import Unit
-from atris_node.types import SubFrame
+from atris_node.errors import NodeFaultError
+from atris_node.node import unit as unit_module
+from atris_node.node.unit import Lifecycle, Unit
+from atris_node.types import SubFrame, UnitState
 from drivers import Camera, Projector
 from drivers import open_backend as open_registry_backend
 from drivers.guard import GuardedProjector
@@ -86,10 +89,13 @@ def wait_for(condition: Callable[[], bool], timeout_s: float = 20.0) -> bool:
 @pytest.fixture
 def rig(request: pytest.FixtureRequest) -> Iterator[Any]:
     """A threaded unit on a virtual channel with a held camera and an audited projector,
-    and a second bus object of the channel to forge frames with."""
+    a second bus object of the channel to forge frames with, and the unit's cycles as a
+    controller decodes them (``cycles``)."""
     channel = f"stall-{request.node.name}-{uuid.uuid4().hex[:6]}"
     bus = can.Bus(interface="virtual", channel=channel)
     forger = can.Bus(interface="virtual", channel=channel)
+    cycles = CycleFrames()
+    notifier = can.Notifier(forger, [cycles], timeout=0.02)
     cameras: list[HeldCamera] = []
     projectors: list[AuditedProjector] = []
 
@@ -109,7 +115,7 @@ def rig(request: pytest.FixtureRequest) -> Iterator[Any]:
 
     units: list[Unit] = []
     rig = type("Rig", (), {"start": staticmethod(start), "cameras": cameras,
-                           "projectors": projectors, "forger": forger})
+                           "projectors": projectors, "forger": forger, "cycles": cycles})
     try:
         yield rig
     finally:
@@ -117,6 +123,7 @@ def rig(request: pytest.FixtureRequest) -> Iterator[Any]:
             camera.release.set()
         for unit in units:
             unit.shutdown()
+        notifier.stop()
         forger.shutdown()
         bus.shutdown()
 
@@ -180,3 +187,53 @@ def test_guard_refuses_a_strobe_that_is_not_permitted() -> None:
     finally:
         guard.close()
         camera.close()
+
+
+def test_a_reactivated_unit_publishes_again(rig: Any) -> None:
+    """deactivate() then activate() (a lifecycle manager's cycle): the unit negotiates,
+    strobes and publishes valid distances again. Checked to fail with ``Publisher.stop``
+    keeping its thread (the thread attribute set, the stopping flag set, as before): after
+    the second activate() the unit strobed but no cycle went out."""
+    unit = rig.start()
+    assert wait_for(lambda: any(c.state == "RUNNING" for c in rig.cycles.cycles))
+    unit.deactivate()
+    assert wait_for(lambda: rig.cycles.cycles[-1].state == "STOPPED")
+    stopped = len(rig.cycles.cycles)
+    unit.activate()
+    assert wait_for(lambda: any(_valid(c) for c in rig.cycles.cycles[stopped:])), \
+        "no valid distance published after the unit was activated again"
+
+
+def _valid(cycle: Any) -> bool:
+    return cycle.state == "RUNNING" and any(isinstance(d, float) for d in cycle.distances)
+
+
+def test_activate_refuses_while_the_previous_loop_hangs(rig: Any,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """The loop hangs in a camera read; deactivate() gives up waiting for it; activate()
+    must not start a second loop beside it: it raises NodeFaultError, the laser stays off
+    and FAULT goes out. Once the hung read returned and the old loop ended, activate()
+    works, with one loop. Checked to fail with ``Unit._refuse_beside_old_loop`` returning
+    at once: activate() started a second loop (no error raised)."""
+    monkeypatch.setattr(unit_module, "LOOP_JOIN_TIMEOUT_S", 0.1)
+    unit = rig.start()
+    camera = rig.cameras[0]
+    camera.hold.set()
+    assert camera.held.wait(20.0)
+    unit.deactivate()
+    assert unit.lifecycle == Lifecycle.INACTIVE and not camera.release.is_set()
+    with pytest.raises(NodeFaultError, match="has not ended"):
+        unit.activate()
+    assert unit.lifecycle == Lifecycle.INACTIVE and not unit.projector.is_lit
+    assert unit.status().state is UnitState.FAULT
+    assert wait_for(lambda: rig.cycles.cycles[-1].state == "FAULT")
+    camera.release.set()
+    assert wait_for(lambda: _loops(unit) == 0)
+    unit.activate()
+    assert wait_for(lambda: unit.negotiator.may_strobe and bool(unit.projector.is_lit))
+    assert _loops(unit) == 1
+
+
+def _loops(unit: Unit) -> int:
+    return sum(t.name == f"atris-unit-{unit.label}" and t.is_alive()
+               for t in threading.enumerate())

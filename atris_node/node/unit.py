@@ -68,6 +68,8 @@ logger = logging.getLogger(__name__)
 
 #: seconds between reconnection attempts after a camera loss (doubles up to the cap)
 RECONNECT_BACKOFF_S = (0.1, 2.0)
+#: how long deactivate() waits for the loop to end (a camera read may hang longer)
+LOOP_JOIN_TIMEOUT_S = 5.0
 
 
 class Lifecycle:
@@ -139,9 +141,16 @@ class Unit:
         logger.info("unit %s configured", self.label)
 
     def activate(self, threaded: bool = True) -> None:
-        """Start the bus services and the real-time loop (in a thread by default)."""
+        """Start the bus services and the real-time loop (in a thread by default).
+
+        Raises:
+            NodeFaultError: the loop of the previous activation has not ended yet (it hangs,
+                e.g. in a camera read): a second loop beside it would strobe and read the
+                same devices. The laser stays off and the state says FAULT until it ended.
+        """
         if self.lifecycle != Lifecycle.INACTIVE:
             return
+        self._refuse_beside_old_loop()
         self._stop.clear()
         assert self._publisher is not None
         self._publisher.start()
@@ -164,11 +173,7 @@ class Unit:
             return
         self._stop.set()
         self._laser_off()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            if self._thread.is_alive():
-                logger.error("unit %s: the loop did not stop within 5 s", self.label)
-            self._thread = None
+        self._join_loop()
         self._stop_map_thread()
         self._laser_off()
         self._negotiator.stop()
@@ -176,9 +181,39 @@ class Unit:
         self._publisher.stop()
         self.lifecycle = Lifecycle.INACTIVE
 
+    def _join_loop(self) -> None:
+        """Wait for the loop thread to end; one that hangs is kept (activate() refuses to
+        start another beside it) and reported."""
+        if self._thread is None:
+            return
+        self._thread.join(timeout=LOOP_JOIN_TIMEOUT_S)
+        if self._thread.is_alive():
+            logger.error("unit %s: the loop did not stop within %.1f s", self.label,
+                         LOOP_JOIN_TIMEOUT_S)
+        else:
+            self._thread = None
+
+    def _old_loop_alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _refuse_beside_old_loop(self) -> None:
+        """Raise NodeFaultError while the previous activation's loop still runs: laser
+        off, FAULT on the bus (the output runs to say so until shutdown or activation)."""
+        if not self._old_loop_alive():
+            self._thread = None
+            return
+        self._laser_off()
+        assert self._publisher is not None
+        self._publisher.start()
+        self._publish_fault()
+        raise NodeFaultError(f"unit {self.label}: the loop of the previous activation has not "
+                             "ended (a camera read that hangs?); not activated")
+
     def shutdown(self) -> None:
         """Deactivate and release everything; safe to call more than once."""
         self.deactivate()
+        if self._publisher is not None:  # it reports FAULT after a refused activate()
+            self._publisher.stop()
         self._laser_off()
         for part in (self._projector, self._camera):
             if part is not None:
@@ -511,7 +546,9 @@ class Unit:
     # ----------------------------------------------------------------- output
     def status(self) -> UnitStatus:
         """The content of the status frame now."""
-        state = unit_state(self.faults, self._fatal is not None, self._negotiator)
+        loop_failed = self._fatal is not None or (
+            self.lifecycle != Lifecycle.ACTIVE and self._old_loop_alive())
+        state = unit_state(self.faults, loop_failed, self._negotiator)
         return compose_status(state, self.faults, self._negotiator, self._measure,
                               float(getattr(self._camera, "rate_hz", 0.0)), self._counter,
                               self.stats)
