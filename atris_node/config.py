@@ -80,6 +80,8 @@ PARAMS: tuple[Param, ...] = (
       "(empty = off)"),
     P("driver.projector_lease_s", float, 0.05, "watchdog: the laser goes dark this long after "
       "the last strobe command, s", in_range(0.001, 1.0)),
+    P("driver.strobe_margin_s", float, 0.05, "the projector goes dark when no strobe came "
+      "for one sub-frame period plus this margin, s", in_range(0.001, 1.0)),
     P("code.length", int, 16, "code length N (sub-frames per period)", power_of_two(4, 128)),
     P("code.max_length", int, 128, "longest N this unit accepts or grows the plan to",
       power_of_two(4, 128)),

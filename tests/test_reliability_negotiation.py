@@ -46,6 +46,7 @@ from atris_node.bus.negotiation.frames import (
     parse_id,
 )
 from atris_node.bus.negotiation.lease import REFUSED_GRACE_S
+from atris_node.bus.negotiation.machine import Negotiator
 from atris_node.bus.negotiation.peers import PeerTable
 from atris_node.bus.negotiation.plan import Plan
 from atris_node.testing.faultbus import Faults, FaultyBus
@@ -418,3 +419,48 @@ def test_a_full_peer_table_evicts_what_matters_least_and_never_a_rows_owner() ->
     assert order == [ids[3].bits, ids[2].bits, ids[1].bits]
     assert table.accept(ids[7], 9.0) is None and table.overflowed  # four owners: full
     assert ids[0].bits in table.peers and table.evicted == 3
+
+
+@pytest.mark.parametrize("babble", ["sync_flood", "claim_changes"])
+def test_a_quarantined_identity_still_takes_our_row_by_the_name_rule(babble: str) -> None:
+    """Frames forged under another unit's identity make it a babbler (a SYNC flood of
+    300 frames/s, or 25 claim changes/s of rows outside the plan); the unit quarantines
+    that identity. Then the real unit behind it, a lower NAME, claims our row: we yield
+    at once and do not take the row back. Checked to fail with ``Inbox._dropped_claim``
+    returning None and ``Inbox._claim`` dropping a claim ``allow_change`` refuses (as
+    before): the unit kept strobing the row the lower NAME claimed."""
+    bus = can.Bus(interface="virtual", channel=f"quarantine-{babble}-{next(_channels)}")
+    now = [0.0]
+    plan = Plan(code_length=4, chip_rate_hz=60.0)
+    unit = Negotiator(bus, name=0x500, plan=plan, unit_id=0, clock=lambda: now[0],
+                      poll_bus=True, max_code_length=4)
+    lower_name, lower_id = 0x100, 1
+
+    def babble_frame(k: int) -> Any:
+        if babble == "sync_flood":
+            return encode_sync(lower_name, lower_id, k, plan)
+        return encode_claim(lower_name, lower_id, 100 + k // 12 % 2) if k % 12 == 0 else None
+
+    def advance(seconds: float, frame_of: Callable[[int], Any] = lambda k: None) -> None:
+        for k in range(round(seconds * 300)):
+            now[0] += 1 / 300
+            frame = frame_of(k)
+            if frame is not None:
+                unit.on_frame(frame.can_id, frame.data, now[0])
+            unit.tick()
+
+    unit.start()
+    try:
+        advance(1.0)
+        row = unit.code_row
+        assert unit.may_strobe and row is not None
+        advance(1.0, babble_frame)
+        assert unit.peers.babblers >= 1 and unit.may_strobe and unit.code_row == row
+        claim = encode_claim(lower_name, lower_id, row)
+        unit.on_frame(claim.can_id, claim.data, now[0])
+        assert not unit.may_strobe and unit.code_row != row
+        advance(1.0)
+        assert unit.code_row != row
+    finally:
+        unit.stop()
+        bus.shutdown()

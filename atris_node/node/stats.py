@@ -25,6 +25,8 @@ class NodeStats:
     bad_sub_frames: int = 0
     reconnects: int = 0
     laser_faults: int = 0
+    #: times the projector went dark by itself (no strobe for its lease: a stalled loop)
+    strobe_lapses: int = 0
     bus_errors: int = 0
     strobe_lit_while_not_allowed: int = 0
     last_lag: int = 0

@@ -68,6 +68,8 @@ logger = logging.getLogger(__name__)
 
 #: seconds between reconnection attempts after a camera loss (doubles up to the cap)
 RECONNECT_BACKOFF_S = (0.1, 2.0)
+#: how long deactivate() waits for the loop to end (a camera read may hang longer)
+LOOP_JOIN_TIMEOUT_S = 5.0
 
 
 class Lifecycle:
@@ -114,6 +116,7 @@ class Unit:
         self._counter = 0
         self._output_errors = 0  # the output's refused frames, as last seen
         self._output_sent = 0  # and its frames taken
+        self._lapses = 0  # the projector's lapses, as last seen
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
 
@@ -122,13 +125,13 @@ class Unit:
         """Open every component with the laser off."""
         if self.lifecycle != Lifecycle.UNCONFIGURED:
             return
-        self._camera, self._projector = wiring.open_driver(self.config, self._open_backend)
-        self._projector.off()
+        self._camera, self._projector = self._open_driver()
         pipeline = wiring.make_pipeline(self.config, self._camera)
         self._services = wiring.make_bus_services(self.config, self.bus)
         self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
                                                   self._services, self.clock)
+        self._negotiator.on_change = self._on_negotiation_change
         wiring.connect_output(self._publisher, self._negotiator, self.config)
         adaptive = controller_from_config(self.config,
                                           float(getattr(self._camera, "rate_hz", 0.0)))
@@ -138,9 +141,16 @@ class Unit:
         logger.info("unit %s configured", self.label)
 
     def activate(self, threaded: bool = True) -> None:
-        """Start the bus services and the real-time loop (in a thread by default)."""
+        """Start the bus services and the real-time loop (in a thread by default).
+
+        Raises:
+            NodeFaultError: the loop of the previous activation has not ended yet (it hangs,
+                e.g. in a camera read): a second loop beside it would strobe and read the
+                same devices. The laser stays off and the state says FAULT until it ended.
+        """
         if self.lifecycle != Lifecycle.INACTIVE:
             return
+        self._refuse_beside_old_loop()
         self._stop.clear()
         assert self._publisher is not None
         self._publisher.start()
@@ -163,11 +173,7 @@ class Unit:
             return
         self._stop.set()
         self._laser_off()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            if self._thread.is_alive():
-                logger.error("unit %s: the loop did not stop within 5 s", self.label)
-            self._thread = None
+        self._join_loop()
         self._stop_map_thread()
         self._laser_off()
         self._negotiator.stop()
@@ -175,9 +181,39 @@ class Unit:
         self._publisher.stop()
         self.lifecycle = Lifecycle.INACTIVE
 
+    def _join_loop(self) -> None:
+        """Wait for the loop thread to end; one that hangs is kept (activate() refuses to
+        start another beside it) and reported."""
+        if self._thread is None:
+            return
+        self._thread.join(timeout=LOOP_JOIN_TIMEOUT_S)
+        if self._thread.is_alive():
+            logger.error("unit %s: the loop did not stop within %.1f s", self.label,
+                         LOOP_JOIN_TIMEOUT_S)
+        else:
+            self._thread = None
+
+    def _old_loop_alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _refuse_beside_old_loop(self) -> None:
+        """Raise NodeFaultError while the previous activation's loop still runs: laser
+        off, FAULT on the bus (the output runs to say so until shutdown or activation)."""
+        if not self._old_loop_alive():
+            self._thread = None
+            return
+        self._laser_off()
+        assert self._publisher is not None
+        self._publisher.start()
+        self._publish_fault()
+        raise NodeFaultError(f"unit {self.label}: the loop of the previous activation has not "
+                             "ended (a camera read that hangs?); not activated")
+
     def shutdown(self) -> None:
         """Deactivate and release everything; safe to call more than once."""
         self.deactivate()
+        if self._publisher is not None:  # it reports FAULT after a refused activate()
+            self._publisher.stop()
         self._laser_off()
         for part in (self._projector, self._camera):
             if part is not None:
@@ -224,6 +260,21 @@ class Unit:
     def publisher(self) -> Any:
         """The unit's output: the DBC cycle Publisher or the CanopenDevice."""
         return self._publisher
+
+    def _open_driver(self) -> tuple[Camera, Projector]:
+        """Camera and projector, the laser off; the projector takes a strobe only while the
+        negotiation permits it and goes dark by itself when the loop stops strobing."""
+        return wiring.open_driver(self.config, self._open_backend, self._may_light, self.clock)
+
+    def _may_light(self) -> bool:
+        return self._negotiator is not None and bool(self._negotiator.may_strobe)
+
+    def _on_negotiation_change(self, *change: object) -> None:
+        """The negotiation changed (state, row or plan), in whatever thread it learnt it:
+        the laser goes off at once when it may no longer strobe, not at the next sub-frame
+        (the loop may be blocked in a camera read)."""
+        if not self._may_light():
+            self._laser_off()
 
     # ----------------------------------------------------------------- the loop
     def _guarded_loop(self) -> None:
@@ -287,7 +338,8 @@ class Unit:
             self.faults &= ~FaultBits.CAMERA_LOST
             self._emcy("emcy_reset")
         self.stats.sub_frames += 1
-        dmap = self._demodulate(sub) if chips is not None else None
+        lapsed = self._strobe_lapsed()
+        dmap = self._demodulate(sub) if chips is not None and not lapsed else None
         if dmap is not None:
             self._on_map(dmap)
         elif chips is None:
@@ -338,6 +390,8 @@ class Unit:
         except DriverError as exc:
             self._on_laser_fault(exc)
             return None
+        if not projector.is_lit:  # the permission went between asking and strobing
+            return None
         if self.faults & FaultBits.LASER_FAULT:
             logger.info("unit %s: the projector takes commands again", self.label)
             self.faults &= ~FaultBits.LASER_FAULT
@@ -353,6 +407,21 @@ class Unit:
         self._laser_off()
         if self._measure is not None:
             self._measure.reset()
+
+    def _strobe_lapsed(self) -> bool:
+        """True when the projector went dark by itself since the last sub-frame (no strobe
+        for its lease: the loop stalled): this sub-frame may have been exposed dark, so
+        the window restarts without it."""
+        lapses = int(getattr(self._projector, "lapses", 0))
+        if lapses == self._lapses:
+            return False
+        self._lapses = lapses
+        self.stats.strobe_lapses += 1
+        logger.warning("unit %s: the loop stalled, the projector went dark; window restarted",
+                       self.label)
+        if self._measure is not None:
+            self._measure.reset()
+        return True
 
     def _read(self) -> SubFrame:
         assert self._camera is not None
@@ -438,7 +507,7 @@ class Unit:
         try:
             if self._camera is not None:
                 self._camera.close()
-            self._camera, projector = wiring.open_driver(self.config, self._open_backend)
+            self._camera, projector = self._open_driver()
         except AtrisError as exc:
             logger.warning("unit %s: reconnect failed: %s", self.label, exc)
             return
@@ -446,6 +515,7 @@ class Unit:
             self._projector.close()
         self._projector = projector
         self._projector.off()
+        self._lapses = 0
         self.stats.reconnects += 1
 
     def _emcy(self, name: str) -> None:
@@ -476,7 +546,9 @@ class Unit:
     # ----------------------------------------------------------------- output
     def status(self) -> UnitStatus:
         """The content of the status frame now."""
-        state = unit_state(self.faults, self._fatal is not None, self._negotiator)
+        loop_failed = self._fatal is not None or (
+            self.lifecycle != Lifecycle.ACTIVE and self._old_loop_alive())
+        state = unit_state(self.faults, loop_failed, self._negotiator)
         return compose_status(state, self.faults, self._negotiator, self._measure,
                               float(getattr(self._camera, "rate_hz", 0.0)), self._counter,
                               self.stats)

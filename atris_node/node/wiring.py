@@ -32,6 +32,7 @@ from atris_node.pipeline.chain import Pipeline, PipelineConfig
 from atris_node.pipeline.sectors import SectorLayout
 from drivers import Camera, Projector
 from drivers import open_backend as registry_open_backend
+from drivers.guard import GuardedProjector
 from drivers.watchdog import LeasedProjector
 
 #: default 64-bit NAME when none is configured: a fixed prefix and the unit id
@@ -57,16 +58,28 @@ def driver_settings(config: Config) -> tuple[str, dict[str, Any]]:
                   "code_length": config["code.length"]}
 
 
-def open_driver(config: Config, opener: Callable[..., tuple[Camera, Projector]] | None = None
-                ) -> tuple[Camera, Projector]:
-    """Open the configured camera and projector (laser off)."""
+def open_driver(config: Config, opener: Callable[..., tuple[Camera, Projector]] | None = None,
+                permit: Callable[[], bool] | None = None,
+                clock: Callable[[], float] = time.monotonic) -> tuple[Camera, Projector]:
+    """Open the configured camera and projector (laser off). The projector is guarded: it
+    takes a strobe only while ``permit()`` says so and goes dark by itself when no strobe
+    came for :func:`strobe_lease_s` on ``clock`` (:mod:`drivers.guard`)."""
     name, settings = driver_settings(config)
     camera, projector = (opener or registry_open_backend)(name, **settings)
     if config["driver.projector_state_file"]:
         projector = LeasedProjector(projector, config["driver.projector_state_file"],
                                     config["driver.projector_lease_s"])
-    projector.off()
-    return camera, projector
+    guarded = GuardedProjector(projector, strobe_lease_s(config, camera), clock, permit)
+    guarded.off()
+    return camera, guarded
+
+
+def strobe_lease_s(config: Config, camera: Camera) -> float:
+    """How long a strobe keeps the projector lit: one sub-frame period (none when the
+    camera does not know its rate) plus ``driver.strobe_margin_s``."""
+    rate_hz = float(getattr(camera, "rate_hz", 0.0))
+    period_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
+    return period_s + float(config["driver.strobe_margin_s"])
 
 
 def mounting_of(config: Config, camera: Camera) -> Mounting:

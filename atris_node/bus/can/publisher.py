@@ -105,9 +105,12 @@ class Publisher:
 
     # -- owner side -------------------------------------------------------------------
     def start(self) -> None:
-        """Start the scheduler thread (once)."""
+        """Start the scheduler thread; again after stop() (a unit re-activated)."""
         if self._thread is not None:
             return
+        self._stopping.clear()
+        self._wake.clear()
+        self._backoff_s, self._retry_at_s = 0.0, 0.0
         self._next_due_s = self.clock()
         self._thread = threading.Thread(target=self._run, name=f"atris-publisher-{self.unit_id}",
                                         daemon=True)
@@ -123,6 +126,7 @@ class Publisher:
         if self._thread is None:
             return
         self._thread.join()
+        self._thread = None
         with self._lock:
             self._measurement = None
             self._status = replace(self._status, state=UnitState.STOPPED)

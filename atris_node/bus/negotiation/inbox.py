@@ -93,15 +93,17 @@ class Inbox:
         check(header, data)
         peer = self.peers.accept(header.identity, now)
         if peer is None:
-            return self._unheld_claim(header, data, now) if self.peers.overflowed else None
+            return self._dropped_claim(header, data, now)
         return self._handlers[header.kind](peer, header, data, now)
 
-    def _unheld_claim(self, header: nf.Header, data: bytes, now: float) -> list[Event] | None:
-        """A CLAIM from an identity a full table of code owners cannot hold still
-        contests our row: it is judged from a record that is not kept."""
+    def _dropped_claim(self, header: nf.Header, data: bytes, now: float) -> list[Event] | None:
+        """A CLAIM the table dropped still contests our row: ignoring it could leave two
+        owners of a row. From a quarantined identity (a babbler, or a forger babbling
+        under a real unit's identity) it updates the kept record; from an identity a full
+        table of code owners cannot hold, it is judged from a record that is not kept."""
         if header.kind is not nf.FrameKind.CLAIM:
             return None
-        peer = Peer(header.identity, now)
+        peer = self.peers.peers.get(header.identity.bits) or Peer(header.identity, now)
         return self._claim(peer, header, data, now)
 
     def _own_or_clash(self, header: nf.Header, data: bytes, nonce: int) -> list[Event] | None:
@@ -133,8 +135,10 @@ class Inbox:
         duplicate = self._learn_name(peer, data)
         if duplicate is not None:
             return [duplicate]
-        if peer.code_row != header.field and not self.peers.allow_change(peer, now):
-            return []
+        if peer.code_row != header.field:
+            # counted (too many quarantine its other frames), never dropped: it may be the
+            # claim of our row by a lower NAME
+            self.peers.allow_change(peer, now)
         peer.code_row, peer.cannot_claim = header.field, False
         return [Claimed(peer, header.field)]
 

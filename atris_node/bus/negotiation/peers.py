@@ -3,7 +3,8 @@
 The table is bounded and rate-limited so that a babbling or flooding sender costs memory
 and time in proportion to the limits, never more: an identity that sends more than
 ``babble_limit`` frames in one second is quarantined (its frames are counted and dropped,
-its last accepted claim still counts as taken), and beyond ``max_peers`` identities a
+except its CLAIMs: a claim may contest our row, and a forger babbling under a real unit's
+identity must not silence that unit's claims; see ``Inbox``), and beyond ``max_peers`` identities a
 new one takes the place of one that owns no code (:class:`PeerTable`).
 """
 
@@ -78,8 +79,8 @@ class PeerTable:
         babble_limit: frames per second above which an identity is quarantined.
         max_changes: claim or plan changes per second above which it is quarantined (an
             honest unit changes its claim at most once per lower NAME it meets).
-        quarantine_s: how long a babbling identity's frames are dropped; extended while it
-            keeps sending above ``babble_limit``.
+        quarantine_s: how long a babbling identity's frames (but its claims) are dropped;
+            extended while it keeps sending above ``babble_limit``.
     """
 
     def __init__(self, max_peers: int = 64, babble_limit: int = 100, max_changes: int = 20,
@@ -137,8 +138,8 @@ class PeerTable:
         peer.quarantined_until_s = now + self.quarantine_s
         peer.changes_s.clear()
         self.babblers += 1
-        logger.warning("unit %s babbles (%s): its claims are ignored for %.1f s", peer.label(),
-                       why, self.quarantine_s)
+        logger.warning("unit %s babbles (%s): its frames but its claims are dropped for "
+                       "%.1f s", peer.label(), why, self.quarantine_s)
 
     def forget(self, peer: Peer) -> None:
         """Remove ``peer`` (it said it leaves)."""
