@@ -150,6 +150,28 @@ def test_feature_a_lone_stripe_near_its_ground_row_is_not_an_obstacle() -> None:
     assert seen[0]
 
 
+def test_feature_a_wall_foot_stripe_is_not_vouched_for_by_the_wall() -> None:
+    """A stripe at a wall's foot, half on the wall and half on the ground, peaks 1 px
+    off; at 10 m with f·b = 30 px·m that is 7.6 m, 19 cm up, one row from its sheet's
+    ground row (a dark-ground scene drawn at random, stress scene far_wall_foot: 7.45 m
+    VALID in 14 sector-frames for a wall at 10.2 m). The line above meets the wall at
+    9.4 m, within the 1.5 rows of range that reach spans at that distance, but farther:
+    it shows the wall whose foot the stripe is, not a surface at 7.6 m, so it does not
+    corroborate it. A line meeting an obstacle at about its distance still does.
+    Checked to fail with the reach taken on both sides (the code before)."""
+    fb = 381.0 * 0.079
+    assert rows_off_ground(np.array([7.56]), np.array([0.19]), 0.61, fb)[0] < 1.5
+    line = np.array([2, 1], np.int64)
+    column = np.array([300, 300], np.int64)
+    ask, clear = np.array([True, False]), np.array([False, True])
+    wall = corroborated(line, column, np.array([7.56, 9.36]), clear, ask, lines=7,
+                        width=640, focal_baseline_px_m=fb)
+    assert not wall[0]
+    box = corroborated(line, column, np.array([7.56, 7.7]), clear, ask, lines=7,
+                       width=640, focal_baseline_px_m=fb)
+    assert box[0]
+
+
 def test_feature_a_sample_under_the_ground_is_no_evidence_of_free() -> None:
     """A sample 1.2 m under the ground plane at 4.9 m (a stripe given the wrong line, as
     in r2_049 of the random scenes) or 20 cm under it at 3 m (ground falling away) is

@@ -294,3 +294,19 @@ def test_feature_a_run_lost_in_noise_blocks_the_surface_behind() -> None:
                           evidence.missing, seen=evidence.seen, noisy=noisy,
                           expected=np.zeros((5, WIDTH), bool))
     assert sector_verdicts(points, lost, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+
+
+def test_feature_a_pole_on_a_sector_boundary_stands_in_both_sectors() -> None:
+    """A thin pole at 1.15 m straddles the boundary: its edge leaves two points in
+    sector 0, too few to be credible there, the rest in sector 1 (two lines, columns
+    32-37). Sector 0 must not read the car behind it at 2.5 m (a randomly drawn scene:
+    2.47 m for the pole at 1.15 m, sector 1 being INVALID so nothing covered it): it
+    is INVALID. Without the pole's points across the boundary sector 0 reads the car.
+    Checked to fail with ``straddles`` taken out of _verdict."""
+    car = _points([2.5] * 150, np.arange(150) % 3, np.arange(150) % 28)
+    edge = _points([1.15, 1.16], [1, 3], [30, 31])
+    pole = _points([1.14] * 12, np.arange(12) % 2, 32 + np.arange(12) % 6, sector=1)
+    alone = sector_verdicts(_join(car, edge), _evidence(), LAYOUT, SETTINGS)[0]
+    assert alone.state is SectorState.VALID and alone.distance_m == pytest.approx(2.5, abs=0.05)
+    out = sector_verdicts(_join(car, edge, pole), _evidence(), LAYOUT, SETTINGS)[0]
+    assert out.state is SectorState.INVALID

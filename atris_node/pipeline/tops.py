@@ -158,8 +158,12 @@ def corroborated(line: IntArray, column: IntArray, distance_m: FloatArray, clear
                  ask: BoolArray, *, lines: int, width: int, focal_baseline_px_m: float
                  ) -> BoolArray:
     """(n,) True for the ``ask`` samples whose column (or a neighbour) holds a ``clear``
-    sample of another line within max(FOOT_REL·d, FOOT_M, FOOT_PX·d²/(f·b)) of their
-    distance: a surface two lines meet, not one line's stripe on the ground."""
+    sample of another line from max(FOOT_REL·d, FOOT_M, FOOT_PX·d²/(f·b)) nearer to
+    max(FOOT_REL·d, FOOT_M) farther than their distance: a surface two lines meet, not
+    one line's stripe on the ground. A line meeting an obstacle farther than that (but
+    within the rows' reach) shows the wall whose foot the stripe lies at: half on the
+    ground, it peaks off and triangulates short (a wall at 10.2 m read at 7.5 m from
+    its foot), and it vouches for nothing nearer than the wall."""
     out = np.zeros(line.size, dtype=np.bool_)
     idx = np.flatnonzero(ask)
     if idx.size == 0:
@@ -168,12 +172,13 @@ def corroborated(line: IntArray, column: IntArray, distance_m: FloatArray, clear
     keep = clear & (line >= 0) & (line < lines)
     grid[line[keep], column[keep]] = distance_m[keep]
     d = distance_m[idx]
-    reach = np.maximum(np.maximum(FOOT_REL * d, FOOT_M), FOOT_PX * d * d / focal_baseline_px_m)
+    same = np.maximum(FOOT_REL * d, FOOT_M)
+    reach = np.maximum(same, FOOT_PX * d * d / focal_baseline_px_m)
     for shift in (-1, 0, 1):
-        near = grid[:, np.clip(column[idx] + shift, 0, width - 1)]  # (K, m)
+        near = grid[:, np.clip(column[idx] + shift, 0, width - 1)] - d[None, :]  # (K, m)
         other = np.arange(lines)[:, None] != line[idx][None, :]
         with np.errstate(invalid="ignore"):
-            out[idx] |= (other & (np.abs(near - d[None, :]) <= reach[None, :])).any(axis=0)
+            out[idx] |= (other & (near >= -reach[None, :]) & (near <= same[None, :])).any(axis=0)
     return out
 
 

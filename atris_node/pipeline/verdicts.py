@@ -89,6 +89,9 @@ SLIVER_COLUMNS = 3
 GAP_SNR = 3.0
 #: a hole in a line is at least this many columns wide (single dropouts are noise)
 GAP_RUN = 3
+#: columns across a sector boundary within which a neighbour's obstacle points vouch for a
+#: sector's few nearer points (one object straddling the boundary)
+STRADDLE_COLUMNS = 8
 #: the constants as the kernel takes them
 _PARAMS = np.array([CLUSTER_REL, CLUSTER_ABS_M, SPREAD_SIGMAS, SLIVER_COLUMNS,
                     WINDOW_QUANTILE])
@@ -288,6 +291,32 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     return int(hole.sum())
 
 
+def straddles(s: int, points: ObstaclePoints, count: int, distance_m: float,
+              settings: SectorSettings) -> bool:
+    """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
+    max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
+    object that is credible across the boundary: ``min_points`` or more obstacle points
+    of a neighbouring sector, from more than one line, within STRADDLE_COLUMNS columns
+    and the cluster window of range of one of them. A thin pole on a sector boundary
+    stands in both sectors; the one holding its edge must not read what stands behind."""
+    near = np.flatnonzero((points.sector == s) & points.obstacle
+                          & (points.range_m < distance_m - _doubt_margin_m(distance_m)))
+    if near.size == 0:
+        return False
+    other = np.flatnonzero(points.obstacle & (np.abs(points.sector - s) == 1)
+                           & (points.sector >= 0) & (points.sector < count))
+    if other.size < settings.min_points:
+        return False
+    for i in near:
+        r = points.range_m[i]
+        window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * points.sigma_m[i])
+        mine = other[(np.abs(points.range_m[other] - r) <= window)
+                     & (np.abs(points.column[other] - points.column[i]) <= STRADDLE_COLUMNS)]
+        if mine.size >= settings.min_points and np.unique(points.line[mine]).size > 1:
+            return True
+    return False
+
+
 def _doubt_margin_m(distance_m: float) -> float:
     """max(DOUBT_REL·d, DOUBT_ABS_M): how near a doubt must come to a distance d (m)."""
     return max(DOUBT_REL * distance_m, DOUBT_ABS_M)
@@ -325,6 +354,9 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
     if holes is not None and unseen_columns(s, points, evidence, holes, found.distance_m,
                                             settings) >= settings.min_points:
         # a nearer surface may go on, too dark for the lines, where they stop
+        return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
+    if straddles(s, points, layout.count, found.distance_m, settings):
+        # an object credible across the boundary stands nearer in this sector's edge
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,
                           found.support, found.sigma_m)
