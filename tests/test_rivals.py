@@ -9,8 +9,9 @@ import math
 import numpy as np
 import pytest
 
+from atris_node.pipeline.bands import in_image_order
 from atris_node.pipeline.chain import Pipeline, PipelineConfig
-from atris_node.pipeline.rivals import _reference, stripe_peaks, unique_identity
+from atris_node.pipeline.rivals import _reference, _to_infinity, stripe_peaks, unique_identity
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator, load_scene
 
@@ -153,3 +154,22 @@ def test_feature_a_far_line_median_vouches_only_for_the_comb_on_it() -> None:
     ref = _reference(rows, anchored)
     assert np.isinf(ref[:, 500]).all()
     assert ref[:, 520] == pytest.approx(np.array(WALL, float))
+
+
+def test_feature_a_line_may_take_a_stripe_from_beyond_z_max_in_the_rival_test(
+        pipe: Pipeline) -> None:
+    """A line's band ends at its z_max row, but its stripe on a surface beyond the range
+    lies down to its row at infinite range, cy + f·cot α: the rival test lets each line
+    take peaks that far (and one pixel more, for peak noise), no farther (a negative
+    disparity). Without it a comb from a wall at 9 m, one line spacing from the same
+    sheets shifted by one at 1.6 m, had no rival and read 1.6 m (comb_beyond_zmax: 12-15
+    near phantoms in 32 sector-frames). This test holds the bound's geometry; the
+    protection's own check is that stress scene in tests/test_safety_scenes.py, which
+    fails with the call taken out of unique_identity (6 near phantoms on seed 1)."""
+    prior = pipe._prior
+    _, hi, order = in_image_order(pipe.bands)
+    out = _to_infinity(hi, order, prior)
+    infinity = prior.cy_px + prior.focal_px * np.asarray(prior.cot_alpha)[order]
+    assert (out >= hi).all()
+    assert (out - 1 >= np.floor(infinity)).all()  # the row at infinity is inside
+    assert ((out - 1 <= np.floor(infinity + 1.0)) | (out == hi)).all()  # no farther

@@ -66,6 +66,8 @@ CONTINUITY_REACH = 16
 CONTINUITY_ROUNDS = 3
 #: px; anchored rows of a line on both sides of a gap bridge it when they agree this well
 BRIDGE_PX = 4.0
+#: px past a line's row at infinite range that a rival may still give it (peak noise)
+INFINITY_PX = 1.0
 #: px; beyond a line's last anchor its median row is a reference only in columns whose
 #: chosen rows all lie this near their lines' medians (elsewhere it is another surface's)
 MEDIAN_PX = 6.0
@@ -84,13 +86,15 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
         prior: the visibility prior; without it only bands, order and continuity count.
     """
     lo, hi, order = in_image_order(bands)
+    # a stripe from past its line's z_max (the ground or a wall beyond the range) is as
+    # good an explanation as the next line at a near range, and the rival test must see
+    # that tie: each line may take peaks down to its row at infinite range, with no
+    # BEYOND_PX (the identity's own choice keeps both)
+    hi = _to_infinity(hi, order, prior)
     peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     rows = np.array(rows, dtype=np.int64, order="C")
     shape = rows.shape
     ambiguous = np.full(shape, -1, dtype=np.int64)
-    # no BEYOND_PX here: a stripe from past its line's z_max (the ground or a wall beyond
-    # the range) is as good an explanation as the next line at a near range, and the
-    # rival test must see that tie (the identity's choice may still prefer the near one)
     beyond = np.full(order.size, np.inf)
     loose = np.full(shape, np.inf)  # pass 1: no continuity
     _test(peaks, (lo, hi, order), rows, ambiguous, _has_peaks(rows), loose, beyond, prior)
@@ -160,6 +164,18 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
     out = Identity(kept, full.unsure + lost, full.doubt_row, full.doubt_col, full.doubt_line)
     out = out.with_doubts(rows[k, c], c.astype(np.int64), nearer.astype(np.int64))
     return out.with_doubts(alone.doubt_row, alone.doubt_col, alone.doubt_line)
+
+
+def _to_infinity(hi: IntArray, order: IntArray, prior: VisibilityPrior | None) -> IntArray:
+    """(K,) upper band rows (exclusive, image ``order``) reaching at least INFINITY_PX
+    past each line's row at infinite range, cy + f·cot α, within the image: where a
+    line's stripe from beyond the operating range lies, and no farther (a peak past that
+    row would be a negative disparity). Unchanged without a prior."""
+    if prior is None:
+        return hi
+    infinity = prior.cy_px + prior.focal_px * np.asarray(prior.cot_alpha)[order]
+    reach = np.floor(infinity + INFINITY_PX).astype(np.int64) + 1
+    return np.minimum(np.maximum(hi, reach), prior.height_px).astype(np.int64)
 
 
 def _line_of(rows: IntArray, row: IntArray, col: IntArray) -> IntArray:
