@@ -37,7 +37,8 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   in every one of its columns (on the ground, where the obstacle-free scene puts it);
   a line that meets nothing within z_max shows that nothing stands in its way only where
   a return would have stood out of the noise: its band (the rows of the whole operating
-  range) no noisier than CLEAN_NOISE times the map's noise floor.
+  range) no noisier than CLEAN_NOISE times the map's typical tile noise, and holding
+  no pixel blinded in every sub-frame (evidence.CLEAN_NOISE, ``ColumnEvidence.noisy``).
   A line that would be missing where it is expected means something may stand there
   unseen (too dark, too thin, an ambiguous stripe): the sector is INVALID.
 - INVALID otherwise, and whenever a peak whose line could not be told may stand as near
