@@ -13,12 +13,15 @@ from atris_node.bus.can.config import (
     CAN_ERR_CRTL,
     BusConfig,
     BusHealth,
+    admit_error_frames,
     open_bus,
     resolve,
 )
 from atris_node.bus.can.frames import FrameCodec
 from atris_node.bus.can.publisher import Publisher
+from atris_node.bus.negotiation.frames import PREFIX_BITS, PREFIX_MASK
 from atris_node.errors import BusError
+from atris_node.testing.faultbus import Faults, FaultyBus
 
 
 def test_virtual_is_the_embedded_default() -> None:
@@ -73,6 +76,39 @@ def test_health_counts_error_frames_and_bus_off() -> None:
     health.on_message_received(_error_frame(CAN_ERR_BUSOFF))
     assert health.error_frames == 2 and health.bus_off_count == 1
     assert health.take_error() and not health.take_error()
+
+
+@pytest.mark.parametrize("admitted", [False, True])
+def test_software_filters_pass_error_frames_once_admitted(admitted: bool) -> None:
+    """python-can filters a virtual bus (and FaultyBus) in software, by identifier, so an
+    error frame (its identifier is its error class) is dropped by the node's negotiation
+    filter unless :func:`admit_error_frames` let it through; other frames still are."""
+    channel = f"err-filter-{uuid.uuid4().hex}"
+    with can.Bus(interface="virtual", channel=channel) as peer:
+        bus = FaultyBus(can.Bus(interface="virtual", channel=channel), Faults())
+        try:
+            bus.set_filters([{"can_id": PREFIX_BITS, "can_mask": PREFIX_MASK,
+                              "extended": True}])
+            if admitted:
+                admit_error_frames(bus)
+                admit_error_frames(bus)  # idempotent
+            peer.send(can.Message(arbitration_id=0x123, is_extended_id=False))
+            peer.send(_error_frame(CAN_ERR_CRTL))  # a peer's error frame (virtual bus)
+            from_peer = _receive_all(bus)
+            bus.faults.error_frame_rate = 1.0  # FaultyBus's own bus-off reports
+            injected = [bus.recv(timeout=0.05) for _ in range(2)]
+        finally:
+            bus.shutdown()
+    assert [m.arbitration_id for m in from_peer] == ([CAN_ERR_CRTL] if admitted else [])
+    assert all(m.is_error_frame for m in from_peer)
+    assert all((m is not None) is admitted for m in injected)
+
+
+def _receive_all(bus: can.BusABC) -> list[can.Message]:
+    received = []
+    while (msg := bus.recv(timeout=0.05)) is not None:
+        received.append(msg)
+    return received
 
 
 def test_publisher_reports_error_frames_in_status() -> None:

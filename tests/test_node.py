@@ -16,9 +16,10 @@ from atris_node import config as cfg
 from atris_node.bus.can.frames import FrameCodec
 from atris_node.bus.can.ids import FrameKind, unit_of
 from atris_node.errors import FrameDecodeError
+from atris_node.node.status import negotiated_status
 from atris_node.node.unit import Lifecycle, Unit
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
-from atris_node.types import FaultBits, Measurement, SectorState, UnitState
+from atris_node.types import FaultBits, Measurement, SectorState, UnitState, UnitStatus
 from drivers import Camera, Projector
 from drivers import open_backend as open_registry_backend
 
@@ -193,3 +194,36 @@ def test_bad_sub_frames_are_dropped_not_fatal(bus_pair: tuple[can.BusABC, Frames
     assert unit.stats.bad_sub_frames == 3
     last = [e.sequence for e in camera.injected][-1]
     assert last is not None and measurements[-1].newest_sequence > last
+
+
+class NegotiationView:
+    """What ``negotiated_status`` reads of a negotiator."""
+
+    def __init__(self, may_strobe: bool, row: int | None, state: str = "OWNED",
+                 code_length: int = 16) -> None:
+        self.may_strobe, self.code_row = may_strobe, row
+        self.state = type("State", (), {"name": state})()
+        self.plan = type("Plan", (), {"code_length": code_length})()
+
+
+@pytest.mark.parametrize(("view", "state", "row"), [
+    (NegotiationView(True, 3), UnitState.RUNNING, 3),  # still owned: as handed over
+    (NegotiationView(False, 3, "CLAIMING"), UnitState.NEGOTIATING, 0),  # lost, re-claiming
+    (NegotiationView(False, None, "NO_CODE"), UnitState.NO_CODE, 0),  # every code taken
+    (NegotiationView(False, None, "CONFLICT"), UnitState.NO_CODE, 0),  # plans disagree
+    (NegotiationView(True, 5), UnitState.NEGOTIATING, 0),  # another row, not measured on
+    (NegotiationView(True, 3, code_length=32), UnitState.NEGOTIATING, 0),  # another plan
+])
+def test_a_running_status_goes_out_only_on_the_code_still_owned(
+        view: NegotiationView, state: UnitState, row: int) -> None:
+    handed = UnitStatus(UnitState.RUNNING, code_row=3, code_length=16, chip_rate_hz=480.0,
+                        measurement_counter=7)
+    sent = negotiated_status(handed, view)
+    assert (sent.state, sent.code_row) == (state, row)
+    assert sent.measurement_counter == 7
+
+
+def test_a_status_that_is_not_running_goes_out_as_handed_over() -> None:
+    handed = UnitStatus(UnitState.FAULT, code_row=0, code_length=16, chip_rate_hz=480.0,
+                        measurement_counter=0, faults=FaultBits.CAMERA_LOST)
+    assert negotiated_status(handed, NegotiationView(False, None, "CLAIMING")) == handed

@@ -35,10 +35,11 @@ from listened_bus import listened_bus
 
 from atris_node import config as cfg
 from atris_node.bus.can import payloads
+from atris_node.bus.can.config import CAN_ERR_BUSOFF, CAN_ERR_CRTL
 from atris_node.bus.canopen.device import CanopenDevice, eds_path
 from atris_node.errors import DriverError, NodeFaultError
 from atris_node.node.unit import Unit
-from atris_node.testing.faultbus import Faults, FaultyBus
+from atris_node.testing.faultbus import CAN_ERR_FLAG, Faults, FaultyBus
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
 from atris_node.types import (
     FaultBits,
@@ -55,6 +56,8 @@ from drivers import open_backend as open_registry_backend
 BASE = ["code.length=8", "negotiation.window_s=0.1", "negotiation.reannounce_s=0.5",
         "negotiation.silence_timeout_s=1.5"]
 NODE_ID = 0x23
+#: data[1] of a controller error frame: receive and transmit error-passive (linux/can/error.h)
+CAN_ERR_CRTL_PASSIVE = 0x10 | 0x20
 
 
 class StallingCamera(FaultyCamera):
@@ -481,3 +484,51 @@ def test_a_receive_error_turns_the_laser_off_and_the_unit_claims_again(
             unit.check()
         finally:
             unit.shutdown()
+
+
+def test_error_frames_from_the_bus_set_bus_error_in_the_status_frame(
+        request: pytest.FixtureRequest) -> None:
+    """A peer on the virtual bus reports bus-off and error-passive (error frames) while
+    the unit publishes: its status frames carry Fault_BusError, its distances stay valid
+    (its own frames reach the bus: an error frame alone does not spoil a measurement),
+    and the bit clears once the reports stop.
+
+    Checked to fail with ``admit_error_frames`` removed from ``wiring.make_bus_services``:
+    the unit's receive filter (the negotiation frames) dropped every error frame in
+    python-can's software filter, the health monitor counted none and the step loop
+    timed out waiting for a flagged status frame.
+    """
+    frames = CycleFrames()
+    channel = f"reliability-errors-{request.node.name}"
+    reports = [can.Message(arbitration_id=CAN_ERR_FLAG | CAN_ERR_BUSOFF, is_error_frame=True,
+                           is_extended_id=True, data=bytes(8)),
+               can.Message(arbitration_id=CAN_ERR_CRTL, is_error_frame=True,
+                           data=bytes([0, CAN_ERR_CRTL_PASSIVE, 0, 0, 0, 0, 0, 0]))]
+    with listened_bus(channel, frames, 0.01) as bus, \
+            can.Bus(interface="virtual", channel=channel) as peer:
+        unit = Unit(cfg.load(environ={}, overrides=BASE), bus)
+        unit.configure()
+        unit.activate(threaded=False)
+        try:
+            step_while(unit, lambda: not any(c.valid for c in frames.cycles))
+            first = len(frames.cycles)
+
+            def unflagged() -> bool:
+                for report in reports:
+                    peer.send(report)
+                return not any(c.status["Fault_BusError"] for c in frames.cycles[first:])
+
+            step_while(unit, unflagged)
+            step_while(unit, lambda: len(frames.cycles) < first + 10)
+            during = frames.cycles[first:]
+            last = len(frames.cycles)
+            step_while(unit, lambda: not any(c.valid and not c.status["Fault_BusError"]
+                                             for c in frames.cycles[last + 1:]))
+            unit.check()
+        finally:
+            unit.shutdown()
+    health = unit.publisher.health
+    assert health.bus_off_count >= 1 and health.error_frames > health.bus_off_count
+    flagged = [c for c in during if c.status["Fault_BusError"]]
+    assert flagged and all(c.state == "RUNNING" for c in flagged)
+    assert any(c.valid for c in flagged), "an error frame is no reason to drop distances"

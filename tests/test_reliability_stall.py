@@ -170,6 +170,34 @@ def test_projector_goes_dark_at_once_when_the_row_is_lost_during_a_stall(rig: An
     assert unit.projector.lapses == 0, "darkened by the lease, not by the lost row"
 
 
+def test_no_running_cycle_goes_out_on_a_row_lost_during_a_stall(rig: Any) -> None:
+    """A lower NAME claims our row while the loop is blocked in a camera read (MaxDataAge
+    2 s, so the hung loop is not yet FAULT and its last distances are still fresh; maps
+    measured in the loop, so no map thread hands over a status meanwhile): the
+    loop last handed over RUNNING with distances, yet every cycle after the loss says
+    NEGOTIATING with CodeRow 0 and invalid distances; the state and row are the
+    negotiation's at send time. Checked to fail with ``Unit.configure`` not setting the
+    publisher's ``status_at_send`` (the status sent as the loop last handed it): the
+    cycles after the loss said RUNNING with the lost row and numeric distances."""
+    unit = rig.start("publish.max_age_s=2.0", "pipeline.thread=false")
+    assert wait_for(lambda: any(_valid(c) for c in rig.cycles.cycles))
+    camera = rig.cameras[0]
+    camera.hold.set()
+    assert camera.held.wait(20.0)
+    row = unit.negotiator.code_row
+    claim = nf.encode_claim(0x1, 9, row)
+    rig.forger.send(can.Message(arbitration_id=claim.can_id, data=claim.data,
+                                is_extended_id=True))
+    assert wait_for(lambda: unit.negotiator.code_row != row, 5.0)
+    lost = len(rig.cycles.cycles)  # the cycle then on the way may be the last RUNNING one
+    assert wait_for(lambda: len(rig.cycles.cycles) >= lost + 5, 5.0)
+    assert not camera.release.is_set(), "the loop ran again: the test proves nothing"
+    after = rig.cycles.cycles[lost + 1:]
+    assert [c.state for c in after] == ["NEGOTIATING"] * len(after)
+    assert all(c.status["CodeRow"] == 0 for c in after)
+    assert all(d == "invalid" for c in after for d in c.distances)
+
+
 def test_guard_refuses_a_strobe_that_is_not_permitted() -> None:
     """A strobe asked for after the permission went (the loop asked the negotiator just
     before it lost the code) leaves the emitter dark. Checked to fail with the permit

@@ -7,6 +7,7 @@ taken or the plan cannot be run; NEGOTIATING otherwise.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from atris_node.node.measure import Measurer
@@ -25,6 +26,26 @@ def unit_state(faults: FaultBits, loop_failed: bool, negotiator: Any) -> UnitSta
         return UnitState.RUNNING
     name = getattr(negotiator.state, "name", str(negotiator.state))
     return UnitState.NO_CODE if name in ("NO_CODE", "CONFLICT") else UnitState.NEGOTIATING
+
+
+def negotiated_status(status: UnitStatus, negotiator: Any) -> UnitStatus:
+    """``status`` as it may go out now, whatever the loop handed over last (it may be
+    blocked in a camera read while the code is lost): RUNNING only while the negotiator
+    still lets the unit strobe the code (N, row) the status names. Otherwise the state the
+    negotiation gives now (NEGOTIATING, or NO_CODE) and no row, so the distances go out
+    invalid; a code owned anew is NEGOTIATING until the loop measures on it."""
+    if status.state is not UnitState.RUNNING or owns_code_of(status, negotiator):
+        return status
+    state = unit_state(FaultBits.NONE, False, negotiator)
+    if state is UnitState.RUNNING:  # another code than the one measured on
+        state = UnitState.NEGOTIATING
+    return replace(status, state=state, code_row=0)
+
+
+def owns_code_of(status: UnitStatus, negotiator: Any) -> bool:
+    """True while the negotiator lets the unit strobe the code ``status`` names."""
+    return (bool(negotiator.may_strobe) and int(negotiator.code_row or 0) == status.code_row
+            and int(negotiator.plan.code_length) == status.code_length)
 
 
 def measure_faults(work: Measurer | None, measuring: bool) -> FaultBits:

@@ -53,7 +53,7 @@ from atris_node.node import wiring
 from atris_node.node.measure import Measurer
 from atris_node.node.snapshot import write_snapshot
 from atris_node.node.stats import NodeStats
-from atris_node.node.status import compose_status, unit_state
+from atris_node.node.status import compose_status, negotiated_status, unit_state
 from atris_node.node.worker import MapThread
 from atris_node.types import (
     DistortionMap,
@@ -132,6 +132,7 @@ class Unit:
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
                                                   self._services, self.clock)
         self._negotiator.on_change = self._on_negotiation_change
+        self._publisher.status_at_send = self._status_at_send
         wiring.connect_output(self._publisher, self._negotiator, self.config)
         adaptive = controller_from_config(self.config,
                                           float(getattr(self._camera, "rate_hz", 0.0)))
@@ -272,9 +273,19 @@ class Unit:
     def _on_negotiation_change(self, *change: object) -> None:
         """The negotiation changed (state, row or plan), in whatever thread it learnt it:
         the laser goes off at once when it may no longer strobe, not at the next sub-frame
-        (the loop may be blocked in a camera read)."""
+        (the loop may be blocked in a camera read), and the output sends a cycle at once
+        (its status is checked against the negotiation at send time)."""
         if not self._may_light():
             self._laser_off()
+            send_now = getattr(self._publisher, "send_now", None)
+            if send_now is not None:  # the DBC cycle says so at once, not a period later
+                send_now()
+
+    def _status_at_send(self, status: UnitStatus) -> UnitStatus:
+        """The status the output hands to the bus: the state and code row as the
+        negotiation stands at send time (a loop blocked in a camera read cannot report
+        the code lost), not as the loop last saw it."""
+        return negotiated_status(status, self._negotiator)
 
     # ----------------------------------------------------------------- the loop
     def _guarded_loop(self) -> None:

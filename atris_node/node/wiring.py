@@ -16,7 +16,7 @@ import can
 import canopen
 from can.typechecking import CanFilter
 
-from atris_node.bus.can.config import BusConfig
+from atris_node.bus.can.config import BusConfig, admit_error_frames
 from atris_node.bus.can.ids import check_base_id
 from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
@@ -159,7 +159,8 @@ def receive_filters(config: Config, sync_id: int = DEFAULT_SYNC_ID) -> list[CanF
     CANopen mode NMT, SYNC (on ``sync_id``, 0x1005) and the SDO requests to its node ID.
     Everything else (other units' distances, a babbling node) is dropped by the interface
     (in the kernel on SocketCAN) and cannot crowd the negotiation frames out of the
-    receive queue."""
+    receive queue. Error frames are no identifiers and always come through
+    (:func:`make_bus_services`)."""
     filters: list[CanFilter] = [
         {"can_id": PREFIX_BITS, "can_mask": PREFIX_MASK, "extended": True}]
     if config["bus.protocol"] == "canopen":
@@ -170,8 +171,10 @@ def receive_filters(config: Config, sync_id: int = DEFAULT_SYNC_ID) -> list[CanF
 
 def make_bus_services(config: Config, bus: can.BusABC) -> BusServices:
     """One Notifier per bus: canopen's own in CANopen mode, else a plain one; the bus
-    reads only what the unit needs (:func:`receive_filters`)."""
+    reads only what the unit needs (:func:`receive_filters`) and every error frame
+    (:func:`~atris_node.bus.can.config.admit_error_frames`)."""
     bus.set_filters(receive_filters(config))
+    admit_error_frames(bus)
     if config["bus.protocol"] == "canopen":
         network = canopen.Network(bus)
         network.connect()

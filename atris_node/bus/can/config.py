@@ -117,6 +117,31 @@ def open_bus(config: BusConfig | None = None, **extra: Any) -> can.BusABC:
                        f"{', '.join(sorted(can.VALID_INTERFACES))}") from exc
 
 
+def admit_error_frames(bus: can.BusABC) -> None:
+    """Let error frames through ``bus``'s receive filters wherever python-can applies them
+    in software, so that :class:`BusHealth` hears them whatever the filters are.
+
+    A filter matches identifiers, and an error frame's identifier is its error class
+    (0x40 bus-off, 0x04 controller...), so an id filter drops it. SocketCAN filters in the
+    kernel and delivers error frames by their own mask (``CAN_RAW_ERR_FILTER``, all
+    classes, set by python-can when the bus opens), beside the id filters; python-can's
+    ``recv`` then skips its software check and nothing here applies. Where the interface
+    does not filter (virtual, ``FaultyBus``, a kernel that refused the filters), python-can
+    checks every frame with ``BusABC._matches_filters``: this bus's check is replaced by
+    one that passes error frames and asks the original for every other frame. Idempotent;
+    the filters themselves may be set again later (``set_filters``).
+    """
+    matches = bus._matches_filters
+    if getattr(matches, "admits_error_frames", False):
+        return
+
+    def error_frame_or_match(msg: can.Message) -> bool:
+        return msg.is_error_frame or matches(msg)
+
+    error_frame_or_match.admits_error_frames = True  # type: ignore[attr-defined]
+    bus._matches_filters = error_frame_or_match  # type: ignore[method-assign]
+
+
 class BusHealth(can.Listener):
     """Counts error frames and bus-off reports on a bus (add it to the bus's Notifier).
 

@@ -68,6 +68,11 @@ def alive_status(status: UnitStatus, progress_s: float | None, now: float,
     return replace(status, state=UnitState.FAULT, faults=status.faults | FaultBits.DEADLINE_MISS)
 
 
+def unchanged(status: UnitStatus) -> UnitStatus:
+    """The default check of a status at send time: it goes out as handed over."""
+    return status
+
+
 def scaled(value: float, scale: float, lo: int, hi: int) -> int:
     """``round(value / scale)`` clamped to ``lo..hi``; NaN gives ``lo``."""
     if math.isnan(value):

@@ -83,6 +83,9 @@ class Publisher:
         self.clock, self.fd, self.backoff_cap_s = clock, fd, backoff_cap_s
         self.tolerance_s = period_s / 4.0 if tolerance_s is None else tolerance_s
         self.health = health or BusHealth()
+        #: the owner's check of the handed status at send time (the node: state and code
+        #: row from the negotiation as it stands then, :func:`negotiated_status`)
+        self.status_at_send: Callable[[UnitStatus], UnitStatus] = payloads.unchanged
         self.stats = PublisherStats()
         self._names = {kind: message_name(unit_id, kind) for kind in FrameKind}
         self._sector_count = payloads.check_sector_count(sector_count)
@@ -153,6 +156,12 @@ class Publisher:
             self._measurement, self._status = measurement, status
             self._progress_s = self.clock()
         if fresh and not self._send_inline():
+            self._wake.set()
+
+    def send_now(self) -> None:
+        """Send a cycle at once from the scheduler thread: the owner's state changed
+        outside its loop (the code lost while the loop is blocked)."""
+        if self._thread is not None and not self._stopping.is_set():
             self._wake.set()
 
     def _send_inline(self) -> bool:
@@ -227,8 +236,10 @@ class Publisher:
             self.stats.skipped_cycles += 1
         else:
             with self._lock:
-                measurement, status = self._measurement, self._status
-                status = payloads.alive_status(status, self._progress_s, now, self.max_age_s)
+                measurement, status, progress_s = (self._measurement, self._status,
+                                                   self._progress_s)
+            status = payloads.alive_status(self.status_at_send(status), progress_s, now,
+                                           self.max_age_s)
             sent = self._send_all(self.frames(measurement, status, now, late), timeout_s)
             if not sent and timeout_s == 0.0:
                 return False

@@ -127,6 +127,8 @@ class CanopenDevice:
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
         self._progress_s: float | None = None  # the owner's loop last made progress
+        #: the owner's check of the handed status at send time (as ``Publisher``'s)
+        self.status_at_send: Callable[[UnitStatus], UnitStatus] = payloads.unchanged
         self._store_power_on()
 
     def _hook_services(self) -> None:
@@ -212,9 +214,11 @@ class CanopenDevice:
     def _write_values(self, now: float) -> None:
         """The newest values as they may go out at ``now`` into the object dictionary
         (the lock held): aged, invalid when stale, FAULT when the loop stopped reporting,
-        the configuration (0x2000) in force now applied."""
+        the owner's check at send time (the code still owned), the configuration (0x2000)
+        in force now applied."""
         max_age_s = self.config("MaxDataAge_ms") / 1000.0
-        status = payloads.alive_status(self._status, self._progress_s, now, max_age_s)
+        status = payloads.alive_status(self.status_at_send(self._status), self._progress_s,
+                                       now, max_age_s)
         measurement = self._measurement
         if measurement is not None:
             measurement = values.confident(measurement, self.config("MinConfidence_pct"))
