@@ -9,11 +9,12 @@ from pipeline_scenes import oak_calibration, stripe_map
 from atris_node.errors import ConfigError
 from atris_node.pipeline.bands import Band, line_bands
 from atris_node.pipeline.geometry import distort_pixels, line_row_at_range
-from atris_node.pipeline.noise import noise_floor
+from atris_node.pipeline.noise import NoiseMap, noise_floor, noise_map
 from atris_node.pipeline.peaks import (
     PEAK_METHODS,
     ExtractorSettings,
     extract_lines,
+    one_sided,
     read_padding,
 )
 
@@ -130,6 +131,70 @@ def test_feature_blinded_pixels_mark_the_bands_they_lie_in() -> None:
     assert ex.blinded is not None
     assert not ex.blinded[0].any()
     assert ex.blinded[1, 10:20].all() and ex.blinded[1].sum() == 10
+
+
+def _step_map(rng: np.random.Generator, step_row: int) -> np.ndarray:
+    """Noise of σ 10 DN, 0 DN above ``step_row`` and 1000 DN from it down: the residual
+    of a lit scene that flicker beating with the code leaves (dark wall over bright
+    ground)."""
+    values = rng.normal(0.0, 10.0, (96, WIDTH))
+    values[step_row:] += 1000.0
+    return np.round(values).astype(np.int32)
+
+
+def test_feature_a_step_of_the_background_is_no_stripe() -> None:
+    """The first rows of the bright side of a step are maxima far over the threshold of
+    the tile that reaches into the dark side; taken for a line's stripe they read as an
+    obstacle where the line would be (a phantom at about 1 m in every sector of a
+    randomly drawn scene with 120 Hz lamps on the own code's frequency, stress scene
+    flicker_step_phantom). A stripe falls on both sides; these maxima fall on one side
+    only: they give no sample, count as doubtful peaks of their column (not free) and as
+    foreign light in the band. Checked to fail with peaks.EDGE_RATIO and EDGE_SIGMAS set
+    to 0 (395 samples in 640 columns, 15 % of them doubtful, no foreign light)."""
+    values = _step_map(np.random.default_rng(11), 50)  # in the last rows of tile 22-53
+    ex = extract_lines(values, np.zeros(values.shape, bool), (Band(0, 30, 70),),
+                       ExtractorSettings("gaussian", stripe_sigma_px=1.5))
+    assert len(ex.samples) == 0
+    # in most columns the bright run's maximum lies in the straddling tile (in the others
+    # it lies in the next tile, under that tile's threshold)
+    assert (ex.doubtful_columns > 0).mean() > 0.6
+    assert ex.unassigned >= 0.6 * WIDTH and ex.foreign_columns.mean() > 0.6
+
+
+def test_stripes_beside_a_step_or_a_neighbour_stand_on_both_sides() -> None:
+    """What the step test must keep: two stripes 7 rows apart, and a stripe on a bright
+    plateau 8 rows from the plateau's edge (SNR 30, σ 1.5 px)."""
+    rng = np.random.default_rng(12)
+    rows = np.stack([np.full(WIDTH, 30.0), np.full(WIDTH, 37.0), np.full(WIDTH, 59.0)])
+    image = stripe_map(100, rows, np.full(rows.shape, 300.0), 1.5, noise_dn=10.0, rng=rng)
+    image[51:] += 1000.0  # the plateau fills all but 3 rows of its noise tile (48-79)
+    values = np.round(image).astype(np.int32)
+    ex = extract_lines(values, np.zeros(values.shape, bool),
+                       (Band(0, 24, 34), Band(1, 34, 48), Band(2, 54, 76)),
+                       ExtractorSettings("gaussian", stripe_sigma_px=1.5))
+    assert np.bincount(ex.samples.line, minlength=3).tolist() == [WIDTH] * 3
+    assert not ex.doubtful_columns.any()
+
+
+def test_one_sided_tells_a_step_from_a_stripe_and_a_plateau() -> None:
+    """The kernel on single columns (σ 1 DN tiles): a step's first bright row and a noise
+    maximum on a plateau are one-sided, a stripe is not, nor is a stripe at the image's
+    top edge (its one flank inside the image decides)."""
+    step = np.r_[np.zeros(20), np.full(20, 100.0)]
+    step[20] = 104.0
+    plateau = np.full(40, 100.0)
+    plateau[20] = 102.0
+    stripe = np.zeros(40)
+    stripe[19:22] = (60.0, 100.0, 60.0)
+    top = np.zeros(40)
+    top[0:2] = (100.0, 60.0)
+    values = np.stack([step, plateau, stripe, top], axis=1)
+    peaks = np.array([[20, 20, 20, 0]], dtype=np.int64)
+    local = noise_map(values, [(0, 40)])
+    local = NoiseMap(local.tile_row, np.zeros_like(local.background_tiles),
+                     np.ones_like(local.sigma_tiles), local.width)
+    out = one_sided(values, np.zeros(values.shape, bool), peaks, local, ExtractorSettings())
+    assert out.tolist() == [[True, True, False, False]]
 
 
 def test_unknown_peak_method_is_a_config_error() -> None:

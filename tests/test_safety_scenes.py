@@ -33,7 +33,10 @@ far_wall_foot had 13-15 on every seed (7.45 m for a wall at 10.2 m: a stripe at 
 wall's foot vouched for by the wall's own line) and pole_on_sector_boundary 1-2 far on
 every seed (the car behind a pole whose edge alone lies in the sector); comb_beyond_zmax
 12-15 near phantoms on every seed (1.6 m for a wall at 9 m), still 6 on seed 1 with
-rivals._to_infinity taken out of unique_identity.
+rivals._to_infinity taken out of unique_identity. On the code of commit fc30d83
+flicker_step_phantom had 32 near phantoms of 32 sector-frames on every seed (1.1 m for a
+wall at 8.5 m: the edge of a flicker residual's step taken for a stripe), and so it has
+with peaks.EDGE_RATIO and EDGE_SIGMAS set to 0.
 With the sector distance taken as the least
 of the per-line fronts (its σ the standard error of a mean, no limit on it; the code
 before the σ-limited front of verdicts.py), parking_pedestrian read the building at 9 m

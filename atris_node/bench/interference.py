@@ -2,8 +2,9 @@
 the foreign-light verdict sits from its limit, both ways.
 
 The pipeline flags foreign light (``Diagnostics.interference``) when ``max(foreign_energy,
-unassigned_fraction - moving_fraction)`` (the *metric*, docs/pipeline.md section 4: the
-unassigned peaks that are not moving edges of own stripes) exceeds ``foreign_limit``. A
+unassigned_fraction - moving_fraction - step_fraction)`` (the *metric*, docs/pipeline.md
+section 4: the unassigned peaks that are neither moving edges of own stripes nor the
+steps of a background) exceeds ``foreign_limit``. A
 unit on our own code must be flagged at any fractional phase at which its pulses overlap
 our exposures; our own moving stripes, flickering lamps and units on other (orthogonal)
 codes must not. For each case, ``--maps`` maps of a simulated scene (block demodulation,
@@ -101,7 +102,8 @@ def metrics(scene: Scene, maps: int, seed: int) -> tuple[list[float], float]:
 def foreign_metric(diag: Any) -> float:
     """The metric the pipeline's ``interference`` flag compares with ``foreign_limit``."""
     return max(float(diag.foreign_energy),
-               float(diag.unassigned_fraction) - float(diag.moving_fraction))
+               float(diag.unassigned_fraction) - float(diag.moving_fraction)
+               - float(diag.step_fraction))
 
 
 def margin(values: list[float], limit: float, must_flag: bool) -> float:

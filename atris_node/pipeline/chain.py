@@ -171,14 +171,17 @@ class Diagnostics:
     #: peaks in the bands that belong to no line, per line slot (moving edges included)
     unassigned_fraction: float
     foreign_columns: int  # columns with foreign light in or next to them
-    #: foreign light: the energy or the unassigned peaks that are not moving edges of
-    #: own stripes exceed ``foreign_limit`` (another projector, a same-code unit)
+    #: foreign light: the energy or the unassigned peaks that are neither moving edges of
+    #: own stripes nor steps exceed ``foreign_limit`` (another projector, a same-code unit)
     interference: bool
     ground: GroundPlane
     timings_ms: dict[str, float] = field(default_factory=dict)
     #: of ``unassigned_fraction``, the peaks set aside as moving edges (own light moved
     #: within the window: they blank their columns' sectors but are not interference)
     moving_fraction: float = 0.0
+    #: of ``unassigned_fraction``, the maxima set aside as one side of a step (no stripe:
+    #: flicker residual, motion smear; they blank their columns' sectors too)
+    step_fraction: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -392,9 +395,11 @@ class Pipeline:
         slots = len(self.bands) * extraction.foreign_columns.size
         energy, columns = foreign
         unassigned = extraction.unassigned / slots
-        foreign_unassigned = (extraction.unassigned - extraction.moving) / slots
-        # the blanking above counts moving edges too (they may hide the nearest obstacle);
-        # the flag says foreign light, which own moving stripes are not
+        foreign_unassigned = (extraction.unassigned - extraction.moving
+                              - extraction.steps) / slots
+        # the blanking above counts moving edges and steps too (they may hide the nearest
+        # obstacle); the flag says foreign light, stripes of another projector, which own
+        # moving stripes and the steps of a background are not
         return Diagnostics(
             noise_floor_dn=extraction.noise_floor_dn,
             valid_fraction=float(valid.sum()) / slots,
@@ -405,7 +410,7 @@ class Pipeline:
             unassigned_fraction=unassigned, foreign_columns=columns,
             interference=max(energy, foreign_unassigned) > self.config.foreign_limit,
             ground=self._ground, timings_ms=timings,
-            moving_fraction=extraction.moving / slots)
+            moving_fraction=extraction.moving / slots, step_fraction=extraction.steps / slots)
 
     def _objects(self, obstacle_points: FloatArray) -> tuple[objects_mod.ObjectBox, ...]:
         return objects_mod.cluster_objects(obstacle_points, self.config.object_eps_m,

@@ -2,9 +2,11 @@
 
 Inside the row bands of :mod:`atris_node.pipeline.bands`, the local maxima that reach the
 local noise threshold (:mod:`atris_node.pipeline.noise`) are found (compiled, per pixel),
-each line takes its peak in each column (:mod:`atris_node.pipeline.identity`), and each
-peak is refined to a sub-pixel row by one of five peak methods on its column profile
-(compiled, per sample, :mod:`atris_node.pipeline.peaks_kernels`).
+those that fall on one side only (a step of the background, no stripe: :func:`one_sided`)
+are set aside, each line takes its peak in each column
+(:mod:`atris_node.pipeline.identity`), and each peak is refined to a sub-pixel row by one
+of five peak methods on its column profile (compiled, per sample,
+:mod:`atris_node.pipeline.peaks_kernels`).
 
 Peak methods (``PEAK_METHODS``), all on the column profile around the integer maximum:
 
@@ -55,6 +57,14 @@ SATURATION_WINDOW_PX = 8
 WEAK_SNR = 1.5
 #: peaks kept per column beyond one per line (reflections, foreign light)
 EXTRA_PEAKS = 4
+#: a stripe's flanks (:func:`one_sided`) are looked at from EDGE_NEAR_PX rows away out to
+#: 3 stripe σ plus EDGE_REACH_PX (where a stripe has fallen to about 1 % of its peak)
+EDGE_NEAR_PX = 2
+EDGE_REACH_PX = 3
+#: a maximum whose smaller drop to a flank is under EDGE_RATIO times its larger drop, or
+#: under EDGE_SIGMAS noise σ, stands above one side only: a step's edge, not a stripe
+EDGE_RATIO = 0.5
+EDGE_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -131,6 +141,10 @@ class Extraction:
     #: of ``unassigned``, the peaks set aside as moving edges (not own light in place,
     #: atris_node.pipeline.temporal): own stripes of a moving object, not foreign light
     moving: int = 0
+    #: of ``unassigned``, the maxima set aside as one side of a step (:func:`one_sided`):
+    #: no stripe, so no other projector's either (flicker left by the demodulation, own
+    #: stripes smeared by motion); they blank their columns' sectors like the rest
+    steps: int = 0
     #: (K, W) float32, DN: the highest local noise σ over the rows of line k's band in
     #: column c (where a return within the operating range would show it); None: not
     #: measured. A band much noisier than ``tile_noise_dn`` hides a return the rest of
@@ -303,14 +317,16 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                           len(bands) + EXTRA_PEAKS, where.inside)
     lone = np.zeros(peaks.shape[1], dtype=np.int64)
     moved = np.zeros(peaks.shape[1], dtype=np.int64)
+    edges = moved
     striped = peaks
     aligned = settings.identity == "aligned"
     doubts = _NO_DOUBTS
     if settings.unique:
         peaks, lone = stripe_peaks(peaks)
-        striped = peaks  # light that is not own light still counts as foreign below
+        striped = peaks  # light that is no line's stripe still counts as foreign below
         peaks, moved = set_aside(peaks, not_own_light(peaks, window, local))
-        lone = lone + moved
+        peaks, edges = set_aside(peaks, one_sided(values, saturated, peaks, local, settings))
+        lone = lone + moved + edges  # no sample, no evidence of free space either
         identity = robust_identity(
             peaks, lambda r: _peak_snr(values, local, r) < WEAK_SNR * settings.snr_min,
             bands, settings.min_separation_px, prior, aligned=aligned)
@@ -332,6 +348,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       narrowed=where.inside is not None, ambiguous_columns=unsure,
                       doubtful_columns=lone + _unsampled(rows, samples), doubts=doubts,
                       moving=int(np.minimum(moved, unassigned).sum()),
+                      steps=int((np.minimum(moved + edges, unassigned)
+                                 - np.minimum(moved, unassigned)).sum()),
                       band_noise_dn=band_noise(local, bands),
                       tile_noise_dn=float(np.median(local.sigma_tiles[:-1]))
                       if local.sigma_tiles.shape[0] > 1 else noise,
@@ -368,6 +386,23 @@ def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray, local: 
         inside = (row >= band.row_lo) & (row < band.row_hi)
         out[k, col[inside]] = True
     return out
+
+
+def one_sided(values: npt.NDArray[Any], saturated: BoolArray, peaks: IntArray,
+              local: NoiseMap, settings: ExtractorSettings) -> BoolArray:
+    """(M, W) True for the maxima ``peaks`` (rows, -1 padding) that stand above one side
+    of their column only (a step's edge, no stripe: flicker beating with the code leaves a
+    residual of the lit scene whose steps reach the threshold). One compiled pass
+    (:func:`atris_node.pipeline.peaks_kernels.one_sided`). Such a maximum is no sample and
+    no line's stripe: :func:`extract_lines` counts it among its column's doubtful peaks
+    (the column is not free) and, unplaced, as foreign light in the bands."""
+    any_saturated = bool(saturated.any())
+    mask = np.require(saturated, np.bool_, ["W"]) if any_saturated else _NO_MASK
+    far = int(np.ceil(3.0 * settings.stripe_sigma_px)) + EDGE_REACH_PX
+    return np.asarray(kernels.one_sided(
+        kernels.map_values(values), np.ascontiguousarray(peaks, dtype=np.int64), mask,
+        any_saturated, local.tile_row, local.sigma_tiles, NOISE_TILE_PX, EDGE_NEAR_PX, far,
+        EDGE_RATIO, EDGE_SIGMAS))
 
 
 def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> FloatArray:

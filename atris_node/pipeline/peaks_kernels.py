@@ -381,6 +381,67 @@ def peak_snr(values: npt.NDArray[np.generic], rows: IntArray, tile_row: IntArray
     return out
 
 
+def _edge_signatures() -> list[Any]:
+    """Signatures of :func:`one_sided`, per map dtype, writable or read-only."""
+    i64, f32, f64, b1 = types.int64, types.float32, types.float64, types.boolean
+    out = types.Array(b1, 2, "C")
+    return [out(types.Array(dtype, 2, "C", readonly=readonly), types.Array(i64, 2, "A"),
+                types.Array(b1, 2, "A"), b1, types.Array(i64, 1, "A"),
+                types.Array(f32, 2, "A"), i64, i64, i64, f64, f64)
+            for dtype in (types.int16, types.int32, f32, f64)
+            for readonly in (False, True)]
+
+
+@kernel()
+def _flank_floor(values: npt.NDArray[np.generic], row: int, c: int, step: int, near: int,
+                 far: int) -> float:
+    """The lowest value (DN) of column ``c`` from ``near`` to ``far`` rows away from
+    ``row`` in direction ``step`` (+1 down, -1 up), rows inside the image only; inf when
+    none is."""
+    height = values.shape[0]
+    low = np.inf
+    for d in range(near, far + 1):
+        i = row + step * d
+        if 0 <= i < height:
+            low = min(low, np.float64(values[i, c]))
+    return low
+
+
+@kernel(_edge_signatures())
+def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
+              saturated: npt.NDArray[np.bool_], any_saturated: bool, tile_row: IntArray,
+              sigma_tiles: npt.NDArray[np.float32], tile_px: int, near: int, far: int,
+              ratio: float, sigmas: float) -> npt.NDArray[np.bool_]:
+    """(P, W) True for the maxima ``peaks`` (rows, -1 padding) that stand above one side
+    of their column only: the edge of a step, not a stripe. A stripe falls on both sides
+    within a few stripe widths: the lowest value ``near``..``far`` rows above it and the
+    lowest below it both lie well under it. A maximum is one-sided when the smaller of its
+    two drops is under ``ratio`` times the larger or under ``sigmas`` of its noise tile's
+    σ (DN). A step of the background does that: flicker that beats with the code leaves a
+    residual image of the lit scene, bright ground under a dark wall, and the first rows
+    of the bright side are maxima over the threshold of a tile that reaches into the dark
+    side. Flat-topped maxima (a saturated pixel within one row, looked for only with
+    ``any_saturated``) are left to the saturated-run test; a side outside the image does
+    not count."""
+    out = np.zeros(peaks.shape, dtype=np.bool_)
+    for m in range(peaks.shape[0]):
+        for c in range(peaks.shape[1]):
+            row = peaks[m, c]
+            if row < 0 or (any_saturated and _flat_top(saturated, row, c)):
+                continue
+            v = np.float64(values[row, c])
+            above = v - _flank_floor(values, row, c, -1, near, far)
+            below = v - _flank_floor(values, row, c, 1, near, far)
+            low, high = min(above, below), max(above, below)
+            if np.isinf(low):
+                low = high  # one side outside the image: the other side decides
+            if np.isinf(high):
+                continue
+            noise = np.float64(sigma_tiles[tile_row[row], c // tile_px])
+            out[m, c] = low < ratio * high or low < sigmas * noise
+    return out
+
+
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -397,6 +458,9 @@ def warm_up() -> None:
                  np.zeros((1, 1), dtype=np.float32), np.ones((1, 1), dtype=np.float32), 32,
                  6.0, 2, 1, 0.0, 1.5, 1.0, 0.5, 8)
     line_medians(line, np.zeros(1), 1)
+    one_sided(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
+              np.zeros((1, 1), dtype=np.bool_), False, np.zeros(4, dtype=i64),
+              np.ones((1, 1), dtype=np.float32), 32, 2, 8, 0.5, 3.0)
     peak_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
              np.zeros(4, dtype=i64), np.zeros((1, 1), dtype=np.float32),
              np.ones((1, 1), dtype=np.float32), 32)
