@@ -220,30 +220,16 @@ def foreign_energy(dmap: DistortionMap, spans: tuple[tuple[int, int], ...],
     Our own laser only adds positive values; a foreign or non-orthogonal modulation leaves
     residuals of both signs. Only line-like negative pixels count (their left and right
     neighbours are negative too), so shot noise in bright patches is not taken for
-    foreign light. Saturated pixels are left out (clipping breaks the sum)."""
-    negative = positive = 0.0
+    foreign light. Saturated pixels are left out (clipping breaks the sum). One compiled
+    pass over the rows read (:func:`atris_node.pipeline.peaks_kernels.signed_energy`)."""
     columns = np.zeros(dmap.values.shape[1], dtype=np.bool_)
-    for lo, hi in spans:
-        block = dmap.values[lo:hi].astype(np.float32) - np.float32(background_dn)
-        block[dmap.saturated[lo:hi]] = 0.0
-        low = _line_like(block, threshold_dn)
-        negative += float(-block.ravel()[low].sum())
-        positive += float(block[block > threshold_dn].sum())
-        columns[low % block.shape[1]] = True
+    negative, positive = peaks_kernels.signed_energy(
+        peaks_kernels.map_values(dmap.values), np.ascontiguousarray(dmap.saturated),
+        np.array(spans, dtype=np.int64).reshape(-1, 2), np.float32(background_dn),
+        np.float32(threshold_dn), columns)
     if negative == 0.0:
         return 0.0, columns
     return negative / max(positive, threshold_dn, 1.0), columns
-
-
-def _line_like(block: npt.NDArray[np.float32], threshold_dn: float) -> npt.NDArray[np.intp]:
-    """Flat (row-major) indices of the pixels of ``block`` (h, w) below ``-threshold_dn``
-    whose left and right neighbours are below ``-threshold_dn / 2``, ascending. Such
-    pixels are rare, so the neighbours are read for them alone."""
-    w = block.shape[1]
-    strong = np.flatnonzero(block < -threshold_dn)
-    strong = strong[(strong % w > 0) & (strong % w < w - 1)]
-    flat, weak = block.ravel(), -threshold_dn / 2
-    return strong[(flat[strong - 1] < weak) & (flat[strong + 1] < weak)]
 
 
 def _widen(columns: BoolArray, margin: int) -> BoolArray:

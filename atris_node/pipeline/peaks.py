@@ -374,18 +374,14 @@ def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray, local: 
                   bands: tuple[Band, ...], snr_min: float) -> BoolArray | None:
     """(K, W) True where line k's band holds, in column c, a saturated pixel below its
     tile's threshold: full scale in the OFF sub-frames too (sunlit, blinded), it carries
-    no laser light and would hide the line; None when no pixel is saturated."""
-    row, col = np.nonzero(saturated)
-    if row.size == 0:
-        return None
-    threshold = local.threshold_tiles(snr_min)[local.tile_row[row], col // NOISE_TILE_PX]
-    dark = np.asarray(values[row, col], dtype=np.float64) < threshold
-    row, col = row[dark], col[dark]
+    no laser light and would hide the line; None when there is none. One compiled pass
+    over the band rows (:func:`atris_node.pipeline.peaks_kernels.blinded`)."""
     out = np.zeros((len(bands), local.width), dtype=np.bool_)
-    for k, band in enumerate(bands):
-        inside = (row >= band.row_lo) & (row < band.row_hi)
-        out[k, col[inside]] = True
-    return out
+    rows = np.array([(b.row_lo, b.row_hi) for b in bands], dtype=np.int64).reshape(-1, 2)
+    found = kernels.blinded(kernels.map_values(values), np.ascontiguousarray(saturated),
+                            rows, local.threshold_tiles(snr_min), local.tile_row,
+                            NOISE_TILE_PX, out)
+    return out if found else None
 
 
 def one_sided(values: npt.NDArray[Any], saturated: BoolArray, peaks: IntArray,

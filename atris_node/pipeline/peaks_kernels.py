@@ -442,6 +442,84 @@ def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
     return out
 
 
+def _blinded_signatures() -> list[Any]:
+    """Signatures of :func:`blinded`, per map dtype, writable or read-only."""
+    i64, f32, b1 = types.int64, types.float32, types.boolean
+    return [types.boolean(types.Array(dtype, 2, "C", readonly=readonly),
+                          types.Array(b1, 2, "C", readonly=readonly),
+                          types.Array(i64, 2, "A"), types.Array(f32, 2, "A"),
+                          types.Array(i64, 1, "A"), i64, types.Array(b1, 2, "C"))
+            for dtype in (types.int16, types.int32, f32, types.float64)
+            for readonly in (False, True)]
+
+
+@kernel(_blinded_signatures())
+def blinded(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
+            bands: IntArray, threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray,
+            tile_px: int, out: npt.NDArray[np.bool_]) -> bool:
+    """``out`` (K, W) zeros in; True out where band k (``bands`` (K, 2) rows [lo, hi))
+    holds in column c a saturated pixel below its tile's threshold (DN): full scale in
+    the OFF sub-frames too, no laser light. Only the band rows are read. Returns whether
+    any was found."""
+    found = False
+    width = values.shape[1]
+    for k in range(bands.shape[0]):
+        for r in range(max(bands[k, 0], 0), min(bands[k, 1], values.shape[0])):
+            tiles = threshold_tiles[tile_row[r]]
+            for c in range(width):
+                if saturated[r, c] and not out[k, c] and (
+                        np.float64(values[r, c]) < np.float64(tiles[c // tile_px])):
+                    out[k, c] = True
+                    found = True
+    return found
+
+
+def _energy_signatures() -> list[Any]:
+    """Signatures of :func:`signed_energy`, per map dtype, writable or read-only."""
+    i64, f32, f64, b1 = types.int64, types.float32, types.float64, types.boolean
+    out = types.Tuple((f64, f64))
+    return [out(types.Array(dtype, 2, "C", readonly=readonly),
+                types.Array(b1, 2, "C", readonly=readonly), types.Array(i64, 2, "A"), f32,
+                f32, types.Array(b1, 1, "C"))
+            for dtype in (types.int16, types.int32, f32, types.float64)
+            for readonly in (False, True)]
+
+
+@kernel()
+def _signed(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_], r: int,
+            c: int, background: np.float32) -> np.float32:
+    """values[r, c] - background in float32 (DN), 0 where saturated."""
+    if saturated[r, c]:
+        return np.float32(0.0)
+    return np.float32(values[r, c]) - background
+
+
+@kernel(_energy_signatures())
+def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
+                  spans: IntArray, background: np.float32, threshold: np.float32,
+                  columns: npt.NDArray[np.bool_]) -> tuple[float, float]:
+    """(negative, positive) energy of the map rows ``spans`` (S, 2) [lo, hi), DN: the sum of
+    -v over the line-like negative pixels (v below ``-threshold`` with both row neighbours
+    below ``-threshold / 2``; not in the first or last column) and of v over the pixels
+    above ``threshold``, v = value - ``background`` in float32, 0 where saturated. The
+    columns of line-like negative pixels are set in ``columns`` (W,). One pass."""
+    negative = positive = 0.0
+    weak = -threshold / np.float32(2.0)
+    width = values.shape[1]
+    for s in range(spans.shape[0]):
+        for r in range(spans[s, 0], spans[s, 1]):
+            for c in range(width):
+                v = _signed(values, saturated, r, c, background)
+                if v > threshold:
+                    positive += v
+                elif v < -threshold and 0 < c < width - 1 and (
+                        _signed(values, saturated, r, c - 1, background) < weak
+                        and _signed(values, saturated, r, c + 1, background) < weak):
+                    negative -= v
+                    columns[c] = True
+    return negative, positive
+
+
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -458,6 +536,12 @@ def warm_up() -> None:
                  np.zeros((1, 1), dtype=np.float32), np.ones((1, 1), dtype=np.float32), 32,
                  6.0, 2, 1, 0.0, 1.5, 1.0, 0.5, 8)
     line_medians(line, np.zeros(1), 1)
+    signed_energy(np.zeros((4, 3), dtype=np.int16), np.zeros((4, 3), dtype=np.bool_),
+                  np.array([[0, 4]], dtype=i64), np.float32(0.0), np.float32(1.0),
+                  np.zeros(3, dtype=np.bool_))
+    blinded(np.zeros((4, 1), dtype=np.int16), np.zeros((4, 1), dtype=np.bool_),
+            np.array([[0, 4]], dtype=i64), np.ones((1, 1), dtype=np.float32),
+            np.zeros(4, dtype=i64), 32, np.zeros((1, 1), dtype=np.bool_))
     one_sided(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
               np.zeros((1, 1), dtype=np.bool_), False, np.zeros(4, dtype=i64),
               np.ones((1, 1), dtype=np.float32), 32, 2, 8, 0.5, 3.0)
