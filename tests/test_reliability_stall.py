@@ -27,7 +27,7 @@ from atris_node.bus.negotiation import frames as nf
 from atris_node.errors import NodeFaultError
 from atris_node.node import unit as unit_module
 from atris_node.node.unit import Lifecycle, Unit
-from atris_node.types import SubFrame, UnitState
+from atris_node.types import FaultBits, SubFrame, UnitState
 from drivers import Camera, Projector
 from drivers import open_backend as open_registry_backend
 from drivers.guard import GuardedProjector
@@ -46,6 +46,7 @@ class HeldCamera(Camera):
         self.hold, self.held, self.release = (threading.Event(), threading.Event(),
                                               threading.Event())
         self.on_hold: Callable[[], None] = lambda: None
+        self.delay_s = 0.0  # every read takes this long (a starved loop)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
@@ -54,6 +55,8 @@ class HeldCamera(Camera):
         return self.inner.factory_calibration()
 
     def _read(self, timeout_s: float) -> SubFrame:
+        if self.delay_s:
+            time.sleep(self.delay_s)
         if self.hold.is_set() and not self.release.is_set():
             self.on_hold()
             self.held.set()
@@ -145,6 +148,25 @@ def test_projector_goes_dark_while_the_camera_read_is_blocked(rig: Any) -> None:
     assert not audit.inner.is_lit
     camera.release.set()
     assert wait_for(lambda: unit.stats.strobe_lapses >= 1), "the window was not restarted"
+
+
+def test_a_starved_loop_says_deadline_miss_until_a_window_completes(rig: Any) -> None:
+    """Every camera read takes 0.2 s, past the projector's lease (a sub-frame period plus
+    0.05 s): the strobe lapses on every sub-frame, every window restarts, the unit never
+    measures and its laser is dark most of the time. Its status says DEADLINE_MISS all
+    along (a controller must learn that the unit is starved, not see RUNNING or
+    NEGOTIATING with no fault); once reads are fast again and a window completes, the bit
+    clears. Checked to fail with the bit not set in ``Unit._strobe_lapsed`` (the status
+    carried no fault while the strobe lapsed on every sub-frame)."""
+    unit = rig.start()
+    camera = rig.cameras[0]
+    camera.delay_s = 0.2
+    lapses = unit.stats.strobe_lapses
+    assert wait_for(lambda: unit.stats.strobe_lapses >= lapses + 3), "no lapse"
+    assert unit.status().faults & FaultBits.DEADLINE_MISS
+    camera.delay_s = 0.0
+    assert wait_for(lambda: not unit.status().faults & FaultBits.DEADLINE_MISS), (
+        "the bit stayed after the loop kept its strobe again")
 
 
 def test_projector_goes_dark_at_once_when_the_row_is_lost_during_a_stall(rig: Any) -> None:

@@ -352,6 +352,7 @@ class Unit:
         lapsed = self._strobe_lapsed()
         dmap = self._demodulate(sub) if chips is not None and not lapsed else None
         if dmap is not None:
+            self.faults &= ~FaultBits.DEADLINE_MISS  # a whole window kept its strobe
             self._on_map(dmap)
         elif chips is None:
             self._publish(None)
@@ -422,12 +423,15 @@ class Unit:
     def _strobe_lapsed(self) -> bool:
         """True when the projector went dark by itself since the last sub-frame (no strobe
         for its lease: the loop stalled): this sub-frame may have been exposed dark, so
-        the window restarts without it."""
+        the window restarts without it, and the status says DEADLINE_MISS until a window
+        completes (a loop starved on every sub-frame never measures; without the bit its
+        status would only say NEGOTIATING or RUNNING)."""
         lapses = int(getattr(self._projector, "lapses", 0))
         if lapses == self._lapses:
             return False
         self._lapses = lapses
         self.stats.strobe_lapses += 1
+        self.faults |= FaultBits.DEADLINE_MISS  # until a window completes without a lapse
         logger.warning("unit %s: the loop stalled, the projector went dark; window restarted",
                        self.label)
         if self._measure is not None:
