@@ -70,3 +70,42 @@ def test_smoke_peak_snr_is_the_numpy_form(scene_map: tuple[Any, Any, NoiseMap]) 
         np.testing.assert_array_equal(got, want)
     assert (found >= 0).sum() > 100
 
+
+
+def _bridge_by_definition(rows: np.ndarray, good: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """rivals' bridge written with whole-array numpy (the form it had before the kernel):
+    the nearest good column's row on each side, their nearer one where they agree within
+    BRIDGE_PX, and how many sides have one."""
+    from atris_node.pipeline.rivals import BRIDGE_PX
+
+    k_count, width = rows.shape
+    cols = np.broadcast_to(np.arange(width), (k_count, width))
+    left = np.maximum.accumulate(np.where(good, cols, -1), axis=1)
+    right = np.minimum.accumulate(np.where(good, cols, width)[:, ::-1], axis=1)[:, ::-1]
+    k = np.arange(k_count)[:, None]
+    row_l = np.where(left >= 0, rows[k, np.maximum(left, 0)], np.inf).astype(np.float64)
+    row_r = np.where(right < width, rows[k, np.minimum(right, width - 1)],
+                     np.inf).astype(np.float64)
+    both = np.isfinite(row_l) & np.isfinite(row_r)
+    nearer = np.where(cols - left <= right - cols, row_l, row_r)
+    with np.errstate(invalid="ignore"):
+        agree = np.abs(row_l - row_r) <= BRIDGE_PX
+    sides = np.isfinite(row_l).astype(np.int64) + np.isfinite(row_r).astype(np.int64)
+    return np.where(both & agree, nearer, np.inf), sides
+
+
+def test_bridge_is_the_numpy_form() -> None:
+    """300 random (K, W) row tables and anchor masks: the compiled bridge equals the numpy
+    definition exactly (rows and side counts)."""
+    from atris_node.pipeline import rivals_kernels
+    from atris_node.pipeline.rivals import BRIDGE_PX
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        k_count, width = int(rng.integers(1, 6)), int(rng.integers(1, 60))
+        rows = rng.integers(-1, 40, (k_count, width)).astype(np.int64)
+        good = np.ascontiguousarray((rng.random((k_count, width)) < rng.random()) & (rows >= 0))
+        expected = _bridge_by_definition(rows, good)
+        got = rivals_kernels.bridge(rows, good, float(BRIDGE_PX))
+        np.testing.assert_array_equal(got[0], expected[0])
+        np.testing.assert_array_equal(got[1], expected[1])

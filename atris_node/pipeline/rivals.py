@@ -276,7 +276,7 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
                                                   MIN_BLOCK_SAMPLES, rows.shape[1] + 1)
     line = identity_kernels.continuity_reference(rows, good, rows.shape[1],
                                                  MIN_LINE_SAMPLES, MIN_LINE_SAMPLES)
-    bridge, sides = _bridge(rows, good)
+    bridge, sides = rivals_kernels.bridge(rows, good, float(BRIDGE_PX))
     # between anchors the bridge (or nothing where they disagree); the line's median
     # only beyond its last anchor, and only in columns whose chosen comb lies on it
     far = ~np.isfinite(local) & ~np.isfinite(block) & (sides < 2)
@@ -284,26 +284,6 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     line = np.where(off.any(axis=0)[None, :], np.inf, line)
     wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
     return np.where(np.isfinite(local), local, wide)
-
-
-def _bridge(rows: IntArray, good: BoolArray) -> tuple[npt.NDArray[np.float64], IntArray]:
-    """(K, W) per line the row of the nearest ``good`` column on the left and on the
-    right: their nearer one when both exist and agree within BRIDGE_PX, inf otherwise;
-    and (K, W) how many of the two sides have one."""
-    k_count, width = rows.shape
-    cols = np.broadcast_to(np.arange(width), (k_count, width))
-    left = np.maximum.accumulate(np.where(good, cols, -1), axis=1)
-    right = np.minimum.accumulate(np.where(good, cols, width)[:, ::-1], axis=1)[:, ::-1]
-    k = np.arange(k_count)[:, None]
-    row_l = np.where(left >= 0, rows[k, np.maximum(left, 0)], np.inf).astype(np.float64)
-    row_r = np.where(right < width, rows[k, np.minimum(right, width - 1)],
-                     np.inf).astype(np.float64)
-    both = np.isfinite(row_l) & np.isfinite(row_r)
-    nearer = np.where(cols - left <= right - cols, row_l, row_r)
-    with np.errstate(invalid="ignore"):
-        agree = np.abs(row_l - row_r) <= BRIDGE_PX
-    sides = np.isfinite(row_l).astype(np.int64) + np.isfinite(row_r).astype(np.int64)
-    return np.where(both & agree, nearer, np.inf), sides
 
 
 def _test(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray], rows: IntArray,
