@@ -193,7 +193,7 @@ def test_one_sided_tells_a_step_from_a_stripe_and_a_plateau() -> None:
     local = noise_map(values, [(0, 40)])
     local = NoiseMap(local.tile_row, np.zeros_like(local.background_tiles),
                      np.ones_like(local.sigma_tiles), local.width)
-    out = one_sided(values, np.zeros(values.shape, bool), peaks, local, ExtractorSettings())
+    out = one_sided(values, None, peaks, local, ExtractorSettings())
     assert out.tolist() == [[True, True, False, False]]
 
 

@@ -203,7 +203,7 @@ def strong_maxima(values: npt.NDArray[Any], spans: list[tuple[int, int]], noise:
 # --------------------------------------------------------------------------- extraction
 
 
-def _samples(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArray,
+def _samples(values: npt.NDArray[np.generic], saturated: BoolArray | None, rows: IntArray,
              local: NoiseMap, settings: ExtractorSettings, noise: float
              ) -> tuple[LineSamples, int, int]:
     """The samples of the identified peaks ``rows`` (K, W) with SNR >= snr_min that the
@@ -211,12 +211,12 @@ def _samples(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArr
     dropped: one compiled pass (:func:`atris_node.pipeline.peaks_kernels.line_samples`; the methods
     are described at the top of this module). An offset beyond ±1 px is dropped. A flat
     top (a saturated pixel next to the peak) takes the centre of the saturated run and
-    σ_u SATURATED_SIGMA_PX; other samples σ_u = CRLB / SNR."""
-    any_saturated = bool(saturated.any())
-    mask = np.require(saturated, np.bool_, ["W"]) if any_saturated else _NO_MASK
+    σ_u SATURATED_SIGMA_PX; other samples σ_u = CRLB / SNR. ``saturated`` as
+    :func:`saturation_mask` gives it."""
     crlb = float(np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi)))
     line, row, col, snr, sigma, flat, strong, dropped = kernels.line_samples(
-        kernels.map_values(values), mask, any_saturated, np.asarray(rows, dtype=np.int64),
+        kernels.map_values(values), _NO_MASK if saturated is None else saturated,
+        saturated is not None, np.asarray(rows, dtype=np.int64),
         local.tile_row, local.background_tiles, local.sigma_tiles, NOISE_TILE_PX,
         float(settings.snr_min), kernels.METHOD_CODES[settings.peak_method], settings.radius,
         3.0 * noise, settings.stripe_sigma_px, crlb, SATURATED_SIGMA_PX, SATURATION_WINDOW_PX)
@@ -227,6 +227,12 @@ def _samples(values: npt.NDArray[np.generic], saturated: BoolArray, rows: IntArr
 _NO_DOUBTS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
 #: the saturation mask passed to the kernel when nothing is saturated (never read)
 _NO_MASK = np.zeros((1, 1), dtype=np.bool_)
+
+
+def saturation_mask(saturated: BoolArray) -> BoolArray | None:
+    """The (H, W) saturation mask as the kernels read it (bool, C order, writable), None
+    when no pixel is saturated (the kernels then look for no flat top)."""
+    return np.require(saturated, np.bool_, ["C", "W"]) if saturated.any() else None
 
 
 def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float, ...]:
@@ -315,6 +321,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         where = _Search(spans)  # something outside the recent rows: search them all
     peaks = strong_maxima(values, where.scan, local, settings.snr_min, settings.min_separation_px,
                           len(bands) + EXTRA_PEAKS, where.inside)
+    flat = saturation_mask(saturated)
     lone = np.zeros(peaks.shape[1], dtype=np.int64)
     moved = np.zeros(peaks.shape[1], dtype=np.int64)
     edges = moved
@@ -325,7 +332,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         peaks, lone = stripe_peaks(peaks)
         striped = peaks  # light that is no line's stripe still counts as foreign below
         peaks, moved = set_aside(peaks, not_own_light(peaks, window, local))
-        peaks, edges = set_aside(peaks, one_sided(values, saturated, peaks, local, settings))
+        peaks, edges = set_aside(peaks, one_sided(values, flat, peaks, local, settings))
         lone = lone + moved + edges  # no sample, no evidence of free space either
         identity = robust_identity(
             peaks, lambda r: _peak_snr(values, local, r) < WEAK_SNR * settings.snr_min,
@@ -337,7 +344,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                                       aligned=aligned)
     ambiguous = int(unsure.sum())
     unassigned = np.maximum(count_in_bands(striped, bands) - (rows >= 0).sum(axis=0) - unsure, 0)
-    samples, strong, dropped = _samples(values, saturated, rows, local, settings, noise)
+    samples, strong, dropped = _samples(values, flat, rows, local, settings, noise)
     searched = sum(values.shape[1] for b in bands if not b.empty)
     return Extraction(samples, noise, background, tuple(spans),
                       weak=max(searched - strong - ambiguous, 0),
@@ -384,21 +391,20 @@ def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray, local: 
     return out if found else None
 
 
-def one_sided(values: npt.NDArray[Any], saturated: BoolArray, peaks: IntArray,
+def one_sided(values: npt.NDArray[Any], saturated: BoolArray | None, peaks: IntArray,
               local: NoiseMap, settings: ExtractorSettings) -> BoolArray:
     """(M, W) True for the maxima ``peaks`` (rows, -1 padding) that stand above one side
     of their column only (a step's edge, no stripe: flicker beating with the code leaves a
     residual of the lit scene whose steps reach the threshold). One compiled pass
     (:func:`atris_node.pipeline.peaks_kernels.one_sided`). Such a maximum is no sample and
     no line's stripe: :func:`extract_lines` counts it among its column's doubtful peaks
-    (the column is not free) and, unplaced, as foreign light in the bands."""
-    any_saturated = bool(saturated.any())
-    mask = np.require(saturated, np.bool_, ["W"]) if any_saturated else _NO_MASK
+    (the column is not free) and, unplaced, as foreign light in the bands. ``saturated``
+    as :func:`saturation_mask` gives it (None: nothing saturated)."""
     far = int(np.ceil(3.0 * settings.stripe_sigma_px)) + EDGE_REACH_PX
     return np.asarray(kernels.one_sided(
-        kernels.map_values(values), np.ascontiguousarray(peaks, dtype=np.int64), mask,
-        any_saturated, local.tile_row, local.sigma_tiles, NOISE_TILE_PX, EDGE_NEAR_PX, far,
-        EDGE_RATIO, EDGE_SIGMAS))
+        kernels.map_values(values), np.ascontiguousarray(peaks, dtype=np.int64),
+        _NO_MASK if saturated is None else saturated, saturated is not None, local.tile_row,
+        local.sigma_tiles, NOISE_TILE_PX, EDGE_NEAR_PX, far, EDGE_RATIO, EDGE_SIGMAS))
 
 
 def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> FloatArray:
