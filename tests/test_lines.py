@@ -95,6 +95,51 @@ def test_flat_topped_saturated_stripe_gives_its_centre() -> None:
         assert np.isfinite(ex.samples.sigma_u_px).all()
 
 
+def test_feature_clipped_stripe_centre_is_sub_pixel() -> None:
+    """A clipped stripe's centre is the Gaussian fitted to its unclipped flanks
+    (peaks_kernels._flank_fit), not the middle of the saturated run, which moves in
+    half-pixel steps: errors up to 0.5 px (0.7 m at 7.5 m on a 0.1 m baseline), the same
+    in every column of a wall, so they do not average out; clipped_pairs_retro_wall read
+    its retro wall 4.7 % short with it. Checked to fail with the run's middle (RMS
+    0.14-0.15 px) and with the half-level crossings alone (0.08-0.16 px); the fit gives
+    0.002-0.04 px. Stripes narrower than σ 1 px keep the crossings (0.05-0.13 px)."""
+    rng = np.random.default_rng(17)
+    rows = 40.0 + rng.uniform(-0.5, 0.5, WIDTH)
+    for peak in (4000.0, 6000.0, 12000.0):  # clipped at 3000: 1 to 3 rows flat
+        image = stripe_map(80, rows[None, :], np.full((1, WIDTH), peak), 1.0, noise_dn=5.0,
+                           rng=rng)
+        values = np.round(np.minimum(image, 3000.0)).astype(np.int32)
+        ex = extract_lines(values, image >= 3000.0, (Band(0, 20, 60),),
+                           ExtractorSettings("gaussian", stripe_sigma_px=1.0))
+        assert ex.samples.saturated.all() and len(ex.samples) == WIDTH
+        err = ex.samples.row_px - rows[ex.samples.col_px.astype(int)]
+        assert float(np.sqrt(np.mean(err**2))) <= 0.06, peak
+
+
+def test_feature_two_clipped_stripes_keep_their_own_centres() -> None:
+    """A near-parallel line pair (5.4 px apart) on a bright surface: both stripes clip.
+    Each flat-topped sample takes the centre of its own saturated run. The centre was the
+    mean of every saturated pixel within SATURATION_WINDOW_PX rows, so both samples of a
+    column sat half-way between the stripes, 2.7 px off with σ_u 0.5 px: on a retro-
+    reflective wall at 8.7 m (random scene q8_096) a confident obstacle at 5.5 m in three
+    sectors. Checked to fail with the old centre (errors up to 3.1 px)."""
+    rng = np.random.default_rng(16)
+    rows = np.stack([np.full(WIDTH, 40.0), np.full(WIDTH, 45.4)]) + rng.uniform(
+        -0.3, 0.3, (2, WIDTH))
+    image = stripe_map(80, rows, np.full((2, WIDTH), 9000.0), 0.8, noise_dn=5.0, rng=rng)
+    clip = 3000.0
+    values = np.round(np.minimum(image, clip)).astype(np.int32)
+    ex = extract_lines(values, image >= clip, (Band(0, 20, 44), Band(1, 25, 64)),
+                       ExtractorSettings("gaussian", stripe_sigma_px=0.8))
+    assert ex.samples.saturated.all()
+    assert len(ex.samples) >= WIDTH  # both lines sampled in most columns
+    for k in (0, 1):
+        mine = ex.samples.line == k
+        assert mine.sum() >= WIDTH // 2
+        err = ex.samples.row_px[mine] - rows[k, ex.samples.col_px[mine].astype(int)]
+        assert np.abs(err).max() <= 1.0
+
+
 def test_feature_a_peak_at_the_edge_of_blinded_pixels_is_no_stripe() -> None:
     """Rows 42-79 are full scale in every sub-frame (sunlit ground, 8 bits): they
     demodulate to 0 and the saturation mask covers them. A faint maximum just above

@@ -212,10 +212,10 @@ def test_feature_distance_the_points_do_not_pin_down_is_invalid() -> None:
     assert loose.state is SectorState.VALID and loose.sigma_m > 0.135
 
 
-def _hole_scene(right_m: float, through_m: float | None = None):
+def _hole_scene(right_m: float, through_m: float | None = None, snr: float = 40.0):
     """Lines 0-4 on a wall at 3.5 m in columns 0-24 (sector 0), none in columns 25-31,
     a surface at ``right_m`` in columns 32-63 (sector 1); ``through_m``: line 0 also seen
-    at that range in the hole's columns. Strong lines (SNR 40)."""
+    at that range in the hole's columns. Strong lines (SNR ``snr``, 40 by default)."""
     wall = [(3.5, k, c) for k in range(5) for c in range(25)]
     right = [(right_m, k, c) for k in range(5) for c in range(32, 64)]
     through = [] if through_m is None else [(through_m, 0, c) for c in range(25, 32)]
@@ -223,7 +223,7 @@ def _hole_scene(right_m: float, through_m: float | None = None):
     n = len(rows)
     points = ObstaclePoints(rows[:, 0], np.where(rows[:, 2] < 32, 0, 1).astype(np.int64),
                             np.ones(n, bool), rows[:, 1].astype(np.int64),
-                            rows[:, 2].astype(np.int64), np.full(n, 0.01), np.full(n, 40.0))
+                            rows[:, 2].astype(np.int64), np.full(n, 0.01), np.full(n, snr))
     seen = np.zeros((5, WIDTH), bool)
     seen[points.line, points.column] = True
     zero = np.zeros(WIDTH, np.int64)
@@ -253,6 +253,24 @@ def test_feature_line_ending_at_a_farther_surface_or_seen_through_is_no_hole(
     points, evidence = _hole_scene(right_m, through_m)
     out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)
     assert out[0].state is SectorState.VALID and out[0].distance_m == pytest.approx(3.5)
+
+
+def test_feature_bright_lines_stopping_together_mid_surface_block_it() -> None:
+    """Five lines seen with SNR 80 (over 10 snr_min) on both sides stop together over
+    seven columns of one wall at 3.5 m: something stands in all their rays there (a
+    plate seen edge-on, a thin dark pole), at any range before the wall, so sector 0 is
+    INVALID (stress scene edge_on_plate_bright_wall: the wall read 48 % beyond the plate
+    in 4 of 4 maps). Lines of SNR 40 stopping so (a sparse return, glossy_dark_panels)
+    and bright lines stopping at a depth edge (the wall's end before a farther surface)
+    leave the wall's distance. Checked to fail with shadowed_columns taken out of
+    _verdict (sector 0 VALID at 3.5 m)."""
+    points, evidence = _hole_scene(3.5, snr=80.0)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    points, evidence = _hole_scene(3.5, snr=40.0)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.VALID
+    points, evidence = _hole_scene(6.0, snr=80.0)
+    out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+    assert out.state is SectorState.VALID and out.distance_m == pytest.approx(3.5)
 
 
 def test_feature_a_line_lost_in_noise_is_no_evidence_of_free() -> None:

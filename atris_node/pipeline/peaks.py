@@ -210,7 +210,7 @@ def _samples(values: npt.NDArray[np.generic], saturated: BoolArray | None, rows:
     peak method accepts, the number of peaks that strong and how many of them were
     dropped: one compiled pass (:func:`atris_node.pipeline.peaks_kernels.line_samples`; the methods
     are described at the top of this module). An offset beyond ±1 px is dropped. A flat
-    top (a saturated pixel next to the peak) takes the centre of the saturated run and
+    top (a saturated pixel next to the peak) takes the centre of its contiguous saturated run and
     σ_u SATURATED_SIGMA_PX; other samples σ_u = CRLB / SNR. ``saturated`` as
     :func:`saturation_mask` gives it."""
     crlb = float(np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi)))

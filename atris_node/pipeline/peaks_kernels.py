@@ -251,33 +251,148 @@ def _sample_signatures() -> list[Any]:
 
 
 @kernel()
-def _saturated_centre(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int) -> float:
-    """Centre row (px) of the saturated pixels within ±r rows of (row, c) (rows outside
-    the image read as the edge row)."""
+def _saturated_run(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int
+                   ) -> tuple[int, int]:
+    """First and last row of the run of saturated pixels in column c that holds (row, c),
+    or the pixel above or below it (the run of a flat-topped peak, :func:`_flat_top`),
+    followed at most ``r`` rows from ``row`` each way. Only the contiguous run: a second
+    clipped stripe a few rows away (a near-parallel line pair on a bright surface) is
+    another run and does not pull this one's centre. (row, row) when none is saturated."""
     height = saturated.shape[0]
-    count = moment = 0.0
-    for d in range(-r, r + 1):
-        if saturated[min(max(row + d, 0), height - 1), c]:
-            count += 1.0
-            moment += d
-    return row + moment / max(count, 1.0)
+    seed = -1
+    for d in (0, -1, 1):
+        i = row + d
+        if 0 <= i < height and saturated[i, c]:
+            seed = i
+            break
+    if seed < 0:
+        return row, row
+    lo = hi = seed
+    while lo - 1 >= max(row - r, 0) and saturated[lo - 1, c]:
+        lo -= 1
+    while hi + 1 <= min(row + r, height - 1) and saturated[hi + 1, c]:
+        hi += 1
+    return lo, hi
 
 
 @kernel()
-def _lit_run(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_], row: int,
-             c: int, r: int) -> bool:
-    """True when the saturated pixels within ±r rows of (row, c) hold, on average, at
-    least half the value at (row, c): a stripe clipped at full scale. Pixels full in the
-    OFF sub-frames as well (sunlit, blinded) demodulate to about 0: the run holds no
-    laser light, and a peak at its edge is no stripe."""
-    height = saturated.shape[0]
-    count = total = 0.0
-    for d in range(-r, r + 1):
-        i = min(max(row + d, 0), height - 1)
-        if saturated[i, c]:
-            count += 1.0
-            total += np.float64(values[i, c])
-    return bool(total >= 0.5 * count * np.float64(values[row, c]))
+def _lit_run(values: npt.NDArray[np.generic], lo: int, hi: int, row: int, c: int) -> bool:
+    """True when the saturated run lo..hi of column c holds, on average, at least half
+    the value at (row, c): a stripe clipped at full scale. Pixels full in the OFF
+    sub-frames as well (sunlit, blinded) demodulate to about 0: the run holds no laser
+    light, and a peak at its edge is no stripe."""
+    total = 0.0
+    for i in range(lo, hi + 1):
+        total += np.float64(values[i, c])
+    return bool(total >= 0.5 * (hi - lo + 1) * np.float64(values[row, c]))
+
+
+@kernel()
+def _half_crossing(values: npt.NDArray[np.generic], edge: int, c: int, step: int,
+                   level: float, reach: int) -> float:
+    """Row (px, sub-pixel) where column c's profile, walked from the run's ``edge`` row
+    by ``step`` (-1 up, +1 down) at most ``reach`` rows, first falls below ``level``,
+    linearly interpolated between the last row at or above it and the first below it.
+    Where the profile rises again first (another stripe's flank) or the image or the
+    reach ends, the half-pixel boundary of the last row walked."""
+    height = values.shape[0]
+    prev = np.float64(values[edge, c])
+    i = edge
+    for _ in range(reach):
+        j = i + step
+        if j < 0 or j >= height:
+            break
+        v = np.float64(values[j, c])
+        if v < level:
+            return i + step * min(max((prev - level) / max(prev - v, 1e-9), 0.0), 1.0)
+        if v > prev:
+            break
+        i, prev = j, v
+    return i + 0.5 * step
+
+
+#: rows of each unclipped flank a clipped stripe's Gaussian is fitted to
+FLANK_ROWS = 3
+#: least value of a flank row in the fit, as a fraction of the clipped run's value
+FLANK_LEVEL = 0.03
+#: largest distance (px) between the fit and the half-level crossings' centre
+FLANK_AGREE_PX = 0.5
+
+
+@kernel()
+def _flank_fit(values: npt.NDArray[np.generic], lo: int, hi: int, c: int, floor: float,
+               reach: int) -> tuple[float, bool]:
+    """Centre (px) of the Gaussian through the unclipped flanks of a stripe clipped over
+    rows lo..hi of column c: a parabola fitted to ln(value) of up to ``reach`` rows each
+    side (weights value², the log's inverse variance), walked outward while a row stays
+    above ``floor`` and does not rise (another stripe's flank). False where a side has no
+    such row, there are fewer than three, or the fit is not a maximum near the run."""
+    height = values.shape[0]
+    m = 0.5 * (lo + hi)
+    s0 = s1 = s2 = s3 = s4 = t0 = t1 = t2 = 0.0
+    count = 0
+    for step in (-1, 1):
+        i = lo if step < 0 else hi
+        prev = np.inf
+        taken = 0
+        for _ in range(reach):
+            i += step
+            if i < 0 or i >= height:
+                break
+            v = np.float64(values[i, c])
+            if v <= floor or v > prev:
+                break
+            x, w, y = i - m, v * v, np.log(v)
+            s0 += w
+            s1 += w * x
+            s2 += w * x * x
+            s3 += w * x * x * x
+            s4 += w * x * x * x * x
+            t0 += w * y
+            t1 += w * x * y
+            t2 += w * x * x * y
+            prev = v
+            taken += 1
+        if taken == 0:
+            return m, False
+        count += taken
+    if count < 3:
+        return m, False
+    # normal equations of y = a + b x + q x² (3x3, Cramer's rule)
+    det = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
+    if not abs(det) > 1e-12 * max(s0 * s2 * s4, 1e-300):
+        return m, False
+    b = (s0 * (t1 * s4 - s3 * t2) - t0 * (s1 * s4 - s3 * s2) + s2 * (s1 * t2 - t1 * s2)) / det
+    q = (s0 * (s2 * t2 - t1 * s3) - s1 * (s1 * t2 - t1 * s2) + t0 * (s1 * s3 - s2 * s2)) / det
+    if not q < 0.0:
+        return m, False
+    centre = m - b / (2.0 * q)
+    if not abs(centre - m) <= 0.5 * (hi - lo) + 1.0:
+        return m, False
+    return centre, True
+
+
+@kernel()
+def _clipped_centre(values: npt.NDArray[np.generic], lo: int, hi: int, c: int,
+                    reach: int, floor: float) -> float:
+    """Sub-pixel centre (px) of a stripe clipped over the rows lo..hi of column c.
+
+    First half-way between the rows where its profile crosses half the run's mean value
+    above and below (:func:`_half_crossing`; a clipped symmetric profile stays symmetric,
+    where the run's middle moves in half-pixel steps). Then, where each flank has a row
+    above ``floor`` DN and FLANK_LEVEL of the run's value, and three such rows in all,
+    the Gaussian through them (:func:`_flank_fit`), kept when it lies within
+    FLANK_AGREE_PX of the crossings: a neighbour's tail (a near-parallel line pair) that
+    bends the fit is not followed."""
+    total = 0.0
+    for i in range(lo, hi + 1):
+        total += np.float64(values[i, c])
+    level = total / (hi - lo + 1)
+    top = _half_crossing(values, lo, c, -1, 0.5 * level, reach)
+    bottom = _half_crossing(values, hi, c, 1, 0.5 * level, reach)
+    half = 0.5 * (top + bottom)
+    fit, fitted = _flank_fit(values, lo, hi, c, max(floor, FLANK_LEVEL * level), FLANK_ROWS)
+    return fit if fitted and abs(fit - half) <= FLANK_AGREE_PX else half
 
 
 @kernel()
@@ -305,7 +420,8 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
     dropped. SNR is against the peak's noise tile; the ``method``
     (:data:`METHOD_CODES`) reads the column profile of half width ``r``; a peak next to a
     saturated pixel (looked for only with ``any_saturated``) is flat-topped and takes the
-    centre of the saturated run within ``saturation_window`` rows and σ_u
+    centre of its contiguous saturated run (:func:`_saturated_run`, at most
+    ``saturation_window`` rows each way; :func:`_clipped_centre`) and σ_u
     ``saturated_sigma`` when that run holds laser light (:func:`_lit_run`; a peak at the
     edge of pixels blinded in every sub-frame is dropped); other peaks σ_u
     ``crlb / max(SNR, 1)``. A sample is kept when its profile lies inside the image and
@@ -335,10 +451,11 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
             if not (centre - r >= 0 and centre + r < height):
                 continue
             if flat:
-                if not _lit_run(values, saturated, centre, c, saturation_window):
+                lo, hi = _saturated_run(saturated, centre, c, saturation_window)
+                if not _lit_run(values, lo, hi, centre, c):
                     continue  # next to blinded pixels, not a clipped stripe: dropped
-                row, sigma_u = _saturated_centre(saturated, centre, c, saturation_window), (
-                    saturated_sigma)
+                row = _clipped_centre(values, lo, hi, c, r, cog_threshold)
+                sigma_u = saturated_sigma
             else:
                 offset, good = _offset(window, method, r, cog_threshold, sigma)
                 if not (good and abs(offset) <= 1.0 and window[r] >= window[r - 1]

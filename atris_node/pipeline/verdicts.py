@@ -24,6 +24,8 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   lines stop over ``min_points`` or more columns of the sector between their points on
   both sides, one side nearer than the distance, with nothing seen in those columns
   nearer or beyond (:func:`unseen_columns`; a black panel lit only in the next sector).
+  Nor where bright lines stop together over a few columns in the middle of the surface
+  they are seen on (:func:`shadowed_columns`; a plate seen edge-on before a wall).
   A thin pole at a sector edge is reported by the sector its points fall in; nothing
   nearer is outvoted by a wall behind it. When ``min_points`` or more obstacle points lie
   nearer than the credible cluster without being credible themselves (a sliver, a short
@@ -90,6 +92,12 @@ SLIVER_COLUMNS = 3
 GAP_SNR = 3.0
 #: a hole in a line is at least this many columns wide (single dropouts are noise)
 GAP_RUN = 3
+#: strong lines that stop in the same columns between points on the reported surface:
+#: something stands in all their rays there (:func:`shadowed_columns`)
+SHADOW_LINES = 2
+#: such a line is seen on GAP_RUN columns each side of its hole with an SNR of at least
+#: SHADOW_SNR·snr_min: a surface a tenth as bright would still show
+SHADOW_SNR = 10.0
 #: columns across a sector boundary within which a neighbour's obstacle points vouch for a
 #: sector's few nearer points (one object straddling the boundary)
 STRADDLE_COLUMNS = 8
@@ -213,13 +221,15 @@ class LineHoles:
     """The runs of at least GAP_RUN columns in which a line has no peak at all, with its
     obstacle points on both sides (or, where its band is too noisy to show it, any of
     its samples), of one map: ``line``, ``start``, ``stop`` (columns,
-    stop exclusive), ``nearer_m`` (the nearer flank's range) and ``noisy`` (the line's
-    band is too noisy to show it in most of the run) per run, (n,) each."""
+    stop exclusive), ``nearer_m`` and ``farther_m`` (the flanks' ranges, inf where not
+    flanked) and ``noisy`` (the line's band is too noisy to show it in most of the run)
+    per run, (n,) each."""
 
     line: IntArray
     start: IntArray
     stop: IntArray
     nearer_m: FloatArray
+    farther_m: FloatArray
     noisy: BoolArray
 
     @classmethod
@@ -246,8 +256,9 @@ class LineHoles:
             hidden = 2 * (inside[k, stop] - inside[k, start]) >= stop - start
         keep = flanked | hidden  # a noisy run needs the line seen on both sides only
         nearer = np.where(flanked, np.minimum(left, right), np.inf)
+        farther = np.where(flanked, np.maximum(left, right), np.inf)
         return cls(k[keep].astype(np.int64), start[keep], stop[keep], nearer[keep],
-                   hidden[keep])
+                   farther[keep], hidden[keep])
 
 
 def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
@@ -290,6 +301,49 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     for shift in range(-GAP_RUN, GAP_RUN + 1):
         hole[np.clip(far + shift, 0, width - 1)] = False
     return int(hole.sum())
+
+
+def shadowed_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
+                     holes: LineHoles, distance_m: float, settings: SectorSettings) -> int:
+    """Columns of sector ``s`` in which SHADOW_LINES or more bright lines (seen with an
+    SNR of SHADOW_SNR·snr_min in every one of GAP_RUN columns each side) all have a hole
+    in one surface, its flanks within
+    max(DOUBT_REL·d, DOUBT_ABS_M) of each other and no farther than ``distance_m`` plus
+    that, with no obstacle point of any line at most that far in them. A hole at a depth
+    edge (flanks on two surfaces) is the projector's shadow of the nearer one, or
+    :func:`unseen_columns`'s case. Bright lines that all stop over a few columns of the
+    surface they are seen on both sides of meet something standing in their rays,
+    too dark or too edge-on to return them (a plate seen edge-on, a thin dark pole): at
+    any range between the unit and the surface. Narrower than :func:`unseen_columns`
+    asks (GAP_RUN columns, not ``min_points``): a 2 cm plate 1 m long seen edge-on at 7 m
+    hides four columns of a wall at 8.7 m."""
+    columns = np.flatnonzero(evidence.sector == s)
+    if not columns.size or not holes.line.size:
+        return 0
+    margin = _doubt_margin_m(distance_m)
+    limit = distance_m + margin
+    mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
+            & ~holes.noisy & (holes.start <= columns[-1]) & (holes.stop > columns[0]))
+    hits = (points.sector == s) & points.obstacle
+    count = np.zeros(evidence.sector.size, dtype=np.int64)
+    for k, start, stop in zip(holes.line[mine], holes.start[mine], holes.stop[mine],
+                              strict=True):
+        if _bright_flanks(points, k, start, stop, SHADOW_SNR * settings.snr_min):
+            count[start:stop] += 1
+    shadow = (count >= SHADOW_LINES) & (evidence.sector == s)
+    shadow[points.column[hits & (points.range_m <= limit)]] = False
+    return int(shadow.sum())
+
+
+def _bright_flanks(points: ObstaclePoints, line: int, start: int, stop: int,
+                   snr: float) -> bool:
+    """True when ``line`` has an obstacle point of SNR at least ``snr`` in each of the
+    GAP_RUN columns before ``start`` and from ``stop`` on (its hole's flanks)."""
+    mine = (points.line == line) & points.obstacle & (points.snr >= snr)
+    before = (points.column >= start - GAP_RUN) & (points.column < start)
+    after = (points.column >= stop) & (points.column < stop + GAP_RUN)
+    return bool(np.unique(points.column[mine & before]).size == GAP_RUN
+                and np.unique(points.column[mine & after]).size == GAP_RUN)
 
 
 def straddles(s: int, points: ObstaclePoints, count: int, distance_m: float,
@@ -352,9 +406,12 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
             found.distance_m):
         # too little support, or a distance the points do not pin down
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if holes is not None and unseen_columns(s, points, evidence, holes, found.distance_m,
-                                            settings) >= settings.min_points:
-        # a nearer surface may go on, too dark for the lines, where they stop
+    if holes is not None and (unseen_columns(s, points, evidence, holes, found.distance_m,
+                                             settings) >= settings.min_points
+                              or shadowed_columns(s, points, evidence, holes,
+                                                  found.distance_m, settings) >= GAP_RUN):
+        # a nearer surface may go on, too dark for the lines, where they stop; or
+        # something stands in the rays of every bright line over a few columns
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if straddles(s, points, layout.count, found.distance_m, settings):
         # an object credible across the boundary stands nearer in this sector's edge
