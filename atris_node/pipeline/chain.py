@@ -33,6 +33,7 @@ from atris_node.pipeline import (
 from atris_node.pipeline import objects as objects_mod
 from atris_node.pipeline.bands import Band, line_bands
 from atris_node.pipeline.evidence import SectorJudge
+from atris_node.pipeline.faint import faint_sectors
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import (
@@ -363,6 +364,10 @@ class Pipeline:
                 SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean]))
         sectors = _blank(self._judge.judge(extraction, points, data, clean, foreign,
                                            self._prior, self._ground), blanked)
+        sectors = _blank(sectors, faint_sectors(
+            dmap.values, self.bands, samples, self._judge.column_sector,
+            {s.index for s in sectors if s.state is SectorState.NO_RETURN},
+            self.config.min_points))
         nearest = nearest_obstacle(sectors, data, self.layout)
         closing, ttc = self._tracker.update(
             None if nearest is None else nearest.distance_m,
@@ -432,7 +437,8 @@ def visibility_prior(calibration: Calibration, mounting: Mounting, ground: Groun
 def _blank(sectors: tuple[SectorDistance, ...], indices: set[int]
            ) -> tuple[SectorDistance, ...]:
     """``sectors`` with those in ``indices`` made INVALID: columns with foreign light were
-    left out, so what remains of such a sector may miss the nearest obstacle."""
+    left out, so what remains of such a sector may miss the nearest obstacle; or a faint
+    return shows where the sector would have been free (:mod:`atris_node.pipeline.faint`)."""
     return tuple(SectorDistance(s.index, s.bearing_rad, SectorState.INVALID)
                  if s.index in indices else s for s in sectors)
 
