@@ -66,11 +66,24 @@ def test_sector_distances_match_the_truth(name: str) -> None:
     assert valid >= seen - 1, f"{name}: only {valid} of {seen} obstacle sectors valid"
 
 
-def test_free_floor_is_free_in_every_sector() -> None:
-    result, truth = _run(SCENES["free_floor"])
+def test_free_floor_is_free_in_every_sector_within_the_sheets_reach(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Both sheets meet the floor (at 3.4 and 4.4 m of camera range): within z_max 4.0 m
+    the upper one meets nothing and shows the range free, so every sector is NO_RETURN.
+    With the default z_max (10 m) both meet the floor nearer: nothing beyond 4.4 m is
+    looked at, and "free up to 10 m" is not known, so every sector is INVALID
+    (stress scene wall_at_last_ground_hit: a dark wall at the top sheet's ground hit read
+    free). Checked to fail with the unprobed columns not counted doubtful in
+    evidence.SectorJudge._evidence (NO_RETURN at 10 m). The pipeline says so when it is
+    made."""
+    result, truth = _run(SCENES["free_floor"], replace(CONFIG, z_max_m=4.0))
+    assert "no sector can be reported free" not in caplog.text
     assert all(t is None for t in truth)
     assert {s.state for s in result.measurement.sectors} == {SectorState.NO_RETURN}
     assert result.measurement.nearest is None
+    far, _ = _run(SCENES["free_floor"])
+    assert {s.state for s in far.measurement.sectors} == {SectorState.INVALID}
+    assert "no sector can be reported free" in caplog.text
 
 
 def test_measurement_carries_the_map_sequence_and_time() -> None:

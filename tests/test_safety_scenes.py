@@ -43,7 +43,9 @@ each stripe centred alone but on the middle of its saturated run. Without
 verdicts.shadowed_columns, edge_on_plate_bright_wall read the wall 48 % beyond an
 unseen edge-on plate in 4 of 4 maps (3 on seed 2), and with faint.FAINT_SIGMAS set to
 infinity dark_turned_wall_near_zmax read free before its wall in 1 sector-frame (2 on
-seed 11).
+seed 11); with the columns where every sheet meets the ground within z_max not counted
+as doubtful (evidence.SectorJudge._evidence), wall_at_last_ground_hit read free in 3
+sector-frames (7 on seed 2).
 With the sector distance taken as the least
 of the per-line fronts (its σ the standard error of a mean, no limit on it; the code
 before the σ-limited front of verdicts.py), parking_pedestrian read the building at 9 m

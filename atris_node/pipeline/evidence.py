@@ -104,7 +104,7 @@ class SectorJudge:
         obstacle = data.obstacle if sheet is None else self._credible_obstacle(
             data.obstacle, line, column, sheet)
         found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr)
-        evidence = self._evidence(extraction, foreign, prior)
+        evidence = self._evidence(extraction, foreign, prior, points.valid)
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
         if sheet is not None:
@@ -160,7 +160,9 @@ class SectorJudge:
                            focal_baseline_px_m=sheet.focal_baseline)
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
-                  prior: VisibilityPrior) -> ColumnEvidence:
+                  prior: VisibilityPrior, valid: BoolArray) -> ColumnEvidence:
+        """The column evidence of one map; ``valid`` (n,) marks the samples of
+        ``extraction`` that triangulate within the operating range."""
         samples, width = extraction.samples, self.column_sector.size
         expected = expected_on_ground(prior, self.calibration, self.z_range_m)
         seen = np.zeros(expected.shape, dtype=np.bool_)
@@ -170,9 +172,16 @@ class SectorJudge:
             extraction.band_noise_dn > CLEAN_NOISE * extraction.tile_noise_dn)
         if noisy is not None and extraction.blinded is not None:
             noisy = noisy | extraction.blinded
+        # where every line meets the ground within z_max and none is seen beyond the range
+        # (no ground there), nothing beyond the farthest ground hit is looked at: free up
+        # to z_max is not known there
+        beyond = per_column(samples.col_px[~valid], width) > 0
+        unprobed = ~(np.asarray(prior.ground_range_m) > self.z_range_m[1]).any(axis=0) & (
+            ~beyond)
         return ColumnEvidence(
             self.column_sector,
-            doubtful=extraction.doubtful_columns + saturated + foreign.astype(np.int64),
+            doubtful=(extraction.doubtful_columns + saturated + foreign.astype(np.int64)
+                      + unprobed.astype(np.int64)),
             ambiguous=extraction.ambiguous_columns,
             missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen,
             noisy=noisy, expected=expected)

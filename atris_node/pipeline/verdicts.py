@@ -36,7 +36,10 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
 - NO_RETURN (free up to z_max) only when it is earned: no obstacle point, no ambiguous,
   lone, dropped or saturated sample and no low surface with an unseen top in its
   columns, no foreign light, and every line that meets the ground within z_max was seen
-  in every one of its columns (on the ground, where the obstacle-free scene puts it);
+  in every one of its columns (on the ground, where the obstacle-free scene puts it),
+  with at least one line that does not (where every sheet meets the ground nearer than
+  z_max, nothing beyond the farthest ground hit is looked at: such columns are counted
+  doubtful, :class:`atris_node.pipeline.evidence.SectorJudge`);
   a line that meets nothing within z_max shows that nothing stands in its way only where
   a return would have stood out of the noise: its band (the rows of the whole operating
   range) no noisier than CLEAN_NOISE times the map's typical tile noise, and holding
