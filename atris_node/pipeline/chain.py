@@ -274,10 +274,10 @@ class Pipeline:
                         verdicts_kernels):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
-        reach = np.asarray(self._prior.ground_range_m)
-        if reach.size and not (reach > config.z_max_m).any():
+        if self.bands and not self._prior.looks_beyond.any():
             # every sheet meets the ground within z_max in every column: nothing beyond
             # the farthest ground hit is looked at, so no sector can be free (NO_RETURN)
+            reach = np.asarray(self._prior.ground_range_m)
             logger.warning("every sheet meets the ground within z_max %.2f m (the farthest "
                            "at %.2f m camera range): no sector can be reported free; set "
                            "z_max_m below that to have free sectors", config.z_max_m,

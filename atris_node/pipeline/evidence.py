@@ -19,7 +19,7 @@ from atris_node.mounting import Mounting
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
-from atris_node.pipeline.peaks import Extraction, per_column
+from atris_node.pipeline.peaks import Extraction, per_column, seen_lines
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.pipeline.tops import (
     GROUND_ROW_PX,
@@ -165,8 +165,7 @@ class SectorJudge:
         ``extraction`` that triangulate within the operating range."""
         samples, width = extraction.samples, self.column_sector.size
         expected = expected_on_ground(prior, self.calibration, self.z_range_m)
-        seen = np.zeros(expected.shape, dtype=np.bool_)
-        seen[samples.line, samples.col_px.astype(np.int64)] = True
+        seen = seen_lines(samples, expected.shape[0], width)
         saturated = per_column(samples.col_px[samples.saturated], width)
         noisy = None if extraction.band_noise_dn is None else (
             extraction.band_noise_dn > CLEAN_NOISE * extraction.tile_noise_dn)
@@ -176,8 +175,7 @@ class SectorJudge:
         # (no ground there), nothing beyond the farthest ground hit is looked at: free up
         # to z_max is not known there
         beyond = per_column(samples.col_px[~valid], width) > 0
-        unprobed = ~(np.asarray(prior.ground_range_m) > self.z_range_m[1]).any(axis=0) & (
-            ~beyond)
+        unprobed = ~prior.looks_beyond & ~beyond
         return ColumnEvidence(
             self.column_sector,
             doubtful=(extraction.doubtful_columns + saturated + foreign.astype(np.int64)

@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.pipeline.bands import Band
-from atris_node.pipeline.peaks import LineSamples
+from atris_node.pipeline.peaks import LineSamples, seen_lines
 
 #: columns averaged along a line (a stripe's row changes slowly from column to column)
 FAINT_COLUMNS = 9
@@ -112,8 +112,7 @@ def faint_sectors(values: npt.NDArray[Any], bands: tuple[Band, ...],
     column's sector (-1 outside). The map is not read when nothing is free."""
     if not free:
         return set()
-    seen = np.zeros((len(bands), column_sector.size), dtype=np.bool_)
-    seen[samples.line, np.rint(samples.col_px).astype(np.int64)] = True
+    seen = seen_lines(samples, len(bands), column_sector.size)
     looked = np.isin(column_sector, sorted(free))
     counts = np.zeros(int(column_sector.max()) + 1, dtype=np.int64)
     for band in bands:

@@ -201,6 +201,13 @@ class VisibilityPrior:
                          self.z_max_m], dtype=np.float64)
 
     @cached_property
+    def looks_beyond(self) -> BoolArray:
+        """(W,) True where some line meets the ground beyond z_max (or never): that line
+        looks over the whole operating range. Where none does, nothing beyond the
+        farthest ground hit is looked at, and the column cannot show free space."""
+        return np.asarray((self.ground_range_m > self.z_max_m).any(axis=0))
+
+    @cached_property
     def image_order(self) -> IntArray:
         """(K,) the lines from the top of the image down (ascending cot α)."""
         return np.argsort(self.cot_alpha)

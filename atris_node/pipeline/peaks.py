@@ -210,8 +210,9 @@ def _samples(values: npt.NDArray[np.generic], saturated: BoolArray | None, rows:
     peak method accepts, the number of peaks that strong and how many of them were
     dropped: one compiled pass (:func:`atris_node.pipeline.peaks_kernels.line_samples`; the methods
     are described at the top of this module). An offset beyond ±1 px is dropped. A flat
-    top (a saturated pixel next to the peak) takes the centre of its contiguous saturated run and
-    σ_u SATURATED_SIGMA_PX; other samples σ_u = CRLB / SNR. ``saturated`` as
+    top (a saturated pixel next to the peak) takes the centre fitted to the flanks of its
+    own saturated run (:func:`atris_node.pipeline.peaks_kernels._clipped_centre`) and σ_u
+    SATURATED_SIGMA_PX; other samples σ_u = CRLB / SNR. ``saturated`` as
     :func:`saturation_mask` gives it."""
     crlb = float(np.sqrt(2.0 * settings.stripe_sigma_px / np.sqrt(np.pi)))
     line, row, col, snr, sigma, flat, strong, dropped = kernels.line_samples(
@@ -360,7 +361,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       band_noise_dn=band_noise(local, bands),
                       tile_noise_dn=float(np.median(local.sigma_tiles[:-1]))
                       if local.sigma_tiles.shape[0] > 1 else noise,
-                      blinded=blinded_bands(values, saturated, local, bands, settings.snr_min))
+                      blinded=blinded_bands(values, flat, local, bands, settings.snr_min))
 
 
 def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float32]:
@@ -377,17 +378,20 @@ def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float
     return out
 
 
-def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray, local: NoiseMap,
-                  bands: tuple[Band, ...], snr_min: float) -> BoolArray | None:
+def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray | None,
+                  local: NoiseMap, bands: tuple[Band, ...], snr_min: float
+                  ) -> BoolArray | None:
     """(K, W) True where line k's band holds, in column c, a saturated pixel below its
     tile's threshold: full scale in the OFF sub-frames too (sunlit, blinded), it carries
     no laser light and would hide the line; None when there is none. One compiled pass
-    over the band rows (:func:`atris_node.pipeline.peaks_kernels.blinded`)."""
+    over the band rows (:func:`atris_node.pipeline.peaks_kernels.blinded`), left out when
+    nothing is saturated. ``saturated`` as :func:`saturation_mask` gives it."""
+    if saturated is None:
+        return None
     out = np.zeros((len(bands), local.width), dtype=np.bool_)
     rows = np.array([(b.row_lo, b.row_hi) for b in bands], dtype=np.int64).reshape(-1, 2)
-    found = kernels.blinded(kernels.map_values(values), np.ascontiguousarray(saturated),
-                            rows, local.threshold_tiles(snr_min), local.tile_row,
-                            NOISE_TILE_PX, out)
+    found = kernels.blinded(kernels.map_values(values), saturated, rows,
+                            local.threshold_tiles(snr_min), local.tile_row, NOISE_TILE_PX, out)
     return out if found else None
 
 
@@ -427,6 +431,13 @@ def _unsampled(rows: IntArray, samples: LineSamples) -> IntArray:
 def per_column(col_px: FloatArray, width: int) -> IntArray:
     """(W,) how many of the given column positions (px) fall in each image column."""
     return np.bincount(col_px.astype(np.int64), minlength=width)[:width].astype(np.int64)
+
+
+def seen_lines(samples: LineSamples, lines: int, width: int) -> BoolArray:
+    """(K, W) True where line k has a sample in column c."""
+    seen = np.zeros((lines, width), dtype=np.bool_)
+    seen[samples.line, samples.col_px.astype(np.int64)] = True
+    return seen
 
 
 def smooth_along_lines(samples: LineSamples, lines: int, width: int,
