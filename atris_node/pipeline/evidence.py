@@ -103,7 +103,8 @@ class SectorJudge:
         line, column = samples.line[clean], samples.col_px[clean].astype(np.int64)
         obstacle = data.obstacle if sheet is None else self._credible_obstacle(
             data.obstacle, line, column, sheet)
-        found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr)
+        found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr,
+                               points.xyz_m[clean, 2])
         evidence = self._evidence(extraction, foreign, prior, points.valid)
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
@@ -182,7 +183,7 @@ class SectorJudge:
                       + unprobed.astype(np.int64)),
             ambiguous=extraction.ambiguous_columns,
             missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen,
-            noisy=noisy, expected=expected)
+            noisy=noisy, expected=expected, prior=prior)
 
     def _any_line_ranges(self, row_px: FloatArray, col_px: FloatArray) -> FloatArray:
         """(S,) per sector the nearest horizontal range (m) the given peaks stand for

@@ -25,7 +25,13 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   both sides, one side nearer than the distance, with nothing seen in those columns
   nearer or beyond (:func:`unseen_columns`; a black panel lit only in the next sector).
   Nor where bright lines stop together over a few columns in the middle of the surface
-  they are seen on (:func:`shadowed_columns`; a plate seen edge-on before a wall).
+  they are seen on (:func:`shadowed_columns`; a plate seen edge-on before a wall), nor
+  where a line the surface should show below its lowest seen lines (it meets the surface
+  above the ground clearance) has no peak over a run of its columns while the surface's
+  other lines are found solidly (:func:`missing_on_surface`; a dark platform before a
+  wall, lower than the lines that pass over it). A line that meets the ground before
+  the surface, or the surface within a row and a half of its ground row, is not looked
+  for there: nothing says a grazed floor, or a platform's grazed top, returns it.
   A thin pole at a sector edge is reported by the sector its points fall in; nothing
   nearer is outvoted by a wall behind it. When ``min_points`` or more obstacle points lie
   nearer than the credible cluster without being credible themselves (a sliver, a short
@@ -61,6 +67,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.pipeline import verdicts_kernels
+from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import SectorSettings
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import SectorDistance, SectorState
@@ -101,6 +108,17 @@ SHADOW_LINES = 2
 #: such a line is seen on GAP_RUN columns each side of its hole with an SNR of at least
 #: SHADOW_SNR·snr_min: a surface a tenth as bright would still show
 SHADOW_SNR = 10.0
+#: a surface seen by lines of SNR SURFACE_SNR·snr_min would show another line on it
+#: (:func:`missing_on_surface`); such a line is looked for only where it would meet the
+#: surface SURFACE_ROWS_PX or more rows above the row where it meets the ground
+#: clearance (nearer, its sample would be ground, tops.GROUND_ROW_PX)
+SURFACE_SNR = 2.0
+SURFACE_ROWS_PX = 1.5
+#: it must be missing over SURFACE_RUN·min_points columns (longer than the gaps that
+#: noise and the lone-sample rule leave in a weak line), on a surface whose lines are
+#: found in SURFACE_SOLID of their columns
+SURFACE_RUN = 2
+SURFACE_SOLID = 0.8
 #: columns across a sector boundary within which a neighbour's obstacle points vouch for a
 #: sector's few nearer points (one object straddling the boundary)
 STRADDLE_COLUMNS = 8
@@ -123,6 +141,8 @@ class ObstaclePoints:
     column: IntArray
     sigma_m: FloatArray
     snr: FloatArray
+    #: (n,) camera-frame depth z (m); None: not known, no test of the lines below a surface
+    depth_m: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -145,6 +165,8 @@ class ColumnEvidence:
     noisy: BoolArray | None = None
     #: (K, W) line k meets the ground within the operating range in column c
     expected: BoolArray | None = None
+    #: where each line would show on a surface (:func:`missing_on_surface`); None: unknown
+    prior: VisibilityPrior | None = None
 
     @property
     def unclean(self) -> IntArray:
@@ -338,6 +360,92 @@ def shadowed_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     return int(shadow.sum())
 
 
+def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
+                       distance_m: float, settings: SectorSettings) -> int:
+    """Columns of sector ``s`` in which the surface found at ``distance_m`` should show a
+    line that has no peak there at all: something lower stands before it, unseen.
+
+    The surface is the obstacle points within max(DOUBT_REL·d, DOUBT_ABS_M) of d with an
+    SNR of at least SURFACE_SNR·snr_min (another line on it, half as bright, would still
+    stand out). In each of its columns, at its mean depth there, a line below the
+    topmost one seen (a surface standing on the ground meets every lower sheet) that
+    would meet it SURFACE_ROWS_PX or more rows above the row where it meets the ground
+    clearance, on a row of the image and in a quiet band (``evidence.noisy``), is
+    expected on it. A run of at least SURFACE_RUN·``min_points`` such columns in which
+    the line has no peak counts, unless the line is seen beyond the surface within
+    GAP_RUN columns of the run (it passes under a surface that does not reach the
+    ground: a sphere, a vehicle's body), or the run is the noise of a patchy surface:
+    the other lines seen on it are found in fewer than SURFACE_SOLID of their expected
+    columns (median), or the line itself is found, outside the run, in some but fewer
+    than that. A dark kerb before a bright wall: the wall's lines above the kerb are
+    seen, the one that would meet the wall at the kerb's height is missing. Needs
+    ``evidence.prior``, ``evidence.seen`` and ``points.depth_m`` (0 without them)."""
+    prior, seen = evidence.prior, evidence.seen
+    if prior is None or seen is None or points.depth_m is None:
+        return 0
+    margin = _doubt_margin_m(distance_m)
+    surface = np.flatnonzero((points.sector == s) & points.obstacle
+                             & (np.abs(points.range_m - distance_m) <= margin)
+                             & (points.snr >= SURFACE_SNR * settings.snr_min))
+    if surface.size < settings.min_points:
+        return 0
+    onto = _expected_on_surface(surface, points, evidence, prior)
+    shown = np.zeros_like(onto)
+    shown[:, :-1] = seen
+    lost = onto & ~shown
+    step = np.diff(lost.astype(np.int8), axis=1, prepend=0)
+    line, start = np.nonzero(step == 1)
+    stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
+    long = stop - start >= SURFACE_RUN * settings.min_points
+    beyond = (points.sector == s) & (points.range_m > distance_m + margin)
+    hole = np.zeros(onto.shape[1], dtype=np.bool_)
+    for k, a, b in zip(line[long], start[long], stop[long], strict=True):
+        passes = beyond & (points.line == k) & (points.column >= a - GAP_RUN) & (
+            points.column < b + GAP_RUN)
+        if not passes.any() and _solid(onto, shown, int(k), int(a), int(b)):
+            hole[a:b] = True
+    return int(hole.sum())
+
+
+def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
+                         evidence: ColumnEvidence, prior: VisibilityPrior) -> BoolArray:
+    """(K, W + 1) True where line k would show on the surface (the points ``surface``) in
+    column c: below the topmost line seen on it there, SURFACE_ROWS_PX or more rows above
+    its ground row at the surface's mean depth in c, inside the image, its band quiet."""
+    lines = prior.cot_alpha.size
+    depth_m = np.asarray(points.depth_m)
+    rank = np.empty(lines, dtype=np.int64)
+    rank[prior.image_order] = np.arange(lines)
+    columns, group = np.unique(points.column[surface], return_inverse=True)
+    z = np.bincount(group, weights=depth_m[surface]) / np.bincount(group)
+    top = np.full(columns.size, lines, dtype=np.int64)
+    np.minimum.at(top, group, rank[points.line[surface]])
+    fb = prior.focal_px * prior.baseline_m
+    with np.errstate(divide="ignore"):
+        rows_off = fb / z[None, :] - fb / prior.ground_range_m[:, columns]
+    row = prior.cy_px + prior.focal_px * prior.cot_alpha[:, None] - fb / z[None, :]
+    here = ((rank[:, None] > top[None, :]) & (rows_off >= SURFACE_ROWS_PX) & (row >= 0)
+            & (row < prior.height_px))
+    if evidence.noisy is not None:
+        here &= ~evidence.noisy[:, columns]
+    onto = np.zeros((lines, evidence.sector.size + 1), dtype=np.bool_)
+    onto[:, columns] = here
+    return onto
+
+
+def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int) -> bool:
+    """True when, outside ``line``'s run [start, stop), the other lines that show on the
+    surface are found in SURFACE_SOLID or more of the columns they are expected in
+    (median) and ``line`` itself in none or as many: its run is no patch of noise."""
+    rest = onto.copy()
+    rest[line, start:stop] = False
+    found = (rest & shown).sum(axis=1)
+    fraction = found / np.maximum(rest.sum(axis=1), 1)
+    others = np.delete(fraction, line)[np.delete(found, line) > 0]
+    return bool(others.size and np.median(others) >= SURFACE_SOLID
+                and (found[line] == 0 or fraction[line] >= SURFACE_SOLID))
+
+
 def _bright_flanks(points: ObstaclePoints, line: int, start: int, stop: int,
                    snr: float) -> bool:
     """True when ``line`` has an obstacle point of SNR at least ``snr`` in each of the
@@ -415,6 +523,9 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
                                                   found.distance_m, settings) >= GAP_RUN):
         # a nearer surface may go on, too dark for the lines, where they stop; or
         # something stands in the rays of every bright line over a few columns
+        return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
+    if missing_on_surface(s, points, evidence, found.distance_m,
+                          settings) >= settings.min_points:
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if straddles(s, points, layout.count, found.distance_m, settings):
         # an object credible across the boundary stands nearer in this sector's edge
