@@ -45,7 +45,9 @@ unseen edge-on plate in 4 of 4 maps (3 on seed 2), and with faint.FAINT_SIGMAS s
 infinity dark_turned_wall_near_zmax read free before its wall in 1 sector-frame (2 on
 seed 11); with the columns where every sheet meets the ground within z_max not counted
 as doubtful (evidence.SectorJudge._evidence), wall_at_last_ground_hit read free in 3
-sector-frames (7 on seed 2).
+sector-frames (7 on seed 2). With verdicts.missing_on_surface returning 0,
+platform_before_wall read its wall for the platform before it in 17 sector-frames of 32
+(14 on seed 2).
 With the sector distance taken as the least
 of the per-line fronts (its σ the standard error of a mean, no limit on it; the code
 before the σ-limited front of verdicts.py), parking_pedestrian read the building at 9 m

@@ -114,6 +114,8 @@ SHADOW_SNR = 10.0
 #: clearance (nearer, its sample would be ground, tops.GROUND_ROW_PX)
 SURFACE_SNR = 2.0
 SURFACE_ROWS_PX = 1.5
+#: SURFACE_SEEN_ROWS_PX for a line seen on the surface in other columns (it reaches it)
+SURFACE_SEEN_ROWS_PX = 0.5
 #: it must be missing over SURFACE_RUN·min_points columns (longer than the gaps that
 #: noise and the lone-sample rule leave in a weak line), on a surface whose lines are
 #: found in SURFACE_SOLID of their columns
@@ -372,9 +374,10 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     would meet it SURFACE_ROWS_PX or more rows above the row where it meets the ground
     clearance, on a row of the image and in a quiet band (``evidence.noisy``), is
     expected on it. A run of at least SURFACE_RUN·``min_points`` such columns in which
-    the line has no peak counts, unless the line is seen beyond the surface within
-    GAP_RUN columns of the run (it passes under a surface that does not reach the
-    ground: a sphere, a vehicle's body), or the run is the noise of a patchy surface:
+    the line has no peak counts, unless a line between it and the surface's lowest
+    seen one (or itself) is seen beyond the surface within GAP_RUN columns of the run
+    (the surface does not reach the ground there, the lines pass under it: a sphere, a
+    vehicle's body), or the run is the noise of a patchy surface:
     the other lines seen on it are found in fewer than SURFACE_SOLID of their expected
     columns (median), or the line itself is found, outside the run, in some but fewer
     than that. A dark kerb before a bright wall: the wall's lines above the kerb are
@@ -389,7 +392,7 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
                              & (points.snr >= SURFACE_SNR * settings.snr_min))
     if surface.size < settings.min_points:
         return 0
-    onto = _expected_on_surface(surface, points, evidence, prior)
+    onto, bottom = _expected_on_surface(surface, points, evidence, prior)
     shown = np.zeros_like(onto)
     shown[:, :-1] = seen
     lost = onto & ~shown
@@ -397,53 +400,80 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     line, start = np.nonzero(step == 1)
     stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
     long = stop - start >= SURFACE_RUN * settings.min_points
-    beyond = (points.sector == s) & (points.range_m > distance_m + margin)
+    beyond = np.flatnonzero((points.sector == s) & (points.range_m > distance_m + margin))
+    rank = _ranks(prior)
     hole = np.zeros(onto.shape[1], dtype=np.bool_)
     for k, a, b in zip(line[long], start[long], stop[long], strict=True):
-        passes = beyond & (points.line == k) & (points.column >= a - GAP_RUN) & (
-            points.column < b + GAP_RUN)
-        if not passes.any() and _solid(onto, shown, int(k), int(a), int(b)):
+        # a line between the surface's lowest seen one and this one, seen beyond it
+        # near the run: the surface does not reach down there, the lines pass under
+        near = beyond[(points.column[beyond] >= a - GAP_RUN)
+                      & (points.column[beyond] < b + GAP_RUN)]
+        under = rank[points.line[near]]
+        passes = ((under > bottom[a:b].max()) & (under <= rank[k])).any()
+        if not passes and _solid(onto, shown, int(k), int(a), int(b), settings.min_points):
             hole[a:b] = True
     return int(hole.sum())
 
 
 def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
-                         evidence: ColumnEvidence, prior: VisibilityPrior) -> BoolArray:
+                         evidence: ColumnEvidence, prior: VisibilityPrior
+                         ) -> tuple[BoolArray, IntArray]:
     """(K, W + 1) True where line k would show on the surface (the points ``surface``) in
     column c: below the topmost line seen on it there, SURFACE_ROWS_PX or more rows above
-    its ground row at the surface's mean depth in c, inside the image, its band quiet."""
+    its ground row at the surface's mean depth in c (SURFACE_SEEN_ROWS_PX for a line seen
+    on the surface in other columns), inside the image, its band quiet;
+    and (W + 1,) the image position (0 = top) of the lowest line seen on it per column
+    (-1 where it is not seen)."""
     lines = prior.cot_alpha.size
     depth_m = np.asarray(points.depth_m)
-    rank = np.empty(lines, dtype=np.int64)
-    rank[prior.image_order] = np.arange(lines)
+    rank = _ranks(prior)
     columns, group = np.unique(points.column[surface], return_inverse=True)
     z = np.bincount(group, weights=depth_m[surface]) / np.bincount(group)
     top = np.full(columns.size, lines, dtype=np.int64)
     np.minimum.at(top, group, rank[points.line[surface]])
+    low = np.full(columns.size, -1, dtype=np.int64)
+    np.maximum.at(low, group, rank[points.line[surface]])
     fb = prior.focal_px * prior.baseline_m
     with np.errstate(divide="ignore"):
         rows_off = fb / z[None, :] - fb / prior.ground_range_m[:, columns]
     row = prior.cy_px + prior.focal_px * prior.cot_alpha[:, None] - fb / z[None, :]
-    here = ((rank[:, None] > top[None, :]) & (rows_off >= SURFACE_ROWS_PX) & (row >= 0)
+    # a line seen on the surface somewhere reaches it: a smaller margin from its ground
+    # row then (the surface's depth in the column still decides)
+    margin = np.full(lines, SURFACE_ROWS_PX)
+    margin[np.unique(points.line[surface])] = SURFACE_SEEN_ROWS_PX
+    here = ((rank[:, None] > top[None, :]) & (rows_off >= margin[:, None]) & (row >= 0)
             & (row < prior.height_px))
     if evidence.noisy is not None:
         here &= ~evidence.noisy[:, columns]
     onto = np.zeros((lines, evidence.sector.size + 1), dtype=np.bool_)
     onto[:, columns] = here
-    return onto
+    bottom = np.full(evidence.sector.size + 1, -1, dtype=np.int64)
+    bottom[columns] = low
+    return onto, bottom
 
 
-def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int) -> bool:
+def _ranks(prior: VisibilityPrior) -> IntArray:
+    """(K,) each line's position in the image from the top (0 = top)."""
+    rank = np.empty(prior.cot_alpha.size, dtype=np.int64)
+    rank[prior.image_order] = np.arange(prior.cot_alpha.size)
+    return rank
+
+
+def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
+           min_points: int) -> bool:
     """True when, outside ``line``'s run [start, stop), the other lines that show on the
     surface are found in SURFACE_SOLID or more of the columns they are expected in
-    (median) and ``line`` itself in none or as many: its run is no patch of noise."""
+    (median), and ``line`` itself in none or as many (or is expected in fewer than
+    ``min_points`` columns there, too few to tell): its run is no patch of noise."""
     rest = onto.copy()
     rest[line, start:stop] = False
     found = (rest & shown).sum(axis=1)
-    fraction = found / np.maximum(rest.sum(axis=1), 1)
+    expected = rest.sum(axis=1)
+    fraction = found / np.maximum(expected, 1)
     others = np.delete(fraction, line)[np.delete(found, line) > 0]
-    return bool(others.size and np.median(others) >= SURFACE_SOLID
-                and (found[line] == 0 or fraction[line] >= SURFACE_SOLID))
+    own = (found[line] == 0 or fraction[line] >= SURFACE_SOLID
+           or expected[line] < min_points)
+    return bool(others.size and np.median(others) >= SURFACE_SOLID and own)
 
 
 def _bright_flanks(points: ObstaclePoints, line: int, start: int, stop: int,
