@@ -333,13 +333,15 @@ def test_feature_a_pole_on_a_sector_boundary_stands_in_both_sectors() -> None:
 
 def _wall_over_a_low_box(lowest_ground_m: float, lowest_columns: range,
                          other_columns: range = range(32), lowest_beyond_m: float | None = None,
-                         under: int = 0) -> tuple[ObstaclePoints, ColumnEvidence]:
+                         under: int = 0, lowest_snr: float = 20.0
+                         ) -> tuple[ObstaclePoints, ColumnEvidence]:
     """Sector 0 (columns 0-31): lines 0-4 seen on a wall at 4 m (depth 4 m, SNR 20) in
     ``other_columns``; line 5, the lowest, in ``lowest_columns`` only (and at
     ``lowest_beyond_m`` in column 16 when given). Lines 0-4 never meet the ground, line
     5 at ``lowest_ground_m`` (f = 400 px, b = 0.1 m: at 8 m it would meet the wall 5
-    rows above its ground row, at 4.1 m 0.24 rows). With ``under``, that many lines
-    below the lowest (never seen, meeting the ground at 9 m) are added."""
+    rows above its ground row, at 4.1 m 0.24 rows), its points of SNR ``lowest_snr``.
+    With ``under``, that many lines below the lowest (never seen, meeting the ground at
+    9 m) are added."""
     cells = [(k, c) for k in range(5) for c in other_columns]
     cells += [(5, c) for c in lowest_columns]
     ranges = [4.0] * len(cells)
@@ -349,8 +351,8 @@ def _wall_over_a_low_box(lowest_ground_m: float, lowest_columns: range,
     line, column = (np.array(v, np.int64) for v in zip(*cells, strict=True))
     n = line.size
     points = ObstaclePoints(np.asarray(ranges), np.zeros(n, np.int64), np.ones(n, bool),
-                            line, column, np.full(n, 0.01), np.full(n, 20.0),
-                            np.asarray(ranges))
+                            line, column, np.full(n, 0.01),
+                            np.where(line == 5, lowest_snr, 20.0), np.asarray(ranges))
     lines = 6 + under
     seen = np.zeros((lines, WIDTH), bool)
     seen[line, column] = True
@@ -372,16 +374,18 @@ def test_feature_a_line_missing_from_the_surface_blocks_it() -> None:
     is INVALID (a randomly drawn 27 cm platform before a wall read 3.95 m for 2.41 m in
     every map). Where the lowest line is seen all along, meets the ground before the
     wall (0.24 rows: on the grazed floor, no return is due), is seen beyond the wall in
-    the run (it passes under a surface that does not reach the ground), or where the
-    other lines are patchy (found in half their columns: a run of noise), the wall's
-    4 m stands. Checked to fail with missing_on_surface taken out of _verdict (sector 0
-    VALID at 4 m)."""
+    the run (it passes under a surface that does not reach the ground), where the
+    other lines are patchy (found in half their columns: a run of noise), or where the
+    lowest line fades into the run (SNR 8 beside it, under 2·snr_min: a glossy wall
+    turning its lobe from that sheet), the wall's 4 m stands. Checked to fail with
+    missing_on_surface taken out of _verdict (sector 0 VALID at 4 m), and the fading
+    line with _abrupt always True (INVALID)."""
     box = range(4, 28)
     outside = [c for c in range(32) if c not in box]
     points, evidence = _wall_over_a_low_box(8.0, outside)
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
     for args in [(8.0, range(32)), (4.1, outside), (8.0, outside, range(32), 6.0),
-                 (8.0, outside, range(0, 32, 2))]:
+                 (8.0, outside, range(0, 32, 2)), (8.0, outside, range(32), None, 0, 8.0)]:
         points, evidence = _wall_over_a_low_box(*args)
         out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
         assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), args

@@ -380,16 +380,19 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     vehicle's body), or the run is the noise of a patchy surface:
     the other lines seen on it are found in fewer than SURFACE_SOLID of their expected
     columns (median), or the line itself is found, outside the run, in some but fewer
-    than that. A dark kerb before a bright wall: the wall's lines above the kerb are
+    than that, or it fades into the run (two or more of its points within 2·GAP_RUN
+    columns of the run, none of SNR SURFACE_SNR·snr_min).
+    A dark kerb before a bright wall: the wall's lines above the kerb are
     seen, the one that would meet the wall at the kerb's height is missing. Needs
     ``evidence.prior``, ``evidence.seen`` and ``points.depth_m`` (0 without them)."""
     prior, seen = evidence.prior, evidence.seen
     if prior is None or seen is None or points.depth_m is None:
         return 0
     margin = _doubt_margin_m(distance_m)
-    surface = np.flatnonzero((points.sector == s) & points.obstacle
-                             & (np.abs(points.range_m - distance_m) <= margin)
-                             & (points.snr >= SURFACE_SNR * settings.snr_min))
+    on = ((points.sector == s) & points.obstacle
+          & (np.abs(points.range_m - distance_m) <= margin))
+    strong = SURFACE_SNR * settings.snr_min
+    surface = np.flatnonzero(on & (points.snr >= strong))
     if surface.size < settings.min_points:
         return 0
     onto, bottom = _expected_on_surface(surface, points, evidence, prior)
@@ -410,7 +413,8 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
                       & (points.column[beyond] < b + GAP_RUN)]
         under = rank[points.line[near]]
         passes = ((under > bottom[a:b].max()) & (under <= rank[k])).any()
-        if not passes and _solid(onto, shown, int(k), int(a), int(b), settings.min_points):
+        if (not passes and _solid(onto, shown, int(k), int(a), int(b), settings.min_points)
+                and _abrupt(points, on, int(k), int(a), int(b), strong)):
             hole[a:b] = True
     return int(hole.sum())
 
@@ -474,6 +478,23 @@ def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
     own = (found[line] == 0 or fraction[line] >= SURFACE_SOLID
            or expected[line] < min_points)
     return bool(others.size and np.median(others) >= SURFACE_SOLID and own)
+
+
+def _abrupt(points: ObstaclePoints, on: BoolArray, line: int, start: int, stop: int,
+            snr: float) -> bool:
+    """True when ``line`` stops abruptly at its run [start, stop) on the surface (the
+    points ``on``): one of its points there within 2·GAP_RUN columns of the run has an
+    SNR of at least ``snr``, or it has fewer than two there (the other lines predict
+    it). A line that fades into the run, near its threshold wherever it was last seen
+    (a glossy surface turning its lobe away from that sheet), does not count; the
+    point at a blocking object's very edge may be weak, so the strongest one counts."""
+    reach = 2 * GAP_RUN
+    edge = on & (points.line == line) & (
+        ((points.column >= start - reach) & (points.column < start))
+        | ((points.column >= stop) & (points.column < stop + reach)))
+    if np.count_nonzero(edge) < 2:
+        return True
+    return bool(points.snr[edge].max() >= snr)
 
 
 def _bright_flanks(points: ObstaclePoints, line: int, start: int, stop: int,
