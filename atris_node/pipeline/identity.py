@@ -212,6 +212,13 @@ class VisibilityPrior:
         """(K,) the lines from the top of the image down (ascending cot α)."""
         return np.argsort(self.cot_alpha)
 
+    @cached_property
+    def image_rank(self) -> IntArray:
+        """(K,) each line's position from the top of the image (0 = top)."""
+        rank = np.empty(self.cot_alpha.size, dtype=np.int64)
+        rank[self.image_order] = np.arange(self.cot_alpha.size)
+        return rank
+
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
                    prior: VisibilityPrior | None = None, *,

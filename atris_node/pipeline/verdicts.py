@@ -395,72 +395,68 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     surface = np.flatnonzero(on & (points.snr >= strong))
     if surface.size < settings.min_points:
         return 0
-    onto, bottom = _expected_on_surface(surface, points, evidence, prior)
+    first, onto, bottom = _expected_on_surface(surface, points, evidence, prior)
     shown = np.zeros_like(onto)
-    shown[:, :-1] = seen
+    shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
     lost = onto & ~shown
     step = np.diff(lost.astype(np.int8), axis=1, prepend=0)
     line, start = np.nonzero(step == 1)
     stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
     long = stop - start >= SURFACE_RUN * settings.min_points
+    if not long.any():
+        return 0
     beyond = np.flatnonzero((points.sector == s) & (points.range_m > distance_m + margin))
-    rank = _ranks(prior)
+    rank = prior.image_rank
     hole = np.zeros(onto.shape[1], dtype=np.bool_)
     for k, a, b in zip(line[long], start[long], stop[long], strict=True):
         # a line between the surface's lowest seen one and this one, seen beyond it
         # near the run: the surface does not reach down there, the lines pass under
-        near = beyond[(points.column[beyond] >= a - GAP_RUN)
-                      & (points.column[beyond] < b + GAP_RUN)]
+        near = beyond[(points.column[beyond] >= first + a - GAP_RUN)
+                      & (points.column[beyond] < first + b + GAP_RUN)]
         under = rank[points.line[near]]
         passes = ((under > bottom[a:b].max()) & (under <= rank[k])).any()
         if (not passes and _solid(onto, shown, int(k), int(a), int(b), settings.min_points)
-                and _abrupt(points, on, int(k), int(a), int(b), strong)):
+                and _abrupt(points, on, int(k), first + int(a), first + int(b), strong)):
             hole[a:b] = True
     return int(hole.sum())
 
 
 def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
                          evidence: ColumnEvidence, prior: VisibilityPrior
-                         ) -> tuple[BoolArray, IntArray]:
-    """(K, W + 1) True where line k would show on the surface (the points ``surface``) in
-    column c: below the topmost line seen on it there, SURFACE_ROWS_PX or more rows above
-    its ground row at the surface's mean depth in c (SURFACE_SEEN_ROWS_PX for a line seen
-    on the surface in other columns), inside the image, its band quiet;
-    and (W + 1,) the image position (0 = top) of the lowest line seen on it per column
-    (-1 where it is not seen)."""
+                         ) -> tuple[int, BoolArray, IntArray]:
+    """The first column c0 the surface (the points ``surface``) is seen in; (K, n + 1)
+    True where line k would show on it in column c0 + j: below the topmost line seen on
+    it there, SURFACE_ROWS_PX or more rows above its ground row at the surface's mean
+    depth there (SURFACE_SEEN_ROWS_PX for a line seen on the surface in other columns),
+    inside the image, its band quiet; and (n + 1,) the image position (0 = top) of the
+    lowest line seen on it per column (-1 where it is not seen). n spans the surface's
+    columns; the last column is False (a run's end)."""
     lines = prior.cot_alpha.size
-    depth_m = np.asarray(points.depth_m)
-    rank = _ranks(prior)
+    rank = prior.image_rank
     columns, group = np.unique(points.column[surface], return_inverse=True)
-    z = np.bincount(group, weights=depth_m[surface]) / np.bincount(group)
-    top = np.full(columns.size, lines, dtype=np.int64)
-    np.minimum.at(top, group, rank[points.line[surface]])
-    low = np.full(columns.size, -1, dtype=np.int64)
-    np.maximum.at(low, group, rank[points.line[surface]])
+    z = (np.bincount(group, weights=np.asarray(points.depth_m)[surface])
+         / np.bincount(group))
+    held = np.zeros((columns.size, lines), dtype=np.bool_)
+    held[group, rank[points.line[surface]]] = True  # by column and image position
+    top = held.argmax(axis=1)
+    low = lines - 1 - held[:, ::-1].argmax(axis=1)
     fb = prior.focal_px * prior.baseline_m
     with np.errstate(divide="ignore"):
         rows_off = fb / z[None, :] - fb / prior.ground_range_m[:, columns]
     row = prior.cy_px + prior.focal_px * prior.cot_alpha[:, None] - fb / z[None, :]
     # a line seen on the surface somewhere reaches it: a smaller margin from its ground
     # row then (the surface's depth in the column still decides)
-    margin = np.full(lines, SURFACE_ROWS_PX)
-    margin[np.unique(points.line[surface])] = SURFACE_SEEN_ROWS_PX
+    margin = np.where(held.any(axis=0)[rank], SURFACE_SEEN_ROWS_PX, SURFACE_ROWS_PX)
     here = ((rank[:, None] > top[None, :]) & (rows_off >= margin[:, None]) & (row >= 0)
             & (row < prior.height_px))
     if evidence.noisy is not None:
         here &= ~evidence.noisy[:, columns]
-    onto = np.zeros((lines, evidence.sector.size + 1), dtype=np.bool_)
-    onto[:, columns] = here
-    bottom = np.full(evidence.sector.size + 1, -1, dtype=np.int64)
-    bottom[columns] = low
-    return onto, bottom
-
-
-def _ranks(prior: VisibilityPrior) -> IntArray:
-    """(K,) each line's position in the image from the top (0 = top)."""
-    rank = np.empty(prior.cot_alpha.size, dtype=np.int64)
-    rank[prior.image_order] = np.arange(prior.cot_alpha.size)
-    return rank
+    first = int(columns[0])
+    onto = np.zeros((lines, int(columns[-1]) - first + 2), dtype=np.bool_)
+    onto[:, columns - first] = here
+    bottom = np.full(onto.shape[1], -1, dtype=np.int64)
+    bottom[columns - first] = low
+    return first, onto, bottom
 
 
 def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
