@@ -446,7 +446,8 @@ def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
     row = prior.cy_px + prior.focal_px * prior.cot_alpha[:, None] - fb / z[None, :]
     # a line seen on the surface somewhere reaches it: a smaller margin from its ground
     # row then (the surface's depth in the column still decides)
-    margin = np.where(held.any(axis=0)[rank], SURFACE_SEEN_ROWS_PX, SURFACE_ROWS_PX)
+    reached = np.asarray(held.any(axis=0), dtype=np.bool_)[rank]
+    margin = np.where(reached, SURFACE_SEEN_ROWS_PX, SURFACE_ROWS_PX)
     here = ((rank[:, None] > top[None, :]) & (rows_off >= margin[:, None]) & (row >= 0)
             & (row < prior.height_px))
     if evidence.noisy is not None:
