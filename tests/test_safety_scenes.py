@@ -97,11 +97,6 @@ KNOWN_WRONG: dict[str, str] = {
                      "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
                      "up, no line seen above) is INVALID since pipeline.tops (far on seed "
                      "11 still: 3 sector-frames of 32, was 4)",
-    "near_pole_hidden_sheet": "far: a 7.4 cm pole at 0.92 m reads 1.9 m in sector 6 (3 of 4 "
-                              "maps): the sheet above the two that light the pole passes over "
-                              "it and the pole hides its stripe on the wall; continuity with "
-                              "the wall beside the pole gives the pole's two stripes the two "
-                              "lines above theirs (one line off), and no rival comes close",
 }
 #: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
 #: not a pipeline fault (the unit cannot know its calibration is off), strict expected

@@ -333,11 +333,11 @@ def test_feature_a_pole_on_a_sector_boundary_stands_in_both_sectors() -> None:
 
 def _wall_over_a_low_box(lowest_ground_m: float, lowest_columns: range,
                          other_columns: range = range(32), lowest_beyond_m: float | None = None,
-                         under: int = 0, lowest_snr: float = 20.0
+                         under: int = 0, lowest_snr: float = 20.0, beyond_column: int = 16
                          ) -> tuple[ObstaclePoints, ColumnEvidence]:
     """Sector 0 (columns 0-31): lines 0-4 seen on a wall at 4 m (depth 4 m, SNR 20) in
     ``other_columns``; line 5, the lowest, in ``lowest_columns`` only (and at
-    ``lowest_beyond_m`` in column 16 when given). Lines 0-4 never meet the ground, line
+    ``lowest_beyond_m`` in ``beyond_column`` when given). Lines 0-4 never meet the ground, line
     5 at ``lowest_ground_m`` (f = 400 px, b = 0.1 m: at 8 m it would meet the wall 5
     rows above its ground row, at 4.1 m 0.24 rows), its points of SNR ``lowest_snr``.
     With ``under``, that many lines below the lowest (never seen, meeting the ground at
@@ -346,7 +346,7 @@ def _wall_over_a_low_box(lowest_ground_m: float, lowest_columns: range,
     cells += [(5, c) for c in lowest_columns]
     ranges = [4.0] * len(cells)
     if lowest_beyond_m is not None:
-        cells.append((5, 16))
+        cells.append((5, beyond_column))
         ranges.append(lowest_beyond_m)
     line, column = (np.array(v, np.int64) for v in zip(*cells, strict=True))
     n = line.size
@@ -400,11 +400,18 @@ def test_feature_lines_passing_under_a_surface_are_not_missing_from_it() -> None
     under too: sector 0 reads the surface's 4 m (a sphere hanging 1.2-1.8 m up, met by
     one line, lost its accurate distance in three of four maps of a randomly drawn
     scene). With line 5 not seen beyond either, nothing says the surface does not stand
-    on the ground, and the absence of lines 5 and 6 makes sector 0 INVALID. Checked to
-    fail with only the missing line itself taken as passing under (line 6 counted
-    missing: INVALID)."""
+    on the ground, and the absence of lines 5 and 6 makes sector 0 INVALID; so does a
+    line seen beyond only beside the run, not under the surface (a pole hiding the
+    wall's stripe of the sheet above the two that light it: the wall beside the pole is
+    no sign that the lines pass under the pole; stress scene near_pole_hidden_sheet).
+    Checked to fail with only the missing line itself taken as passing under (line 6
+    counted missing: INVALID), and with lines seen beyond within 3 columns beside the
+    run taken as passing under (VALID)."""
     points, evidence = _wall_over_a_low_box(8.0, range(0), range(32), 6.0, under=1)
     out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
     assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0)
     points, evidence = _wall_over_a_low_box(8.0, range(0), range(32), None, under=1)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    points, evidence = _wall_over_a_low_box(8.0, range(0), range(4, 28), 6.0, under=1,
+                                            beyond_column=30)
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID

@@ -375,7 +375,7 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     clearance, on a row of the image and in a quiet band (``evidence.noisy``), is
     expected on it. A run of at least SURFACE_RUN·``min_points`` such columns in which
     the line has no peak counts, unless a line between it and the surface's lowest
-    seen one (or itself) is seen beyond the surface within GAP_RUN columns of the run
+    seen one (or itself) is seen beyond the surface in the run's columns
     (the surface does not reach the ground there, the lines pass under it: a sphere, a
     vehicle's body), or the run is the noise of a patchy surface:
     the other lines seen on it are found in fewer than SURFACE_SOLID of their expected
@@ -410,9 +410,10 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     hole = np.zeros(onto.shape[1], dtype=np.bool_)
     for k, a, b in zip(line[long], start[long], stop[long], strict=True):
         # a line between the surface's lowest seen one and this one, seen beyond it
-        # near the run: the surface does not reach down there, the lines pass under
-        near = beyond[(points.column[beyond] >= first + a - GAP_RUN)
-                      & (points.column[beyond] < first + b + GAP_RUN)]
+        # in the run: the surface does not reach down there, the lines pass under (beside
+        # the run is no sign: the wall beside a pole)
+        near = beyond[(points.column[beyond] >= first + a)
+                      & (points.column[beyond] < first + b)]
         under = rank[points.line[near]]
         passes = ((under > bottom[a:b].max()) & (under <= rank[k])).any()
         if (not passes and _solid(onto, shown, int(k), int(a), int(b), settings.min_points)
