@@ -453,8 +453,10 @@ def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
             & (row < prior.height_px))
     if evidence.noisy is not None:
         here &= ~evidence.noisy[:, columns]
-    first = int(columns[0])
-    onto = np.zeros((lines, int(columns[-1]) - first + 2), dtype=np.bool_)
+    # the span from the least and greatest column, not from the order np.unique gives
+    # (a node in the vcan tier's VM stopped on an index past a span taken from its ends)
+    first, last = int(columns.min()), int(columns.max())
+    onto = np.zeros((lines, last - first + 2), dtype=np.bool_)
     onto[:, columns - first] = here
     bottom = np.full(onto.shape[1], -1, dtype=np.int64)
     bottom[columns - first] = low
