@@ -268,10 +268,7 @@ class LineHoles:
         flank = np.full((lines, width), np.nan)
         flank[points.line[points.obstacle], points.column[points.obstacle]] = (
             points.range_m[points.obstacle])
-        step = np.diff(np.concatenate([np.zeros((lines, 1), np.int8), (~seen).astype(np.int8),
-                                       np.zeros((lines, 1), np.int8)], axis=1), axis=1)
-        k, start = np.nonzero(step == 1)
-        stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
+        k, start, stop = _runs(~seen)
         keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
         k, start, stop = k[keep], start[keep], stop[keep]
         left, right = flank[k, start - 1], flank[k, stop]
@@ -286,6 +283,15 @@ class LineHoles:
         farther = np.where(flanked, np.maximum(left, right), np.inf)
         return cls(k[keep].astype(np.int64), start[keep], stop[keep], nearer[keep],
                    farther[keep], hidden[keep])
+
+
+def _runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
+    """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
+    (exclusive) of each, row by row."""
+    step = np.diff(mask.astype(np.int8), axis=1, prepend=0, append=0)
+    row, start = np.nonzero(step == 1)
+    stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
+    return row.astype(np.int64), start.astype(np.int64), stop.astype(np.int64)
 
 
 def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
@@ -399,9 +405,7 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     shown = np.zeros_like(onto)
     shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
     lost = onto & ~shown
-    step = np.diff(lost.astype(np.int8), axis=1, prepend=0)
-    line, start = np.nonzero(step == 1)
-    stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
+    line, start, stop = _runs(lost)
     long = stop - start >= SURFACE_RUN * settings.min_points
     if not long.any():
         return 0
