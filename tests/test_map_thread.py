@@ -5,8 +5,10 @@ The camera loop hands each complete map to the map thread and reads on. Promises
   sub-frame, the code lost, a camera fault) is never published after it;
 - a map thread that hangs makes the output FAULT with invalid distances, as a hung loop
   does, although the loop itself still reads;
-- a map thread that dies stops the loop: laser off, FAULT at once, the error re-raised by
-  ``check()``;
+- a pipeline that raises on one map sends that map's distances invalid and goes on (the
+  unit stays up and measures again); one that raises on ``PIPELINE_ERROR_LIMIT`` maps in
+  a row is broken: the map thread dies and stops the loop: laser off, FAULT at once, the
+  error re-raised by ``check()``;
 - the newest map wins: a map waiting while another is measured is replaced, not queued.
 
 Each protection was removed once and the test watched fail, then put back:
@@ -16,7 +18,11 @@ Each protection was removed once and the test watched fail, then put back:
   thread's cycles stayed RUNNING (invalid distances only by their age), the second test
   failed;
 - ``self._stop.set()`` in ``Unit._on_map_thread_error``: the loop went on strobing after
-  the map thread died (projector lit), the third test failed.
+  the map thread died (projector lit), the third test failed;
+- the ``try`` around the measure in ``Unit._measure_map`` (one failed map ends the
+  unit): the fourth test failed (FAULT, the projector dark, check() raising);
+- ``self._publish(None)`` in ``Unit._on_pipeline_error``: the map before the failed one
+  stayed valid on the bus through it, the fourth test failed.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ from listened_bus import listened_bus
 
 from atris_node import config as cfg
 from atris_node.errors import NodeFaultError
-from atris_node.node.unit import Unit
+from atris_node.node.unit import PIPELINE_ERROR_LIMIT, Unit
 from atris_node.node.worker import MapThread
 from atris_node.testing.faultcamera import CameraFaults, FaultyCamera
 from atris_node.types import DistortionMap, Measurement
@@ -60,8 +66,18 @@ class Gate:
     done: threading.Event = field(default_factory=threading.Event)
     error: Exception | None = None
     held_sequence: int | None = None
+    #: maps, from the next one, on which ``error`` is raised at once (no hold)
+    failures: int = 0
+    failed_sequences: list[int] = field(default_factory=list)
+    #: ("failed", sequence) entries, in order with whatever else the test logs there
+    log: list[tuple[str, Any]] = field(default_factory=list)
 
     def __call__(self, dmap: DistortionMap, camera: Any) -> Measurement:
+        if self.failures > 0 and self.error is not None:
+            self.failures -= 1
+            self.failed_sequences.append(dmap.last_sequence)
+            self.log.append(("failed", dmap.last_sequence))
+            raise self.error
         if not self.hold.is_set():
             return self.inner(dmap, camera)
         self.hold.clear()
@@ -155,10 +171,9 @@ def test_a_hung_map_thread_makes_the_output_fault(rig: Rig) -> None:
 
 
 def test_a_map_thread_that_dies_stops_the_loop_and_the_laser(rig: Rig) -> None:
-    rig.gate.error = RuntimeError("injected pipeline bug")
-    rig.gate.hold.set()
-    assert rig.gate.entered.wait(10.0)
     died_at = time.monotonic()
+    rig.gate.error = RuntimeError("injected pipeline bug")
+    rig.gate.failures = PIPELINE_ERROR_LIMIT
     wait_for(lambda: any(c.state == "FAULT" for c in list(rig.frames.cycles)
                          if c.time_s > died_at), 5.0)
     time.sleep(0.3)
@@ -169,6 +184,33 @@ def test_a_map_thread_that_dies_stops_the_loop_and_the_laser(rig: Rig) -> None:
     assert rig.unit.projector is not None and not rig.unit.projector.is_lit
     with pytest.raises(NodeFaultError, match="injected pipeline bug"):
         rig.unit.check()
+
+
+def test_a_map_the_pipeline_fails_on_goes_out_invalid_and_the_unit_goes_on(rig: Rig) -> None:
+    publisher = rig.unit.publisher
+    inner_update = publisher.update
+
+    def update(measurement: Measurement | None, status: Any) -> None:
+        rig.gate.log.append(("update", measurement))
+        inner_update(measurement, status)
+
+    publisher.update = update
+    start = time.monotonic()
+    rig.gate.error = RuntimeError("injected pipeline bug")
+    rig.gate.failures = PIPELINE_ERROR_LIMIT - 1
+    wait_for(lambda: rig.unit.stats.pipeline_errors == PIPELINE_ERROR_LIMIT - 1, 30.0)
+    count = len(rig.published)
+    wait_for(lambda: len(rig.published) > count + 2, 30.0)  # measures and publishes again
+    assert len(rig.gate.failed_sequences) == PIPELINE_ERROR_LIMIT - 1
+    log = list(rig.gate.log)
+    for i, (what, _) in enumerate(log):
+        if what == "failed":  # the next thing the output hears: invalid distances
+            assert log[i + 1] == ("update", None), "the map before the failed one stayed valid"
+    assert rig.unit.stats.pipeline_errors == PIPELINE_ERROR_LIMIT - 1
+    assert all(c.state != "FAULT" for c in list(rig.frames.cycles) if c.time_s > start)
+    assert any(c.valid for c in list(rig.frames.cycles)[-5:])
+    assert rig.unit.projector is not None and rig.unit.projector.is_lit
+    rig.unit.check()  # raises nothing: the unit is up
 
 
 def fake_map(sequence: int) -> DistortionMap:

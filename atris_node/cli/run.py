@@ -28,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
                           "dropped_sub_frames": stats.dropped_sub_frames,
                           "maps_skipped": stats.maps_skipped,
                           "stale_maps": stats.stale_maps,
+                          "pipeline_errors": stats.pipeline_errors,
                           "deadline_misses": stats.deadline_misses,
                           "camera_faults": stats.camera_faults}))
     return 0

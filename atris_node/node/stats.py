@@ -23,6 +23,8 @@ class NodeStats:
     stale_maps: int = 0
     camera_faults: int = 0
     bad_sub_frames: int = 0
+    #: maps the pipeline raised on (published as invalid distances; see Unit._measure_map)
+    pipeline_errors: int = 0
     reconnects: int = 0
     laser_faults: int = 0
     #: times the projector went dark by itself (no strobe for its lease: a stalled loop)

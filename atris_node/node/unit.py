@@ -70,6 +70,8 @@ logger = logging.getLogger(__name__)
 RECONNECT_BACKOFF_S = (0.1, 2.0)
 #: how long deactivate() waits for the loop to end (a camera read may hang longer)
 LOOP_JOIN_TIMEOUT_S = 5.0
+#: maps in a row the pipeline may raise on before the unit takes it for broken (FAULT)
+PIPELINE_ERROR_LIMIT = 3
 
 
 class Lifecycle:
@@ -117,6 +119,7 @@ class Unit:
         self._output_errors = 0  # the output's refused frames, as last seen
         self._output_sent = 0  # and its frames taken
         self._lapses = 0  # the projector's lapses, as last seen
+        self._pipeline_errors_in_row = 0
         #: called with every measurement handed to the publisher (benchmarks, views)
         self.on_measurement: Callable[[Measurement], None] | None = None
 
@@ -492,7 +495,28 @@ class Unit:
         """Measure ``dmap`` (complete in the loop's ``epoch``) and publish it (the map
         thread, or the loop itself without one)."""
         assert self._measure is not None
-        self._publish(self._measure.measure(dmap, self._camera), epoch)
+        try:
+            measurement = self._measure.measure(dmap, self._camera)
+        except Exception as exc:
+            self._on_pipeline_error(exc)
+            return
+        self._pipeline_errors_in_row = 0
+        self._publish(measurement, epoch)
+
+    def _on_pipeline_error(self, exc: Exception) -> None:
+        """The pipeline raised on one map: that map's distances go out invalid (a new
+        epoch), the error is logged with its traceback and counted, and the unit goes on:
+        a fault that one scene's data trigger must not blind the vehicle for good. The
+        ``PIPELINE_ERROR_LIMIT``-th map in a row that fails re-raises: a pipeline that
+        fails on every map is broken, and the unit stops (laser off, FAULT)."""
+        self.stats.pipeline_errors += 1
+        self._pipeline_errors_in_row += 1
+        if self._pipeline_errors_in_row >= PIPELINE_ERROR_LIMIT:
+            raise exc
+        logger.error("unit %s: the pipeline failed on a map (%d in a row), its distances "
+                     "are sent invalid: %s", self.label, self._pipeline_errors_in_row, exc,
+                     exc_info=exc)
+        self._publish(None)
 
     def _on_bad_sub_frame(self, exc: DemodulationError) -> None:
         """A sub-frame that cannot be demodulated: drop it, restart the window, go invalid."""
