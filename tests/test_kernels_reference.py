@@ -109,3 +109,76 @@ def test_bridge_is_the_numpy_form() -> None:
         got = rivals_kernels.bridge(rows, good, float(BRIDGE_PX))
         np.testing.assert_array_equal(got[0], expected[0])
         np.testing.assert_array_equal(got[1], expected[1])
+
+
+# --- line identity: the continuity reference and the bookkeeping of the rival test ---
+
+
+def _local_by_definition(rows: np.ndarray, anchored: np.ndarray, reach: int) -> np.ndarray:
+    """The row of each line in the nearest anchored column (not the column itself) within
+    ``reach`` holding it, the left one on a tie, inf where none (whole-array numpy)."""
+    k_count, width = rows.shape
+    cols = np.broadcast_to(np.arange(width), (k_count, width))
+    good = (rows >= 0) & anchored[None, :]
+    left = np.maximum.accumulate(np.where(good, cols, -1), axis=1)
+    right = np.minimum.accumulate(np.where(good, cols, width)[:, ::-1], axis=1)[:, ::-1]
+    left = np.concatenate([np.full((k_count, 1), -1), left[:, :-1]], axis=1)
+    right = np.concatenate([right[:, 1:], np.full((k_count, 1), width)], axis=1)
+    left_gap = np.where(left >= 0, cols - left, reach + 1)
+    right_gap = np.where(right < width, right - cols, reach + 1)
+    k = np.arange(k_count)[:, None]
+    row_l = rows[k, np.maximum(left, 0)].astype(np.float64)
+    row_r = rows[k, np.minimum(right, width - 1)].astype(np.float64)
+    return np.where((left_gap <= reach) & (left_gap <= right_gap), row_l,
+                    np.where(right_gap <= reach, row_r, np.inf))
+
+
+def _reference_by_definition(rows: np.ndarray, anchored: np.ndarray) -> np.ndarray:
+    """rivals._reference as it was composed before its single kernel: the local row, the
+    block median, the bridge, the line's median where the comb lies on the medians."""
+    from atris_node.pipeline import identity_kernels
+    from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
+    from atris_node.pipeline.rivals import CONTINUITY_REACH, MEDIAN_PX
+
+    local = _local_by_definition(rows, anchored, CONTINUITY_REACH)
+    good = np.ascontiguousarray((rows >= 0) & anchored[None, :])
+    block = identity_kernels.continuity_reference(rows, good, CONTINUITY_BLOCK,
+                                                  MIN_BLOCK_SAMPLES, rows.shape[1] + 1)
+    line = identity_kernels.continuity_reference(rows, good, rows.shape[1],
+                                                 MIN_LINE_SAMPLES, MIN_LINE_SAMPLES)
+    bridge, sides = _bridge_by_definition(rows, good)
+    far = ~np.isfinite(local) & ~np.isfinite(block) & (sides < 2)
+    off = far & (rows >= 0) & (np.abs(rows - line) > MEDIAN_PX)
+    line = np.where(off.any(axis=0)[None, :], np.inf, line)
+    wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
+    return np.where(np.isfinite(local), local, wide)
+
+
+def _random_rows(rng: np.random.Generator, k_count: int, width: int) -> np.ndarray:
+    """(K, W) rows of lines on a few surfaces (steps of a few px, gaps), -1 = none."""
+    base = 20 * np.arange(k_count)[:, None] + 100
+    steps = np.cumsum(rng.integers(-1, 2, (1, width)) * (rng.random((1, width)) < 0.3),
+                      axis=1)
+    jumps = rng.integers(0, 12, (1, width)) * (rng.random((1, width)) < 0.02)
+    rows = base + steps + np.cumsum(jumps, axis=1) + rng.integers(-3, 4, (k_count, width))
+    holes = rng.random((k_count, width)) < rng.random()
+    return np.where(holes, -1, rows).astype(np.int64)
+
+
+def test_continuity_reference_of_the_rival_test_is_the_composed_form() -> None:
+    """400 random row tables and anchor masks (sparse to dense, widths past a block and
+    the continuity reach): rivals._reference, one kernel, equals the composition of the
+    local row, block median, bridge and line median it replaced, bitwise."""
+    from atris_node.pipeline.rivals import _reference
+
+    rng = np.random.default_rng(21)
+    for _ in range(400):
+        k_count, width = int(rng.integers(1, 9)), int(rng.integers(1, 200))
+        rows = _random_rows(rng, k_count, width)
+        anchored = rng.random(width) < rng.random()
+        if rng.random() < 0.3:  # anchored runs with wide gaps between them
+            anchored = np.repeat(rng.random(width // 20 + 1) < 0.4, 20)[:width]
+        got = _reference(rows, anchored)
+        want = _reference_by_definition(rows, anchored)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        np.testing.assert_array_equal(got, want)

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.pipeline import identity_kernels, rivals_kernels
+from atris_node.pipeline import rivals_kernels
 from atris_node.pipeline.bands import Band, in_image_order
 from atris_node.pipeline.identity import (
     _COSTS,
@@ -270,20 +270,10 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     no reference: it mixes surfaces at different ranges, and a comb shifted by one line
     can match it better than the true one (a wall turned away, its far part a line
     spacing higher in the image: a phantom at 1.4 m for a wall at 5.7 m)."""
-    local = rivals_kernels.local_reference(rows, anchored, CONTINUITY_REACH)
-    good = np.ascontiguousarray((rows >= 0) & anchored[None, :])
-    block = identity_kernels.continuity_reference(rows, good, CONTINUITY_BLOCK,
-                                                  MIN_BLOCK_SAMPLES, rows.shape[1] + 1)
-    line = identity_kernels.continuity_reference(rows, good, rows.shape[1],
-                                                 MIN_LINE_SAMPLES, MIN_LINE_SAMPLES)
-    bridge, sides = rivals_kernels.bridge(rows, good, float(BRIDGE_PX))
-    # between anchors the bridge (or nothing where they disagree); the line's median
-    # only beyond its last anchor, and only in columns whose chosen comb lies on it
-    far = ~np.isfinite(local) & ~np.isfinite(block) & (sides < 2)
-    off = far & (rows >= 0) & (np.abs(rows - line) > MEDIAN_PX)
-    line = np.where(off.any(axis=0)[None, :], np.inf, line)
-    wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
-    return np.where(np.isfinite(local), local, wide)
+    return np.asarray(rivals_kernels.continuity(
+        np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(anchored, dtype=np.bool_),
+        CONTINUITY_REACH, CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES, BRIDGE_PX,
+        MEDIAN_PX))
 
 
 def _test(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray], rows: IntArray,

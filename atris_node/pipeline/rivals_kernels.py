@@ -22,6 +22,7 @@ import numpy.typing as npt
 from atris_node.jit import kernel
 from atris_node.pipeline.alignment_kernels import _in_any
 from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column
+from atris_node.pipeline.selection import kth
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -277,31 +278,117 @@ def isolated(peaks: IntArray, reach: int, max_step: int) -> BoolArray:
     return out
 
 
-@kernel("float64[:, :](int64[:, :], boolean[:], int64)")
-def local_reference(rows: IntArray, anchored: BoolArray, reach: int) -> FloatArray:
-    """(K, W) per line the row of that line in the nearest anchored column within
-    ``reach`` columns that holds it (the left one on a tie), inf where there is none:
-    continuity from neighbouring columns whose identity is certain."""
+@kernel()
+def _block_median(row: IntArray, good: BoolArray, lo: int, hi: int, min_block: int,
+                  kept: FloatArray) -> float:
+    """The upper median of the ``good`` rows of ``row`` in columns ``[lo, hi)``, inf with
+    fewer than ``min_block``; ``kept`` (hi - lo,) work space."""
+    m = 0
+    for c in range(lo, hi):
+        if good[c]:
+            i = m
+            while i > 0 and kept[i - 1] > row[c]:
+                kept[i] = kept[i - 1]
+                i -= 1
+            kept[i] = row[c]
+            m += 1
+    return kept[m // 2] if m >= min_block else np.inf
+
+
+@kernel()
+def _line_median(row: IntArray, good: BoolArray, min_line: int, values: FloatArray) -> float:
+    """The upper median of all the ``good`` rows of ``row``, inf with fewer than
+    ``min_line``; ``values`` (W,) work space."""
+    n = 0
+    for c in range(row.size):
+        if good[c]:
+            values[n] = row[c]
+            n += 1
+    return kth(values[:n], n // 2) if n >= min_line else np.inf
+
+
+@kernel()
+def _far_or_bridged(row: IntArray, c: int, left: int, right: int, bridge_px: float) -> float:
+    """Column c's bridge between its nearest good columns ``left`` <= c <= ``right`` (-1 /
+    W: none): the nearer one's row (the left one on a tie) when both exist and agree
+    within ``bridge_px``, else inf; NaN when a side has none (the line's median decides)."""
+    if left < 0 or right >= row.size:
+        return np.nan
+    row_l, row_r = np.float64(row[left]), np.float64(row[right])
+    if abs(row_l - row_r) <= bridge_px:
+        return row_l if c - left <= right - c else row_r
+    return np.inf
+
+
+@kernel("float64[:, :](int64[:, :], boolean[:], int64, int64, int64, int64, float64, "
+        "float64)")
+def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_block: int,
+               min_line: int, bridge_px: float, median_px: float) -> FloatArray:
+    """The continuity reference of :func:`atris_node.pipeline.rivals._reference`: (K, W)
+    per line, from its anchored rows (``anchored`` (W,) and a row >= 0), the first of
+
+    - the row in the nearest anchored column within ``reach`` columns (not the column
+      itself; the left one on a tie);
+    - the upper median of the anchored rows in the column's block of ``block`` columns
+      (at least ``min_block`` of them);
+    - where there are anchored rows on both sides (the column's own counts for both): the
+      nearer one's row (the left one on a tie) when the two agree within ``bridge_px``,
+      else inf;
+    - the upper median of all the line's anchored rows (at least ``min_line``; inf
+      otherwise), and inf for every line of a column where some line of this case has a
+      row more than ``median_px`` off (or no) median.
+
+    The block and line medians are taken only where they are needed."""
     k_count, width = rows.shape
-    out = np.full((k_count, width), np.inf)
+    n_blocks = (width + block - 1) // block
+    out = np.empty((k_count, width))
+    far = np.zeros((k_count, width), dtype=np.bool_)
+    off = np.zeros(width, dtype=np.bool_)
+    good = np.empty(width, dtype=np.bool_)
+    before = np.empty(width, dtype=np.int64)
+    medians = np.empty(n_blocks)
+    values = np.empty(width)
+    kept = np.empty(block)
     for k in range(k_count):
-        last, at = -1, -1
-        left_row = np.full(width, -1, dtype=np.int64)
-        left_gap = np.full(width, reach + 1, dtype=np.int64)
+        row = rows[k]
+        at = -1
         for c in range(width):
-            if at >= 0:
-                left_row[c], left_gap[c] = last, c - at
-            if anchored[c] and rows[k, c] >= 0:
-                last, at = rows[k, c], c
-        last, at = -1, -1
+            before[c] = at
+            good[c] = anchored[c] and row[c] >= 0
+            if good[c]:
+                at = c
+        medians[:] = np.nan
+        line = np.nan
+        after = width
         for c in range(width - 1, -1, -1):
-            right_gap = at - c if at >= 0 else reach + 1
-            if left_gap[c] <= reach and left_gap[c] <= right_gap:
-                out[k, c] = left_row[c]
+            left_gap = c - before[c] if before[c] >= 0 else reach + 1
+            right_gap = after - c if after < width else reach + 1
+            if left_gap <= reach and left_gap <= right_gap:
+                out[k, c] = row[before[c]]
             elif right_gap <= reach:
-                out[k, c] = last
-            if anchored[c] and rows[k, c] >= 0:
-                last, at = rows[k, c], c
+                out[k, c] = row[after]
+            else:
+                b = c // block
+                if np.isnan(medians[b]):
+                    medians[b] = _block_median(row, good, b * block,
+                                               min(b * block + block, width), min_block, kept)
+                ref = medians[b]
+                if not np.isfinite(ref):
+                    ref = _far_or_bridged(row, c, c if good[c] else before[c],
+                                          c if good[c] else after, bridge_px)
+                if np.isnan(ref):
+                    if np.isnan(line):
+                        line = _line_median(row, good, min_line, values)
+                    ref = line
+                    far[k, c] = True
+                    off[c] |= row[c] >= 0 and abs(row[c] - line) > median_px
+                out[k, c] = ref
+            if good[c]:
+                after = c
+    for k in range(k_count):
+        for c in range(width):
+            if far[k, c] and off[c]:
+                out[k, c] = np.inf
     return out
 
 
@@ -344,5 +431,5 @@ def warm_up() -> None:
            10.0, np.array([10.0, 40.0, 10.0, 10.0]), False, np.zeros(1), np.zeros(5),
            np.zeros((1, 1)), one)
     isolated(peaks, 2, 2)
-    local_reference(rows, np.ones(1, dtype=np.bool_), 4)
+    continuity(rows, np.ones(1, dtype=np.bool_), 4, 2, 1, 1, 4.0, 6.0)
     bridge(rows, np.ones((1, 1), dtype=np.bool_), 4.0)
