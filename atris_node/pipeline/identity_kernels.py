@@ -93,13 +93,19 @@ def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry:
     takes the finite range of the nearest line above (``up``) or below (``down``) it, the
     nearer range on a tie of the distance in lines."""
     k_count = order.size
-    if rows.min() >= 0:
-        return 0  # no line missing
-    focal_px, cy_px, height_px, baseline_m, z_max_m = geometry
+    focal_px, cy_px, height_px = geometry[0], geometry[1], geometry[2]
+    baseline_m, z_max_m = geometry[3], geometry[4]
+    missing = False
     for k in range(k_count):
         line = order[k]
-        den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
-        z[k] = focal_px * baseline_m / den if rows[line] >= 0 and den > 0 else np.inf
+        if rows[line] >= 0:
+            den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
+            z[k] = focal_px * baseline_m / den if den > 0 else np.inf
+        else:
+            z[k] = np.inf
+            missing = True
+    if not missing:
+        return 0
     count, up, down = 0, -1, _next_finite(z, 0)
     for k in range(k_count):
         if down <= k:

@@ -152,6 +152,15 @@ def _known_count(seen: IntArray, seen_count: IntArray, n_seen: int, path: IntArr
 
 
 @kernel()
+def _missing(rows: IntArray) -> int:
+    """The count of lines without a row (-1) in ``rows`` (K,)."""
+    count = 0
+    for row in rows:
+        count += row < 0
+    return count
+
+
+@kernel()
 def _by_line(rows_image: IntArray, order: IntArray, out: IntArray) -> IntArray:
     """Rows in image order -> rows by line (``out``)."""
     for k in range(order.size):
@@ -202,23 +211,25 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     seen_count = np.empty(SEEN_PATHS, dtype=np.int64)
     for c in columns:
         n_seen = 0
+        ref_c = ref[:, c]
         m = _sorted_peaks(peaks[:, c], column)
         for i in range(m):
             spare[i] = costs[1] if _in_any(column[i], lo, hi) else 0.0
         for k in range(k_count):
             image[k] = rows[order[k], c]
-        best = _chosen_cost(image, column, m, lo, hi, ref[:, c], beyond, costs, spare)
+        best = _chosen_cost(image, column, m, lo, hi, ref_c, beyond, costs, spare)
         if best == 0.0 and costs[0] + costs[1] >= margin:
             # every line holds a peak in its band, no peak in a band is left over, nothing
             # past z_max, no continuity cost: another order-preserving assignment must skip
             # a line and leave a peak over, which costs more than the margin
             continue
-        if has_prior:
-            best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
-                                                   ground_range_m, image_order, z)
+        # the prior's count of the chosen lines missing without a reason is at most the
+        # count of lines missing: taken only when a rival comes within that bound
+        priced = not has_prior
+        bound = best if priced else best + costs[3] * _missing(image)
         for j in range(k_count):
             for i in range(m):
-                match[j, i] = _match(j, column[i], lo, hi, ref[:, c], beyond, costs[2])
+                match[j, i] = _match(j, column[i], lo, hi, ref_c, beyond, costs[2])
         _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
         owner[:] = -1
         for k in range(k_count):
@@ -231,22 +242,30 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 if j == owner[i] or not lo[j] <= column[i] < hi[j]:
                     continue
                 through = f[j, i] + match[j, i] + g[j + 1, i + 1]
-                if through >= best + margin:
+                if through >= bound + margin:
                     continue  # no assignment giving peak i to line j comes close
+                if not priced:
+                    best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
+                                                           ground_range_m, image_order, z)
+                    bound, priced = best, True
+                    if through >= best + margin:
+                        continue
                 if has_prior:
                     other[:] = -1
                     _read_forward(j, i, column, f_step, other)
                     other[j] = column[i]
                     _read_backward(j + 1, i + 1, column, g_step, other)
-                    missing = _known_count(seen, seen_count, n_seen, other)
-                    if missing < 0:  # a path not yet priced in this column
-                        missing = _unexplained_column(_by_line(other, order, line_rows), c,
-                                                      cot_alpha, geometry, ground_range_m,
-                                                      image_order, z)
-                        if n_seen < SEEN_PATHS:
-                            seen[n_seen], seen_count[n_seen] = other, missing
-                            n_seen += 1
-                    through += costs[3] * missing
+                    if through + costs[3] * _missing(other) >= best + margin:
+                        # the path's own count of lines missing without a reason decides
+                        missing = _known_count(seen, seen_count, n_seen, other)
+                        if missing < 0:  # a path not yet priced in this column
+                            missing = _unexplained_column(_by_line(other, order, line_rows),
+                                                          c, cot_alpha, geometry,
+                                                          ground_range_m, image_order, z)
+                            if n_seen < SEEN_PATHS:
+                                seen[n_seen], seen_count[n_seen] = other, missing
+                                n_seen += 1
+                        through += costs[3] * missing
                 if through < best + margin:
                     ambiguous[order[owner[i]], c] = order[max(j, owner[i])]
                     break
