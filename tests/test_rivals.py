@@ -173,3 +173,36 @@ def test_feature_a_line_may_take_a_stripe_from_beyond_z_max_in_the_rival_test(
     assert (out >= hi).all()
     assert (out - 1 >= np.floor(infinity)).all()  # the row at infinity is inside
     assert ((out - 1 <= np.floor(infinity + 1.0)) | (out == hi)).all()  # no farther
+
+
+def test_second_identity_takes_over_the_first_rival_pass_only_where_it_is_the_same(
+        pipe: Pipeline) -> None:
+    """robust_identity's identity without the weak peaks takes the rival test without
+    continuity from the identity with them in columns without a weak peak whose chosen
+    rows are the same: on 20 random maps of walls, boxes and combs shifted by a line with
+    noise peaks and missing lines, it gives the same identity, doubts and pass-1 result
+    as testing every column again."""
+    from atris_node.pipeline.rivals import _unique, set_aside
+
+    rng = np.random.default_rng(5)
+    width = 640
+    for _ in range(20):
+        peaks = np.full((12, width), -1, np.int64)
+        for c in range(width):
+            comb = np.array(WALL if rng.random() < 0.6 else BOX_PEAKS)
+            comb = comb + rng.integers(-1, 2) * 20 + rng.integers(-2, 3, comb.size)
+            comb = comb[rng.random(comb.size) < 0.85]
+            extra = rng.integers(100, 320, rng.integers(0, 3))
+            column = np.unique(np.concatenate([comb, extra]))[:12]
+            peaks[:column.size, c] = column
+        weak = (peaks >= 0) & (rng.random(peaks.shape) < rng.choice([0.02, 0.1]))
+        full, first, passed = _unique(peaks, pipe.bands, 3, pipe._prior, True, None)
+        strong, _ = set_aside(peaks, weak)
+        earlier = (first, passed, ~weak.any(axis=0))
+        reused = _unique(strong, pipe.bands, 3, pipe._prior, True, earlier)
+        again = _unique(strong, pipe.bands, 3, pipe._prior, True, None)
+        for field in ("rows", "unsure", "doubt_row", "doubt_col", "doubt_line"):
+            np.testing.assert_array_equal(getattr(reused[0], field), getattr(again[0], field))
+        np.testing.assert_array_equal(reused[1], again[1])
+        np.testing.assert_array_equal(reused[2], again[2])
+        assert (full.rows >= 0).sum() > 0

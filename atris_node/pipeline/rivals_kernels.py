@@ -411,6 +411,222 @@ def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_
     return out
 
 
+@kernel()
+def _anchored(ambiguous: IntArray, anchored: BoolArray, again: IntArray) -> int:
+    """Columns without an ambiguous line into ``anchored`` (W,), the others' indices into
+    ``again`` (W,); their count."""
+    k_count, width = ambiguous.shape
+    n = 0
+    for c in range(width):
+        anchored[c] = True
+        for k in range(k_count):
+            if ambiguous[k, c] >= 0:
+                anchored[c] = False
+                break
+        if not anchored[c]:
+            again[n] = c
+            n += 1
+    return n
+
+
+@kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
+        "int64[:, :], boolean[:], float64[:], int64[:], float64[:], boolean, float64[:], "
+        "float64[:], float64[:, :], int64[:])")
+def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
+           ambiguous: IntArray, passed: IntArray, reuse: BoolArray, margins: FloatArray,
+           spans: IntArray, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
+           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+    """The rounds of :func:`atris_node.pipeline.rivals.unique_identity`, in place on
+    ``rows`` (K, W) by line (every sample with a rival set to -1) and ``ambiguous`` (K, W)
+    (-1 on entry; the nearest rival line of each removed sample).
+
+    Pass 1 (no continuity) tests every column where a line holds a peak, except the
+    ``reuse`` (W,) ones, which take their pass-1 result from ``passed`` (K, W): the rival
+    test of a column without continuity depends only on its own peaks, rows and prior, so
+    a column whose peaks and rows are those of an earlier identity has that identity's
+    result. ``passed`` receives this pass-1 result of every column. Then at most
+    ``spans[4]`` rounds of :func:`rivals` on the columns not anchored yet, with the
+    :func:`continuity` reference of the anchored ones (``spans[:4]``: reach, block,
+    min_block, min_line; ``margins``: rival margin, bridge px, median px), until a round
+    anchors nothing new. Bands ``lo``, ``hi`` and ``order`` and the prior as
+    :func:`rivals` takes them."""
+    k_count, width = rows.shape
+    margin, bridge_px, median_px = margins[0], margins[1], margins[2]
+    reach, block, min_block, min_line, rounds = spans[0], spans[1], spans[2], spans[3], spans[4]
+    beyond = np.full(k_count, np.inf)
+    columns = np.empty(width, dtype=np.int64)
+    n = 0
+    for c in range(width):
+        if reuse[c]:
+            ambiguous[:, c] = passed[:, c]
+            continue
+        for k in range(k_count):
+            if rows[k, c] >= 0:
+                columns[n] = c
+                n += 1
+                break
+    rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], np.full((k_count, width), np.inf),
+           beyond, margin, costs, has_prior, cot_alpha, geometry, ground_range_m, image_order)
+    passed[:, :] = ambiguous
+    anchored = np.empty(width, dtype=np.bool_)
+    ref = np.empty((k_count, width))
+    left = -1
+    for _ in range(rounds):
+        n = _anchored(ambiguous, anchored, columns)
+        if n in (0, left):
+            break  # all anchored, or the last round anchored nothing new
+        left = n
+        by_line = continuity(rows, anchored, reach, block, min_block, min_line, bridge_px,
+                             median_px)
+        for k in range(k_count):
+            ref[k] = by_line[order[k]]
+        for c in columns[:n]:
+            ambiguous[:, c] = -1
+        rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
+               has_prior, cot_alpha, geometry, ground_range_m, image_order)
+    for k in range(k_count):
+        for c in range(width):
+            if ambiguous[k, c] >= 0:
+                rows[k, c] = -1
+
+
+@kernel()
+def _lowest_band(row: int, lo: IntArray, hi: IntArray, order: IntArray) -> int:
+    """The line lowest in the image whose band ``[lo, hi)`` (image ``order``) holds
+    ``row``, -1 if none."""
+    for k in range(lo.size - 1, -1, -1):
+        if lo[k] <= row < hi[k]:
+            return order[k]
+    return -1
+
+
+@kernel()
+def _held(peaks: IntArray, rows: IntArray, i: int, c: int) -> bool:
+    """True when some line of ``rows`` holds the peak ``peaks[i, c]``."""
+    for k in range(rows.shape[0]):  # noqa: SIM110 (a generator does not compile)
+        if rows[k, c] >= 0 and rows[k, c] == peaks[i, c]:
+            return True
+    return False
+
+
+@kernel("Tuple((int64[:], int64[:], int64[:], int64[:]))(int64[:, :], int64[:, :], "
+        "int64[:, :], int64[:, :], int64[:], int64[:], int64[:], int64[:])")
+def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
+           unsure: IntArray, lo: IntArray, hi: IntArray, order: IntArray
+           ) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+    """The doubts of :func:`atris_node.pipeline.rivals._unique`: (W,) ``unsure`` plus the
+    samples of ``first`` (K, W) the rival test removed from ``rows``, and (n,) row, column
+    and line of every doubt: first each removed sample (line by line, column by column)
+    with its ``nearest`` rival line, then each peak of ``peaks`` (M, W) no line holds in
+    a column with ``unsure`` peaks and no rival (peak slot by slot, column by column) with
+    the lowest band ``[lo, hi)`` (image ``order``) that holds it (none: left out)."""
+    k_count, width = rows.shape
+    m_count = peaks.shape[0]
+    out = np.empty(width, dtype=np.int64)
+    rivalled = np.zeros((m_count, width), dtype=np.bool_)
+    n_rival = 0
+    for c in range(width):
+        before, after = 0, 0
+        for k in range(k_count):
+            before += first[k, c] >= 0
+            after += rows[k, c] >= 0
+            if nearest[k, c] >= 0:
+                n_rival += 1
+                for i in range(m_count):
+                    rivalled[i, c] |= peaks[i, c] == first[k, c]
+        out[c] = unsure[c] + max(before - after, 0)
+    lone = np.full((m_count, width), -1, dtype=np.int64)
+    n_lone = 0
+    for i in range(m_count):
+        for c in range(width):
+            p = peaks[i, c]
+            if p >= 0 and unsure[c] > 0 and not rivalled[i, c] and not _held(peaks, rows, i, c):
+                lone[i, c] = _lowest_band(p, lo, hi, order)
+                n_lone += lone[i, c] >= 0
+    row = np.empty(n_rival + n_lone, dtype=np.int64)
+    col = np.empty(n_rival + n_lone, dtype=np.int64)
+    line = np.empty(n_rival + n_lone, dtype=np.int64)
+    n = 0
+    for k in range(k_count):
+        for c in range(width):
+            if nearest[k, c] >= 0:
+                row[n], col[n], line[n] = first[k, c], c, nearest[k, c]
+                n += 1
+    for i in range(m_count):
+        for c in range(width):
+            if lone[i, c] >= 0:
+                row[n], col[n], line[n] = peaks[i, c], c, lone[i, c]
+                n += 1
+    return out, row, col, line
+
+
+@kernel("Tuple((int64[:, :], int64[:], int64[:], int64[:], int64[:]))(int64[:, :], "
+        "int64[:, :], boolean[:, :], int64[:])")
+def stable(rows: IntArray, alone: IntArray, held: BoolArray, position: IntArray
+           ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray]:
+    """The identity ``rows`` (K, W) that stands without the weak peaks (``alone``, (K, W)):
+    in every column where some line takes another row (or none) without them while it
+    took a peak that is not weak (``held``) or takes a peak without them, the samples the
+    two disagree on dropped. Returns the kept (K, W) rows, (W,) samples dropped, and per
+    dropped sample (line by line, column by column) its row, column and the nearer
+    (greater ``position`` (K,) from the top of the image) of its two lines."""
+    k_count, width = rows.shape
+    kept = rows.copy()
+    lost = np.zeros(width, dtype=np.int64)
+    unstable = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        for k in range(k_count):
+            if rows[k, c] != alone[k, c] and (alone[k, c] >= 0 or held[k, c]):
+                unstable[c] = True
+                break
+        if unstable[c]:
+            for k in range(k_count):
+                if rows[k, c] != alone[k, c] and rows[k, c] >= 0:
+                    kept[k, c] = -1
+                    lost[c] += 1
+    n = lost.sum()
+    row = np.empty(n, dtype=np.int64)
+    col = np.empty(n, dtype=np.int64)
+    line = np.empty(n, dtype=np.int64)
+    n = 0
+    for k in range(k_count):
+        for c in range(width):
+            if kept[k, c] != rows[k, c]:
+                other = -1
+                for j in range(k_count):
+                    if alone[j, c] == rows[k, c]:
+                        other = j
+                        break
+                row[n], col[n] = rows[k, c], c
+                line[n] = other if other >= 0 and position[other] > position[k] else k
+                n += 1
+    return kept, lost, row, col, line
+
+
+@kernel("Tuple((int64[:, :], int64[:]))(int64[:, :], boolean[:, :])")
+def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
+    """``peaks`` (M, W) without the ``drop`` ones and the -1 padding, each column sorted
+    down (insertion: the columns mostly are) with -1 padding last, and the (W,) count of
+    ``drop``."""
+    m_count, width = peaks.shape
+    out = np.full((m_count, width), -1, dtype=np.int64)
+    count = np.zeros(width, dtype=np.int64)
+    for c in range(width):
+        m = 0
+        for i in range(m_count):
+            p = peaks[i, c]
+            count[c] += drop[i, c]
+            if drop[i, c] or p < 0:
+                continue
+            j = m
+            while j > 0 and out[j - 1, c] > p:
+                out[j, c] = out[j - 1, c]
+                j -= 1
+            out[j, c] = p
+            m += 1
+    return out, count
+
+
 @kernel("Tuple((float64[:, :], int64[:, :]))(int64[:, :], boolean[:, :], float64)")
 def bridge(rows: IntArray, good: BoolArray, bridge_px: float) -> tuple[FloatArray, IntArray]:
     """(K, W) per line the row of the nearest ``good`` column on the left and on the
@@ -445,10 +661,17 @@ def warm_up() -> None:
     peaks = np.array([[1], [-1]], dtype=i64)
     one = np.array([0], dtype=i64)
     rows = np.array([[1]], dtype=i64)
-    rivals(peaks, one, np.array([4], dtype=i64), one, rows.copy(),
-           np.full((1, 1), -1, dtype=i64), one, np.full((1, 1), np.inf), np.array([np.inf]),
-           10.0, np.array([10.0, 40.0, 10.0, 10.0]), False, np.zeros(1), np.zeros(5),
-           np.zeros((1, 1)), one)
+    hi, none = np.array([4], dtype=i64), np.full((1, 1), -1, dtype=i64)
+    costs, prior = np.array([10.0, 40.0, 10.0, 10.0]), (False, np.zeros(1), np.zeros(5),
+                                                         np.zeros((1, 1)), one)
+    rivals(peaks, one, hi, one, rows.copy(), none.copy(), one, np.full((1, 1), np.inf),
+           np.array([np.inf]), 10.0, costs, *prior)
+    unique(peaks, one, hi, one, rows.copy(), none.copy(), none.copy(),
+           np.zeros(1, dtype=np.bool_), np.array([10.0, 4.0, 6.0]),
+           np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior)
+    doubts(peaks, rows, rows, none, one, one, hi, one)
+    stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
+    set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
     isolated(peaks, 2, 2)
     continuity(rows, np.ones(1, dtype=np.bool_), 4, 2, 1, 1, 4.0, 6.0)
     bridge(rows, np.ones((1, 1), dtype=np.bool_), 4.0)
