@@ -5,6 +5,7 @@ lines and a shifted comb is a coherent, nearer surface."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -175,6 +176,72 @@ def test_feature_a_line_may_take_a_stripe_from_beyond_z_max_in_the_rival_test(
     assert ((out - 1 <= np.floor(infinity + 1.0)) | (out == hi)).all()  # no farther
 
 
+def _random_map(rng: np.random.Generator, width: int) -> np.ndarray:
+    """(12, W) peaks of walls and boxes, combs shifted by a line, rows off by up to 2 px,
+    missing lines and noise peaks."""
+    peaks = np.full((12, width), -1, np.int64)
+    for c in range(width):
+        comb = np.array(WALL if rng.random() < 0.6 else BOX_PEAKS)
+        comb = comb + rng.integers(-1, 2) * 20 + rng.integers(-2, 3, comb.size)
+        comb = comb[rng.random(comb.size) < 0.85]
+        extra = rng.integers(100, 320, rng.integers(0, 3))
+        column = np.unique(np.concatenate([comb, extra]))[:12]
+        peaks[:column.size, c] = column
+    return peaks
+
+
+def _rounds_by_definition(peaks: np.ndarray, bands: Any, rows: np.ndarray,
+                          prior: Any) -> tuple[np.ndarray, np.ndarray]:
+    """unique_identity as the plain loop of passes: every column with a peak without
+    continuity, then rounds testing every column not anchored with the reference of the
+    anchored ones, until a round anchors nothing new."""
+    from atris_node.pipeline import rivals as r
+    from atris_node.pipeline.identity import _COSTS, prior_arrays
+
+    lo, hi, order = in_image_order(bands)
+    hi = r._to_infinity(hi, order, prior)
+    rows = rows.copy()
+    k_count = rows.shape[0]
+    ambiguous = np.full(rows.shape, -1, np.int64)
+
+    def test(columns: np.ndarray, ref: np.ndarray) -> None:
+        r.rivals_kernels.rivals(peaks, lo, hi, order, rows, ambiguous,
+                                columns.astype(np.int64), np.ascontiguousarray(ref),
+                                np.full(k_count, np.inf), r.RIVAL_MARGIN_PX, _COSTS,
+                                *prior_arrays(prior, rows.shape))
+
+    test(np.flatnonzero((rows >= 0).any(axis=0)), np.full(rows.shape, np.inf))
+    left = -1
+    for _ in range(r.CONTINUITY_ROUNDS):
+        anchored = ~(ambiguous >= 0).any(axis=0)
+        again = np.flatnonzero(~anchored)
+        if again.size in (0, left):
+            break
+        left = again.size
+        ref = r._reference(rows, anchored)
+        ambiguous[:, again] = -1
+        test(again, ref[order])
+    rows[ambiguous >= 0] = -1
+    return rows, ambiguous
+
+
+def test_rounds_of_the_rival_test_are_the_plain_loop(pipe: Pipeline) -> None:
+    """The compiled rounds (which take a column's last result over where its reference
+    has not changed) give what testing every column not anchored in every round gives,
+    on 20 random maps (identity from identify_lines)."""
+    from atris_node.pipeline.identity import identify_lines
+
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        peaks = _random_map(rng, 640)
+        rows, _ = identify_lines(peaks, pipe.bands, 3, pipe._prior, aligned=True)
+        got = unique_identity(peaks, pipe.bands, rows, pipe._prior)
+        want = _rounds_by_definition(peaks, pipe.bands, rows, pipe._prior)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        assert (want[1] >= 0).any()
+
+
 def test_second_identity_takes_over_the_first_rival_pass_only_where_it_is_the_same(
         pipe: Pipeline) -> None:
     """robust_identity's identity without the weak peaks takes the rival test without
@@ -185,16 +252,8 @@ def test_second_identity_takes_over_the_first_rival_pass_only_where_it_is_the_sa
     from atris_node.pipeline.rivals import _unique, set_aside
 
     rng = np.random.default_rng(5)
-    width = 640
     for _ in range(20):
-        peaks = np.full((12, width), -1, np.int64)
-        for c in range(width):
-            comb = np.array(WALL if rng.random() < 0.6 else BOX_PEAKS)
-            comb = comb + rng.integers(-1, 2) * 20 + rng.integers(-2, 3, comb.size)
-            comb = comb[rng.random(comb.size) < 0.85]
-            extra = rng.integers(100, 320, rng.integers(0, 3))
-            column = np.unique(np.concatenate([comb, extra]))[:12]
-            peaks[:column.size, c] = column
+        peaks = _random_map(rng, 640)
         weak = (peaks >= 0) & (rng.random(peaks.shape) < rng.choice([0.02, 0.1]))
         full, first, passed = _unique(peaks, pipe.bands, 3, pipe._prior, True, None)
         strong, _ = set_aside(peaks, weak)

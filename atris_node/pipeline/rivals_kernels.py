@@ -429,6 +429,15 @@ def _anchored(ambiguous: IntArray, anchored: BoolArray, again: IntArray) -> int:
     return n
 
 
+@kernel()
+def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: int) -> bool:
+    """True when column c of ``ref`` (K, W, image ``order``) is ``by_line`` (K, W) there."""
+    for k in range(order.size):  # noqa: SIM110 (a generator does not compile)
+        if ref[k, c] != by_line[order[k], c]:
+            return False
+    return True
+
+
 @kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
         "int64[:, :], boolean[:], float64[:], int64[:], float64[:], boolean, float64[:], "
         "float64[:], float64[:, :], int64[:])")
@@ -448,7 +457,9 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     ``spans[4]`` rounds of :func:`rivals` on the columns not anchored yet, with the
     :func:`continuity` reference of the anchored ones (``spans[:4]``: reach, block,
     min_block, min_line; ``margins``: rival margin, bridge px, median px), until a round
-    anchors nothing new. Bands ``lo``, ``hi`` and ``order`` and the prior as
+    anchors nothing new. A column whose reference is the one of its last test is not
+    tested again (the test is a function of the column's peaks, rows, prior and
+    reference). Bands ``lo``, ``hi`` and ``order`` and the prior as
     :func:`rivals` takes them."""
     k_count, width = rows.shape
     margin, bridge_px, median_px = margins[0], margins[1], margins[2]
@@ -465,11 +476,12 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 columns[n] = c
                 n += 1
                 break
-    rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], np.full((k_count, width), np.inf),
-           beyond, margin, costs, has_prior, cot_alpha, geometry, ground_range_m, image_order)
+    ref = np.full((k_count, width), np.inf)  # the reference of each column's last test
+    rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
+           has_prior, cot_alpha, geometry, ground_range_m, image_order)
     passed[:, :] = ambiguous
     anchored = np.empty(width, dtype=np.bool_)
-    ref = np.empty((k_count, width))
+    again = np.empty(width, dtype=np.int64)
     left = -1
     for _ in range(rounds):
         n = _anchored(ambiguous, anchored, columns)
@@ -478,12 +490,17 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         left = n
         by_line = continuity(rows, anchored, reach, block, min_block, min_line, bridge_px,
                              median_px)
-        for k in range(k_count):
-            ref[k] = by_line[order[k]]
-        for c in columns[:n]:
-            ambiguous[:, c] = -1
-        rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
-               has_prior, cot_alpha, geometry, ground_range_m, image_order)
+        n_again = 0
+        for c in columns[:n]:  # each was tested in the last round (or pass 1)
+            if _same_reference(ref, by_line, order, c):
+                continue  # the same test again: the same result
+            for k in range(k_count):
+                ref[k, c] = by_line[order[k], c]
+                ambiguous[k, c] = -1
+            again[n_again] = c
+            n_again += 1
+        rivals(peaks, lo, hi, order, rows, ambiguous, again[:n_again], ref, beyond, margin,
+               costs, has_prior, cot_alpha, geometry, ground_range_m, image_order)
     for k in range(k_count):
         for c in range(width):
             if ambiguous[k, c] >= 0:
