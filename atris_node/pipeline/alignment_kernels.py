@@ -62,6 +62,15 @@ def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, re
 
 
 @kernel()
+def _missing(rows: IntArray) -> int:
+    """The count of lines without a row (-1) in ``rows`` (K,)."""
+    count = 0
+    for row in rows:
+        count += row < 0
+    return count
+
+
+@kernel()
 def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntArray) -> None:
     """The rows each line took (``out``, -1 = none) from the choices of :func:`align`."""
     j, i = choice.shape[0], m
@@ -184,11 +193,13 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
             continue
         for k in range(k_count):
             new[order[k]] = aligned[k]
-        if has_prior:  # the prior's cost can only raise the alignment's total
+        # the prior's cost can only raise the alignment's total, by at most its count of
+        # missing lines: taken only when that could undo the switch
+        if has_prior and total + unexplained_px * _missing(new) + margin > old_total:
             total += unexplained_px * _unexplained_column(new, c, cot_alpha, geometry,
                                                           ground_range_m, image_order, z)
-        if total + margin > old_total:
-            continue
+            if total + margin > old_total:
+                continue
         kept = 0
         for k in range(k_count):
             kept += new[k] >= 0

@@ -63,6 +63,8 @@ def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> In
     out = np.full((k_count, width), -1, dtype=np.int64)
     for c in range(width):
         below, end = np.iinfo(np.int64).max, m_count - 1
+        while end >= 0 and peaks[end, c] < 0:
+            end -= 1  # the padding
         for k in range(k_count - 1, -1, -1):
             for m in range(end, -1, -1):
                 p = peaks[m, c]
@@ -182,7 +184,7 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
             if good[k, c]:
                 values[n] = rows[k, c]
                 n += 1
-        line = median(values[:n]) if n >= min_line else np.inf
+        line = np.nan  # taken when a block needs it
         for lo in range(0, width, block):
             hi = min(lo + block, width)
             m = 0
@@ -194,6 +196,8 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
                         i -= 1
                     kept[i] = rows[k, c]
                     m += 1
+            if m < min_block and np.isnan(line):
+                line = median(values[:n]) if n >= min_line else np.inf
             out[k, lo:hi] = kept[m // 2] if m >= min_block else line
     return out
 

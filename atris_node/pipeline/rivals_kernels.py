@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.alignment_kernels import _in_any
+from atris_node.pipeline.alignment_kernels import _in_any, _missing
 from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column
 from atris_node.pipeline.selection import kth
 
@@ -149,15 +149,6 @@ def _known_count(seen: IntArray, seen_count: IntArray, n_seen: int, path: IntArr
         if same:
             return seen_count[s]
     return -1
-
-
-@kernel()
-def _missing(rows: IntArray) -> int:
-    """The count of lines without a row (-1) in ``rows`` (K,)."""
-    count = 0
-    for row in rows:
-        count += row < 0
-    return count
 
 
 @kernel()
@@ -376,6 +367,12 @@ def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_
             good[c] = anchored[c] and row[c] >= 0
             if good[c]:
                 at = c
+        if at < 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
+            for c in range(width):
+                out[k, c] = np.inf
+                far[k, c] = True
+                off[c] |= row[c] >= 0
+            continue
         medians[:] = np.nan
         line = np.nan
         after = width
