@@ -265,3 +265,32 @@ def test_second_identity_takes_over_the_first_rival_pass_only_where_it_is_the_sa
         np.testing.assert_array_equal(reused[1], again[1])
         np.testing.assert_array_equal(reused[2], again[2])
         assert (full.rows >= 0).sum() > 0
+
+
+def test_a_column_s_rival_test_does_not_depend_on_the_columns_tested_before_it(
+        pipe: Pipeline) -> None:
+    """The compiled rival test keeps the alignment tables of the last column when the next
+    one has the same costs: testing all columns in one call gives what testing each
+    column alone gives, without continuity and with a continuity reference, on 10 random
+    maps."""
+    from atris_node.pipeline import rivals as r
+    from atris_node.pipeline.identity import _COSTS, identify_lines, prior_arrays
+
+    rng = np.random.default_rng(7)
+    lo, hi, order = in_image_order(pipe.bands)
+    hi = r._to_infinity(hi, order, pipe._prior)
+    for _ in range(10):
+        peaks = _random_map(rng, 640)
+        rows, _ = identify_lines(peaks, pipe.bands, 3, pipe._prior, aligned=True)
+        columns = np.flatnonzero((rows >= 0).any(axis=0)).astype(np.int64)
+        for ref in (np.full(rows.shape, np.inf),
+                    r._reference(rows, rng.random(rows.shape[1]) < 0.5)[order]):
+            together, alone = (np.full(rows.shape, -1, np.int64) for _ in range(2))
+            for out, parts in ((together, [columns]), (alone, [[c] for c in columns])):
+                for part in parts:
+                    r.rivals_kernels.rivals(
+                        peaks, lo, hi, order, rows, out, np.array(part, dtype=np.int64),
+                        np.ascontiguousarray(ref), np.full(len(order), np.inf),
+                        r.RIVAL_MARGIN_PX, _COSTS, *prior_arrays(pipe._prior, rows.shape))
+            np.testing.assert_array_equal(together, alone)
+            assert (together >= 0).any()

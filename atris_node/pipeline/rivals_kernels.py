@@ -200,6 +200,8 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     owner = np.empty(m_count, dtype=np.int64)
     seen = np.empty((SEEN_PATHS, k_count), dtype=np.int64)
     seen_count = np.empty(SEEN_PATHS, dtype=np.int64)
+    spare_tables = np.zeros(m_count)  # the costs of the tables last filled
+    m_tables = -1
     for c in columns:
         n_seen = 0
         ref_c = ref[:, c]
@@ -218,10 +220,20 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         # count of lines missing: taken only when a rival comes within that bound
         priced = not has_prior
         bound = best if priced else best + costs[3] * _missing(image)
+        # the tables are those of the last column tested when its costs are these (the
+        # neighbouring columns of a stripe mostly have the same bands for their peaks)
+        same = m == m_tables
+        for i in range(m):
+            same &= spare[i] == spare_tables[i]
+            spare_tables[i] = spare[i]
         for j in range(k_count):
             for i in range(m):
-                match[j, i] = _match(j, column[i], lo, hi, ref_c, beyond, costs[2])
-        _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
+                cost = _match(j, column[i], lo, hi, ref_c, beyond, costs[2])
+                same &= cost == match[j, i]
+                match[j, i] = cost
+        if not same:
+            _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
+            m_tables = m
         owner[:] = -1
         for k in range(k_count):
             if image[k] >= 0:
