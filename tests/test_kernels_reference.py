@@ -313,3 +313,25 @@ def test_stable_identity_is_the_numpy_form() -> None:
         for g, w in zip(got, want, strict=True):
             assert g.dtype == w.dtype and g.shape == w.shape
             np.testing.assert_array_equal(g, w)
+
+
+def test_continuity_reference_of_some_columns_is_that_of_all_columns_there() -> None:
+    """The rounds of the rival test take the continuity reference only in the columns they
+    test: on 200 random tables and column subsets it equals the whole reference there
+    (and is inf elsewhere), bitwise."""
+    from atris_node.pipeline import rivals_kernels
+    from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
+    from atris_node.pipeline.rivals import BRIDGE_PX, CONTINUITY_REACH, MEDIAN_PX, _reference
+
+    rng = np.random.default_rng(25)
+    for _ in range(200):
+        k_count, width = int(rng.integers(1, 9)), int(rng.integers(1, 200))
+        rows = _random_rows(rng, k_count, width)
+        anchored = rng.random(width) < rng.random()
+        columns = np.flatnonzero(rng.random(width) < rng.random()).astype(np.int64)
+        got = rivals_kernels.continuity(rows, anchored, columns, CONTINUITY_REACH,
+                                        CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES,
+                                        BRIDGE_PX, MEDIAN_PX)
+        want = np.full(rows.shape, np.inf)
+        want[:, columns] = _reference(rows, anchored)[:, columns]
+        np.testing.assert_array_equal(got, want)

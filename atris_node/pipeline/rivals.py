@@ -238,10 +238,11 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     no reference: it mixes surfaces at different ranges, and a comb shifted by one line
     can match it better than the true one (a wall turned away, its far part a line
     spacing higher in the image: a phantom at 1.4 m for a wall at 5.7 m)."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
     return np.asarray(rivals_kernels.continuity(
-        np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(anchored, dtype=np.bool_),
-        CONTINUITY_REACH, CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES, BRIDGE_PX,
-        MEDIAN_PX))
+        rows, np.ascontiguousarray(anchored, dtype=np.bool_),
+        np.arange(rows.shape[1], dtype=np.int64), CONTINUITY_REACH, CONTINUITY_BLOCK,
+        MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES, BRIDGE_PX, MEDIAN_PX))
 
 
 def warm_up() -> None:

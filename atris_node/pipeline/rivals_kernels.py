@@ -342,12 +342,14 @@ def _far_or_bridged(row: IntArray, c: int, left: int, right: int, bridge_px: flo
     return np.inf
 
 
-@kernel("float64[:, :](int64[:, :], boolean[:], int64, int64, int64, int64, float64, "
-        "float64)")
-def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_block: int,
-               min_line: int, bridge_px: float, median_px: float) -> FloatArray:
-    """The continuity reference of :func:`atris_node.pipeline.rivals._reference`: (K, W)
-    per line, from its anchored rows (``anchored`` (W,) and a row >= 0), the first of
+@kernel("float64[:, :](int64[:, :], boolean[:], int64[:], int64, int64, int64, int64, "
+        "float64, float64)")
+def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: int, block: int,
+               min_block: int, min_line: int, bridge_px: float, median_px: float
+               ) -> FloatArray:
+    """The continuity reference of :func:`atris_node.pipeline.rivals._reference` in the
+    given ``columns``: (K, W) per line, from its anchored rows (``anchored`` (W,) and a
+    row >= 0), the first of
 
     - the row in the nearest anchored column within ``reach`` columns (not the column
       itself; the left one on a tie);
@@ -360,14 +362,16 @@ def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_
       otherwise), and inf for every line of a column where some line of this case has a
       row more than ``median_px`` off (or no) median.
 
-    The block and line medians are taken only where they are needed."""
+    inf in the other columns. The block and line medians are taken only where they are
+    needed."""
     k_count, width = rows.shape
     n_blocks = (width + block - 1) // block
-    out = np.empty((k_count, width))
+    out = np.full((k_count, width), np.inf)
     far = np.zeros((k_count, width), dtype=np.bool_)
     off = np.zeros(width, dtype=np.bool_)
     good = np.empty(width, dtype=np.bool_)
     before = np.empty(width, dtype=np.int64)
+    after = np.empty(width, dtype=np.int64)
     medians = np.empty(n_blocks)
     values = np.empty(width)
     kept = np.empty(block)
@@ -380,21 +384,24 @@ def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_
             if good[c]:
                 at = c
         if at < 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
-            for c in range(width):
-                out[k, c] = np.inf
+            for c in columns:
                 far[k, c] = True
                 off[c] |= row[c] >= 0
             continue
+        at = width
+        for c in range(width - 1, -1, -1):
+            after[c] = at
+            if good[c]:
+                at = c
         medians[:] = np.nan
         line = np.nan
-        after = width
-        for c in range(width - 1, -1, -1):
+        for c in columns:
             left_gap = c - before[c] if before[c] >= 0 else reach + 1
-            right_gap = after - c if after < width else reach + 1
+            right_gap = after[c] - c if after[c] < width else reach + 1
             if left_gap <= reach and left_gap <= right_gap:
                 out[k, c] = row[before[c]]
             elif right_gap <= reach:
-                out[k, c] = row[after]
+                out[k, c] = row[after[c]]
             else:
                 b = c // block
                 if np.isnan(medians[b]):
@@ -403,7 +410,7 @@ def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_
                 ref = medians[b]
                 if not np.isfinite(ref):
                     ref = _far_or_bridged(row, c, c if good[c] else before[c],
-                                          c if good[c] else after, bridge_px)
+                                          c if good[c] else after[c], bridge_px)
                 if np.isnan(ref):
                     if np.isnan(line):
                         line = _line_median(row, good, min_line, values)
@@ -411,10 +418,8 @@ def continuity(rows: IntArray, anchored: BoolArray, reach: int, block: int, min_
                     far[k, c] = True
                     off[c] |= row[c] >= 0 and abs(row[c] - line) > median_px
                 out[k, c] = ref
-            if good[c]:
-                after = c
     for k in range(k_count):
-        for c in range(width):
+        for c in columns:
             if far[k, c] and off[c]:
                 out[k, c] = np.inf
     return out
@@ -497,8 +502,8 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         if n in (0, left):
             break  # all anchored, or the last round anchored nothing new
         left = n
-        by_line = continuity(rows, anchored, reach, block, min_block, min_line, bridge_px,
-                             median_px)
+        by_line = continuity(rows, anchored, columns[:n], reach, block, min_block, min_line,
+                             bridge_px, median_px)
         n_again = 0
         for c in columns[:n]:  # each was tested in the last round (or pass 1)
             if _same_reference(ref, by_line, order, c):
@@ -699,5 +704,5 @@ def warm_up() -> None:
     stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
     set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
     isolated(peaks, 2, 2)
-    continuity(rows, np.ones(1, dtype=np.bool_), 4, 2, 1, 1, 4.0, 6.0)
+    continuity(rows, np.ones(1, dtype=np.bool_), one, 4, 2, 1, 1, 4.0, 6.0)
     bridge(rows, np.ones((1, 1), dtype=np.bool_), 4.0)
