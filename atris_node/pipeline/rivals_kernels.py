@@ -532,6 +532,16 @@ def _lowest_band(row: int, lo: IntArray, hi: IntArray, order: IntArray) -> int:
 
 
 @kernel()
+def _rivalled(p: int, first: IntArray, nearest: IntArray, c: int) -> bool:
+    """True when a line of ``first`` whose sample in column c has a rival (``nearest``)
+    holds the row ``p`` there."""
+    for k in range(first.shape[0]):  # noqa: SIM110 (a generator does not compile)
+        if nearest[k, c] >= 0 and first[k, c] == p:
+            return True
+    return False
+
+
+@kernel()
 def _held(peaks: IntArray, rows: IntArray, i: int, c: int) -> bool:
     """True when some line of ``rows`` holds the peak ``peaks[i, c]``."""
     for k in range(rows.shape[0]):  # noqa: SIM110 (a generator does not compile)
@@ -554,26 +564,27 @@ def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
     k_count, width = rows.shape
     m_count = peaks.shape[0]
     out = np.empty(width, dtype=np.int64)
-    rivalled = np.zeros((m_count, width), dtype=np.bool_)
-    n_rival = 0
+    unsure_at = np.empty(width, dtype=np.int64)
+    n_rival, n_unsure = 0, 0
     for c in range(width):
         before, after = 0, 0
         for k in range(k_count):
             before += first[k, c] >= 0
             after += rows[k, c] >= 0
-            if nearest[k, c] >= 0:
-                n_rival += 1
-                for i in range(m_count):
-                    rivalled[i, c] |= peaks[i, c] == first[k, c]
+            n_rival += nearest[k, c] >= 0
         out[c] = unsure[c] + max(before - after, 0)
-    lone = np.full((m_count, width), -1, dtype=np.int64)
+        if unsure[c] > 0:
+            unsure_at[n_unsure] = c
+            n_unsure += 1
+    lone = np.full((m_count, n_unsure), -1, dtype=np.int64)
     n_lone = 0
     for i in range(m_count):
-        for c in range(width):
+        for u in range(n_unsure):
+            c = unsure_at[u]
             p = peaks[i, c]
-            if p >= 0 and unsure[c] > 0 and not rivalled[i, c] and not _held(peaks, rows, i, c):
-                lone[i, c] = _lowest_band(p, lo, hi, order)
-                n_lone += lone[i, c] >= 0
+            if p >= 0 and not _rivalled(p, first, nearest, c) and not _held(peaks, rows, i, c):
+                lone[i, u] = _lowest_band(p, lo, hi, order)
+                n_lone += lone[i, u] >= 0
     row = np.empty(n_rival + n_lone, dtype=np.int64)
     col = np.empty(n_rival + n_lone, dtype=np.int64)
     line = np.empty(n_rival + n_lone, dtype=np.int64)
@@ -584,9 +595,9 @@ def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
                 row[n], col[n], line[n] = first[k, c], c, nearest[k, c]
                 n += 1
     for i in range(m_count):
-        for c in range(width):
-            if lone[i, c] >= 0:
-                row[n], col[n], line[n] = peaks[i, c], c, lone[i, c]
+        for u in range(n_unsure):
+            if lone[i, u] >= 0:
+                row[n], col[n], line[n] = peaks[i, unsure_at[u]], unsure_at[u], lone[i, u]
                 n += 1
     return out, row, col, line
 
