@@ -208,7 +208,8 @@ def _rounds_by_definition(peaks: np.ndarray, bands: Any, rows: np.ndarray,
         r.rivals_kernels.rivals(peaks, lo, hi, order, rows, ambiguous,
                                 columns.astype(np.int64), np.ascontiguousarray(ref),
                                 np.full(k_count, np.inf), r.RIVAL_MARGIN_PX, _COSTS,
-                                *prior_arrays(prior, rows.shape))
+                                *prior_arrays(prior, rows.shape),
+                                np.full(rows.shape[1], -1, np.int64))
 
     test(np.flatnonzero((rows >= 0).any(axis=0)), np.full(rows.shape, np.inf))
     left = -1
@@ -227,8 +228,9 @@ def _rounds_by_definition(peaks: np.ndarray, bands: Any, rows: np.ndarray,
 
 def test_rounds_of_the_rival_test_are_the_plain_loop(pipe: Pipeline) -> None:
     """The compiled rounds (which take a column's last result over where its reference
-    has not changed) give what testing every column not anchored in every round gives,
-    on 20 random maps (identity from identify_lines)."""
+    has not changed, and the prior's count of its chosen rows from its first test) give
+    what testing every column not anchored in every round gives, on 20 random maps
+    (identity from identify_lines)."""
     from atris_node.pipeline.identity import identify_lines
 
     rng = np.random.default_rng(6)
@@ -291,7 +293,8 @@ def test_a_column_s_rival_test_does_not_depend_on_the_columns_tested_before_it(
                     r.rivals_kernels.rivals(
                         peaks, lo, hi, order, rows, out, np.array(part, dtype=np.int64),
                         np.ascontiguousarray(ref), np.full(len(order), np.inf),
-                        r.RIVAL_MARGIN_PX, _COSTS, *prior_arrays(pipe._prior, rows.shape))
+                        r.RIVAL_MARGIN_PX, _COSTS, *prior_arrays(pipe._prior, rows.shape),
+                        np.full(rows.shape[1], -1, np.int64))
             np.testing.assert_array_equal(together, alone)
             assert (together >= 0).any()
 

@@ -170,11 +170,12 @@ def _peak_index(column: IntArray, m: int, row: int) -> int:
 
 @kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
         "int64[:], float64[:, :], float64[:], float64, float64[:], boolean, "
-        "float64[:], float64[:], float64[:, :], int64[:])")
+        "float64[:], float64[:], float64[:, :], int64[:], int64[:])")
 def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
            ambiguous: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
            margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
-           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
+           counted: IntArray) -> None:
     """:func:`atris_node.pipeline.rivals.unique_identity` on the given ``columns``.
 
     ``rows`` (K, W) by line is the chosen identity (never changed: a cheaper assignment is a
@@ -184,7 +185,9 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     nearest range the peak may stand for. ``peaks`` (M, W) -1 padded; ``lo``, ``hi``,
     ``beyond`` (K,) and ``ref`` (K, W) in image order, ``order`` the line of each; ``costs``
     (skip, spare, beyond, unexplained) px; the prior as
-    :func:`atris_node.pipeline.identity_kernels.unexplained` takes it."""
+    :func:`atris_node.pipeline.identity_kernels.unexplained` takes it, and ``counted`` (W,)
+    its count of the chosen rows' missing lines per column where taken (-1 where not yet;
+    filled in where this call takes it)."""
     k_count, m_count = lo.size, peaks.shape[0]
     column = np.empty(m_count, dtype=np.int64)
     spare = np.zeros(m_count)
@@ -248,8 +251,10 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 if through >= bound + margin:
                     continue  # no assignment giving peak i to line j comes close
                 if not priced:
-                    best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
-                                                           ground_range_m, image_order, z)
+                    if counted[c] < 0:
+                        counted[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry,
+                                                         ground_range_m, image_order, z)
+                    best += costs[3] * counted[c]
                     bound, priced = best, True
                     if through >= best + margin:
                         continue
@@ -491,8 +496,9 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 n += 1
                 break
     ref = np.full((k_count, width), np.inf)  # the reference of each column's last test
+    counted = np.full(width, -1, dtype=np.int64)  # the rows do not change: nor their count
     rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
-           has_prior, cot_alpha, geometry, ground_range_m, image_order)
+           has_prior, cot_alpha, geometry, ground_range_m, image_order, counted)
     passed[:, :] = ambiguous
     anchored = np.empty(width, dtype=np.bool_)
     again = np.empty(width, dtype=np.int64)
@@ -514,7 +520,7 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
             again[n_again] = c
             n_again += 1
         rivals(peaks, lo, hi, order, rows, ambiguous, again[:n_again], ref, beyond, margin,
-               costs, has_prior, cot_alpha, geometry, ground_range_m, image_order)
+               costs, has_prior, cot_alpha, geometry, ground_range_m, image_order, counted)
     for k in range(k_count):
         for c in range(width):
             if ambiguous[k, c] >= 0:
@@ -707,7 +713,7 @@ def warm_up() -> None:
     costs, prior = np.array([10.0, 40.0, 10.0, 10.0]), (False, np.zeros(1), np.zeros(5),
                                                          np.zeros((1, 1)), one)
     rivals(peaks, one, hi, one, rows.copy(), none.copy(), one, np.full((1, 1), np.inf),
-           np.array([np.inf]), 10.0, costs, *prior)
+           np.array([np.inf]), 10.0, costs, *prior, np.full(1, -1, dtype=i64))
     unique(peaks, one, hi, one, rows.copy(), none.copy(), none.copy(),
            np.zeros(1, dtype=np.bool_), np.array([10.0, 4.0, 6.0]),
            np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior)
