@@ -257,11 +257,12 @@ def test_second_identity_takes_over_the_first_rival_pass_only_where_it_is_the_sa
     for _ in range(20):
         peaks = _random_map(rng, 640)
         weak = (peaks >= 0) & (rng.random(peaks.shape) < rng.choice([0.02, 0.1]))
-        full, first, passed = _unique(peaks, pipe.bands, 3, pipe._prior, True, None)
+        edges = in_image_order(pipe.bands)
+        full, first, passed = _unique(peaks, pipe.bands, edges, 3, pipe._prior, True, None)
         strong, _ = set_aside(peaks, weak)
         earlier = (first, passed, ~weak.any(axis=0))
-        reused = _unique(strong, pipe.bands, 3, pipe._prior, True, earlier)
-        again = _unique(strong, pipe.bands, 3, pipe._prior, True, None)
+        reused = _unique(strong, pipe.bands, edges, 3, pipe._prior, True, earlier)
+        again = _unique(strong, pipe.bands, edges, 3, pipe._prior, True, None)
         for field in ("rows", "unsure", "doubt_row", "doubt_col", "doubt_line"):
             np.testing.assert_array_equal(getattr(reused[0], field), getattr(again[0], field))
         np.testing.assert_array_equal(reused[1], again[1])

@@ -227,8 +227,9 @@ class VisibilityPrior:
 
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
-                   prior: VisibilityPrior | None = None, *,
-                   aligned: bool = False) -> tuple[IntArray, IntArray]:
+                   prior: VisibilityPrior | None = None, *, aligned: bool = False,
+                   edges: tuple[IntArray, IntArray, IntArray] | None = None
+                   ) -> tuple[IntArray, IntArray]:
     """(K, W) row of each line per column (-1 = none) and (W,) ambiguous samples per column.
 
     Order: lines keep their top-to-bottom order and each stays in its band. Both greedy
@@ -240,8 +241,9 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     ambiguous. With ``aligned``, a confident choice is then replaced where the cheapest
     alignment (:func:`improve`) is clearly cheaper (a line missing in the
     middle of a column, which both greedy matchings answer with a shifted run of lines).
+    ``edges``: ``in_image_order(bands)`` where the caller has it.
     """
-    lo, hi, line = in_image_order(bands)
+    lo, hi, line = in_image_order(bands) if edges is None else edges
     rows, unsure, unsettled, certain, missing = kernels.greedy_identity(
         np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, line, int(sep), aligned,
         *prior_arrays(prior, (len(bands), peaks.shape[1])), CONTINUITY_BLOCK,

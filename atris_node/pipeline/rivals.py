@@ -89,17 +89,19 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
         rows: (K, W) int64, the identity chosen so far (:func:`identify_lines`).
         prior: the visibility prior; without it only bands, order and continuity count.
     """
-    rows, ambiguous, _ = _unique_rows(peaks, bands, rows, prior, None)
+    rows, ambiguous, _ = _unique_rows(peaks, in_image_order(bands), rows, prior, None)
     return rows, ambiguous
 
 
-def _unique_rows(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
-                 prior: VisibilityPrior | None, earlier: tuple[IntArray, BoolArray] | None
+def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
+                 rows: IntArray, prior: VisibilityPrior | None,
+                 earlier: tuple[IntArray, BoolArray] | None
                  ) -> tuple[IntArray, IntArray, IntArray]:
-    """:func:`unique_identity`, and (K, W) the rival test's result without continuity
-    (pass 1) in every column. ``earlier``: that pass-1 result of an earlier identity and
-    (W,) the columns where its peaks and ``rows`` were these, which take it over."""
-    lo, hi, order = in_image_order(bands)
+    """:func:`unique_identity` (bands as ``edges``, :func:`in_image_order`), and (K, W)
+    the rival test's result without continuity (pass 1) in every column. ``earlier``:
+    that pass-1 result of an earlier identity and (W,) the columns where its peaks and
+    ``rows`` were these, which take it over."""
+    lo, hi, order = edges
     # a stripe from past its line's z_max (the ground or a wall beyond the range) is as
     # good an explanation as the next line at a near range, and the rival test must see
     # that tie: each line may take peaks down to its row at infinite range, with no
@@ -145,18 +147,19 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
     samples both identities agree on are kept, the others count as ambiguous, with the
     nearer of their two lines as their doubt.
     """
-    full, first, passed = _unique(peaks, bands, sep, prior, aligned, None)
+    edges = in_image_order(bands)
+    full, first, passed = _unique(peaks, bands, edges, sep, prior, aligned, None)
     weak_peaks = weak(peaks) & (peaks >= 0)
     if not weak_peaks.any():
         return full
     strong, _ = set_aside(peaks, weak_peaks)
     # columns where no peak is weak keep their peaks: where the identity chooses the same
     # rows again, their rival test without continuity is the one just made
-    alone, _, _ = _unique(strong, bands, sep, prior, aligned,
+    alone, _, _ = _unique(strong, bands, edges, sep, prior, aligned,
                           (first, passed, np.asarray(~weak_peaks.any(axis=0))))
     rows = full.rows
     kept, lost, row, col, line = rivals_kernels.stable(
-        rows, alone.rows, np.ascontiguousarray((rows >= 0) & ~weak(rows)), _positions(bands))
+        rows, alone.rows, np.ascontiguousarray((rows >= 0) & ~weak(rows)), _positions(edges[2]))
     doubts = [np.concatenate(parts) for parts in zip(
         (full.doubt_row, full.doubt_col, full.doubt_line), (row, col, line),
         (alone.doubt_row, alone.doubt_col, alone.doubt_line), strict=True)]
@@ -175,15 +178,16 @@ def _to_infinity(hi: IntArray, order: IntArray, prior: VisibilityPrior | None) -
     return np.minimum(np.maximum(hi, reach), prior.height_px).astype(np.int64)
 
 
-def _positions(bands: tuple[Band, ...]) -> IntArray:
-    """(K,) each line's position from the top of the image (0 = top)."""
-    _, _, order = in_image_order(bands)
+def _positions(order: IntArray) -> IntArray:
+    """(K,) each line's position from the top of the image (0 = top), from the (K,) lines
+    in image ``order``."""
     position = np.empty(order.size, dtype=np.int64)
     position[order] = np.arange(order.size)
     return position
 
 
-def _unique(peaks: IntArray, bands: tuple[Band, ...], sep: int,
+def _unique(peaks: IntArray, bands: tuple[Band, ...],
+            edges: tuple[IntArray, IntArray, IntArray], sep: int,
             prior: VisibilityPrior | None, aligned: bool,
             earlier: tuple[IntArray, IntArray, BoolArray] | None
             ) -> tuple[Identity, IntArray, IntArray]:
@@ -191,18 +195,18 @@ def _unique(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     keep their nearest rival as doubt; peaks the greedy matchings could not place, the
     lowest band that holds them. Also returns the (K, W) identity before the rival test
     and the test's (K, W) result without continuity, for a later identity of the same
-    map (``earlier``: those two and (W,) the columns where its peaks are these)."""
-    first, unsure = identify_lines(peaks, bands, sep, prior, aligned=aligned)
+    map (``earlier``: those two and (W,) the columns where its peaks are these).
+    ``edges``: the bands in image order (:func:`in_image_order`)."""
+    first, unsure = identify_lines(peaks, bands, sep, prior, aligned=aligned, edges=edges)
     first = np.ascontiguousarray(first, dtype=np.int64)
     reuse = None
     if earlier is not None:
         same = earlier[2] & (first == earlier[0]).all(axis=0)
         reuse = (earlier[1], same)
-    rows, nearest, passed = _unique_rows(peaks, bands, first, prior, reuse)
-    lo, hi, order = in_image_order(bands)
+    rows, nearest, passed = _unique_rows(peaks, edges, first, prior, reuse)
     doubts = rivals_kernels.doubts(np.ascontiguousarray(peaks, dtype=np.int64), first, rows,
-                                   nearest, np.ascontiguousarray(unsure, dtype=np.int64), lo,
-                                   hi, order)
+                                   nearest, np.ascontiguousarray(unsure, dtype=np.int64),
+                                   *edges)
     return Identity(rows, *doubts), first, passed
 
 
