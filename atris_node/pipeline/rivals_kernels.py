@@ -8,7 +8,12 @@ peaks i..). The cheapest assignment in which peak i is taken by line j then cost
 ``F[j, i] + match(j, i) + G[j + 1, i + 1]`` (a max-marginal), and the assignment itself
 is read back from both tables. :func:`rivals` adds the visibility prior's cost of lines
 missing without a reason to each, and reports every assigned peak for which an assignment
-giving it another line costs less than the chosen one plus a margin.
+giving it another line costs less than the chosen one plus a margin. :func:`unique` runs
+its rounds (without continuity, then with the :func:`continuity` reference of the anchored
+columns), :func:`doubts` and :func:`stable` do the bookkeeping of
+:mod:`atris_node.pipeline.rivals` around them, :func:`set_aside` drops peaks from the
+columns. A column's test depends only on that column's peaks, rows, prior and reference:
+a test already made with the same ones is not made again.
 
 Types: rows and lines int64 (-1 = none), costs float64 px. Costs are sums of whole and
 half pixels, exact in float64, so equal sums compare equal when the tables are read back.
