@@ -5,6 +5,7 @@ lines and a shifted comb is a coherent, nearer surface."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -173,3 +174,160 @@ def test_feature_a_line_may_take_a_stripe_from_beyond_z_max_in_the_rival_test(
     assert (out >= hi).all()
     assert (out - 1 >= np.floor(infinity)).all()  # the row at infinity is inside
     assert ((out - 1 <= np.floor(infinity + 1.0)) | (out == hi)).all()  # no farther
+
+
+def _random_map(rng: np.random.Generator, width: int) -> np.ndarray:
+    """(12, W) peaks of walls and boxes, combs shifted by a line, rows off by up to 2 px,
+    missing lines and noise peaks."""
+    peaks = np.full((12, width), -1, np.int64)
+    for c in range(width):
+        comb = np.array(WALL if rng.random() < 0.6 else BOX_PEAKS)
+        comb = comb + rng.integers(-1, 2) * 20 + rng.integers(-2, 3, comb.size)
+        comb = comb[rng.random(comb.size) < 0.85]
+        extra = rng.integers(100, 320, rng.integers(0, 3))
+        column = np.unique(np.concatenate([comb, extra]))[:12]
+        peaks[:column.size, c] = column
+    return peaks
+
+
+def _rounds_by_definition(peaks: np.ndarray, bands: Any, rows: np.ndarray,
+                          prior: Any) -> tuple[np.ndarray, np.ndarray]:
+    """unique_identity as the plain loop of passes: every column with a peak without
+    continuity, then rounds testing every column not anchored with the reference of the
+    anchored ones, until a round anchors nothing new."""
+    from atris_node.pipeline import rivals as r
+    from atris_node.pipeline.identity import _COSTS, prior_arrays
+
+    lo, hi, order = in_image_order(bands)
+    hi = r._to_infinity(hi, order, prior)
+    rows = rows.copy()
+    k_count = rows.shape[0]
+    ambiguous = np.full(rows.shape, -1, np.int64)
+
+    def test(columns: np.ndarray, ref: np.ndarray) -> None:
+        r.rivals_kernels.rivals(peaks, lo, hi, order, rows, ambiguous,
+                                columns.astype(np.int64), np.ascontiguousarray(ref),
+                                np.full(k_count, np.inf), r.RIVAL_MARGIN_PX, _COSTS,
+                                *prior_arrays(prior, rows.shape),
+                                np.full(rows.shape[1], -1, np.int64))
+
+    test(np.flatnonzero((rows >= 0).any(axis=0)), np.full(rows.shape, np.inf))
+    left = -1
+    for _ in range(r.CONTINUITY_ROUNDS):
+        anchored = ~(ambiguous >= 0).any(axis=0)
+        again = np.flatnonzero(~anchored)
+        if again.size in (0, left):
+            break
+        left = again.size
+        ref = r._reference(rows, anchored)
+        ambiguous[:, again] = -1
+        test(again, ref[order])
+    rows[ambiguous >= 0] = -1
+    return rows, ambiguous
+
+
+def test_rounds_of_the_rival_test_are_the_plain_loop(pipe: Pipeline) -> None:
+    """The compiled rounds (which take a column's last result over where its reference
+    has not changed, and the prior's count of its chosen rows from its first test) give
+    what testing every column not anchored in every round gives, on 20 random maps
+    (identity from identify_lines)."""
+    from atris_node.pipeline.identity import identify_lines
+
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        peaks = _random_map(rng, 640)
+        rows, _ = identify_lines(peaks, pipe.bands, 3, pipe._prior, aligned=True)
+        got = unique_identity(peaks, pipe.bands, rows, pipe._prior)
+        want = _rounds_by_definition(peaks, pipe.bands, rows, pipe._prior)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        assert (want[1] >= 0).any()
+
+
+def test_second_identity_takes_over_the_first_rival_pass_only_where_it_is_the_same(
+        pipe: Pipeline) -> None:
+    """robust_identity's identity without the weak peaks takes the rival test without
+    continuity from the identity with them in columns without a weak peak whose chosen
+    rows are the same: on 20 random maps of walls, boxes and combs shifted by a line with
+    noise peaks and missing lines, it gives the same identity, doubts and pass-1 result
+    as testing every column again."""
+    from atris_node.pipeline.rivals import _unique, set_aside
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        peaks = _random_map(rng, 640)
+        weak = (peaks >= 0) & (rng.random(peaks.shape) < rng.choice([0.02, 0.1]))
+        edges = in_image_order(pipe.bands)
+        full, first, passed = _unique(peaks, pipe.bands, edges, 3, pipe._prior, True, None)
+        strong, _ = set_aside(peaks, weak)
+        earlier = (first, passed, ~weak.any(axis=0))
+        reused = _unique(strong, pipe.bands, edges, 3, pipe._prior, True, earlier)
+        again = _unique(strong, pipe.bands, edges, 3, pipe._prior, True, None)
+        for field in ("rows", "unsure", "doubt_row", "doubt_col", "doubt_line"):
+            np.testing.assert_array_equal(getattr(reused[0], field), getattr(again[0], field))
+        np.testing.assert_array_equal(reused[1], again[1])
+        np.testing.assert_array_equal(reused[2], again[2])
+        assert (full.rows >= 0).sum() > 0
+
+
+def test_a_column_s_rival_test_does_not_depend_on_the_columns_tested_before_it(
+        pipe: Pipeline) -> None:
+    """The compiled rival test keeps the alignment tables of the last column when the next
+    one has the same costs: testing all columns in one call gives what testing each
+    column alone gives, without continuity and with a continuity reference, on 10 random
+    maps."""
+    from atris_node.pipeline import rivals as r
+    from atris_node.pipeline.identity import _COSTS, identify_lines, prior_arrays
+
+    rng = np.random.default_rng(7)
+    lo, hi, order = in_image_order(pipe.bands)
+    hi = r._to_infinity(hi, order, pipe._prior)
+    for _ in range(10):
+        peaks = _random_map(rng, 640)
+        rows, _ = identify_lines(peaks, pipe.bands, 3, pipe._prior, aligned=True)
+        columns = np.flatnonzero((rows >= 0).any(axis=0)).astype(np.int64)
+        for ref in (np.full(rows.shape, np.inf),
+                    r._reference(rows, rng.random(rows.shape[1]) < 0.5)[order]):
+            together, alone = (np.full(rows.shape, -1, np.int64) for _ in range(2))
+            for out, parts in ((together, [columns]), (alone, [[c] for c in columns])):
+                for part in parts:
+                    r.rivals_kernels.rivals(
+                        peaks, lo, hi, order, rows, out, np.array(part, dtype=np.int64),
+                        np.ascontiguousarray(ref), np.full(len(order), np.inf),
+                        r.RIVAL_MARGIN_PX, _COSTS, *prior_arrays(pipe._prior, rows.shape),
+                        np.full(rows.shape[1], -1, np.int64))
+            np.testing.assert_array_equal(together, alone)
+            assert (together >= 0).any()
+
+
+def test_the_greedy_identity_hands_on_the_prior_s_count_of_its_rows(pipe: Pipeline) -> None:
+    """greedy_identity returns the visibility prior's count of the chosen rows' missing
+    lines where it took it, and improve uses it instead of taking it again: on 10 random
+    maps the count is that of VisibilityPrior.unexplained in every such column, and the
+    improved identity is the one improve makes without it."""
+    from atris_node.pipeline import identity_kernels
+    from atris_node.pipeline.identity import (
+        CONTINUITY_BLOCK,
+        MIN_BLOCK_SAMPLES,
+        MIN_LINE_SAMPLES,
+        improve,
+        prior_arrays,
+    )
+
+    rng = np.random.default_rng(8)
+    prior = pipe._prior
+    lo, hi, line = in_image_order(pipe.bands)
+    for _ in range(10):
+        peaks = _random_map(rng, 640)
+        rows, unsure, unsettled, certain, missing = identity_kernels.greedy_identity(
+            peaks, lo, hi, line, 3, True, *prior_arrays(prior, (len(line), 640)),
+            CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES)
+        known = np.flatnonzero(missing >= 0)
+        assert known.size > 100
+        np.testing.assert_array_equal(missing[known],
+                                      prior.unexplained(rows[:, known], known))
+        with_count = improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain,
+                             prior, 3, missing)
+        without = improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain, prior, 3)
+        np.testing.assert_array_equal(with_count[0], without[0])
+        np.testing.assert_array_equal(with_count[1], without[1])

@@ -62,6 +62,15 @@ def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, re
 
 
 @kernel()
+def _missing(rows: IntArray) -> int:
+    """The count of lines without a row (-1) in ``rows`` (K,)."""
+    count = 0
+    for row in rows:
+        count += row < 0
+    return count
+
+
+@kernel()
 def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntArray) -> None:
     """The rows each line took (``out``, -1 = none) from the choices of :func:`align`."""
     j, i = choice.shape[0], m
@@ -147,15 +156,17 @@ def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntAr
 
 
 @kernel(f"void({_I2}, {_I1}, {_I1}, {_I1}, {_I2}, {_I1}, {_I1}, {_F2}, {_F1}, float64, {_F1}, "
-      f"boolean, {_F1}, {_F1}, {_F2}, {_I1})")
+      f"boolean, {_F1}, {_F1}, {_F2}, {_I1}, {_I1})")
 def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
             unsure: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
             margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
-            geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+            geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
+            known: IntArray) -> None:
     """:func:`atris_node.pipeline.identity.improve` on the given ``columns``, in place on
     ``rows`` (K, W) by line and ``unsure`` (W,). ``costs`` (skip, spare, beyond,
     unexplained) px; the prior (``cot_alpha``, ``geometry``, ``ground_range_m``,
-    ``image_order``, as :func:`unexplained` takes them) counts only with ``has_prior``."""
+    ``image_order``, as :func:`unexplained` takes them) counts only with ``has_prior``;
+    ``known`` (W,) its count for the given rows where already taken (-1 elsewhere)."""
     k_count, m_count = order.size, peaks.shape[0]
     unexplained_px = costs[3]
     scratch = np.empty((2, m_count + 1))
@@ -169,8 +180,9 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
         old = rows[:, c]
         missing = 0.0
         if has_prior:
-            missing = unexplained_px * _unexplained_column(old, c, cot_alpha, geometry,
-                                                           ground_range_m, image_order, z)
+            count = known[c] if known[c] >= 0 else _unexplained_column(
+                old, c, cot_alpha, geometry, ground_range_m, image_order, z)
+            missing = unexplained_px * count
         excess, floor, assigned = _assignment_cost(old, order, peaks[:, c], lo, hi, ref[:, c],
                                                    beyond, costs)
         if excess + missing < margin:
@@ -184,11 +196,13 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
             continue
         for k in range(k_count):
             new[order[k]] = aligned[k]
-        if has_prior:  # the prior's cost can only raise the alignment's total
+        # the prior's cost can only raise the alignment's total, by at most its count of
+        # missing lines: taken only when that could undo the switch
+        if has_prior and total + unexplained_px * _missing(new) + margin > old_total:
             total += unexplained_px * _unexplained_column(new, c, cot_alpha, geometry,
                                                           ground_range_m, image_order, z)
-        if total + margin > old_total:
-            continue
+            if total + margin > old_total:
+                continue
         kept = 0
         for k in range(k_count):
             kept += new[k] >= 0
@@ -222,4 +236,4 @@ def warm_up() -> None:
     align(peaks, lo, hi, ref, beyond, costs)
     rows_cost(rows, peaks, lo, hi, ref, beyond, costs)
     improve(peaks, lo, hi, line, rows.copy(), np.zeros(1, dtype=i64), line, ref, beyond, 10.0,
-            costs, True, cot, geometry, ground, line)
+            costs, True, cot, geometry, ground, line, np.full(1, -1, dtype=i64))

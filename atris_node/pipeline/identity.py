@@ -108,7 +108,8 @@ def beyond_rows(prior: VisibilityPrior | None, order: IntArray) -> FloatArray:
 
 def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
             greedy: tuple[IntArray, IntArray], unsettled: BoolArray, ref: FloatArray,
-            prior: VisibilityPrior | None, sep: int) -> tuple[IntArray, IntArray]:
+            prior: VisibilityPrior | None, sep: int, missing: IntArray | None = None
+            ) -> tuple[IntArray, IntArray]:
     """The greedy identity ``greedy = (rows, unsure)`` ((K, W) by line, (W,)), replaced in
     each column where the cheapest alignment costs at least max(SWITCH_PX, ``sep``) px
     less and the greedy choice was not ambiguous.
@@ -126,6 +127,8 @@ def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
             matchings agree (inf: unknown).
         prior: the visibility prior (adds UNEXPLAINED_PX per line missing without reason).
         sep: px, the peak separation; a smaller saving never switches.
+        missing: (W,) the prior's count of the greedy rows' lines missing without a
+            reason where it is known (-1 elsewhere; None: nowhere).
 
     Returns:
         rows (K, W) and (W,) unsure counts. A peak the greedy choice used that the
@@ -135,10 +138,13 @@ def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
     rows, unsure = rows_and_unsure = (greedy[0].copy(), greedy[1].copy())
     cols = np.flatnonzero(unsettled & (unsure == 0))
     lo, hi = edges
+    if missing is None:
+        missing = np.full(rows.shape[1], -1, dtype=np.int64)
     alignment_kernels.improve(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
                     order.astype(np.int64), rows, unsure, cols.astype(np.int64),
                     np.ascontiguousarray(ref, dtype=np.float64), beyond_rows(prior, order),
-                    max(SWITCH_PX, float(sep)), _COSTS, *prior_arrays(prior, rows.shape))
+                    max(SWITCH_PX, float(sep)), _COSTS, *prior_arrays(prior, rows.shape),
+                    np.ascontiguousarray(missing, dtype=np.int64))
     return rows_and_unsure
 
 
@@ -221,8 +227,9 @@ class VisibilityPrior:
 
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
-                   prior: VisibilityPrior | None = None, *,
-                   aligned: bool = False) -> tuple[IntArray, IntArray]:
+                   prior: VisibilityPrior | None = None, *, aligned: bool = False,
+                   edges: tuple[IntArray, IntArray, IntArray] | None = None
+                   ) -> tuple[IntArray, IntArray]:
     """(K, W) row of each line per column (-1 = none) and (W,) ambiguous samples per column.
 
     Order: lines keep their top-to-bottom order and each stays in its band. Both greedy
@@ -234,12 +241,14 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     ambiguous. With ``aligned``, a confident choice is then replaced where the cheapest
     alignment (:func:`improve`) is clearly cheaper (a line missing in the
     middle of a column, which both greedy matchings answer with a shifted run of lines).
+    ``edges``: ``in_image_order(bands)`` where the caller has it.
     """
-    lo, hi, line = in_image_order(bands)
-    rows, unsure, unsettled, certain = kernels.greedy_identity(
+    lo, hi, line = in_image_order(bands) if edges is None else edges
+    rows, unsure, unsettled, certain, missing = kernels.greedy_identity(
         np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, line, int(sep), aligned,
         *prior_arrays(prior, (len(bands), peaks.shape[1])), CONTINUITY_BLOCK,
         MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES)
     if not aligned or not unsettled.any():
         return rows, unsure
-    return improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain, prior, sep)
+    return improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain, prior, sep,
+                   missing)

@@ -63,6 +63,8 @@ def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> In
     out = np.full((k_count, width), -1, dtype=np.int64)
     for c in range(width):
         below, end = np.iinfo(np.int64).max, m_count - 1
+        while end >= 0 and peaks[end, c] < 0:
+            end -= 1  # the padding
         for k in range(k_count - 1, -1, -1):
             for m in range(end, -1, -1):
                 p = peaks[m, c]
@@ -93,13 +95,19 @@ def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry:
     takes the finite range of the nearest line above (``up``) or below (``down``) it, the
     nearer range on a tie of the distance in lines."""
     k_count = order.size
-    if rows.min() >= 0:
-        return 0  # no line missing
-    focal_px, cy_px, height_px, baseline_m, z_max_m = geometry
+    focal_px, cy_px, height_px = geometry[0], geometry[1], geometry[2]
+    baseline_m, z_max_m = geometry[3], geometry[4]
+    missing = False
     for k in range(k_count):
         line = order[k]
-        den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
-        z[k] = focal_px * baseline_m / den if rows[line] >= 0 and den > 0 else np.inf
+        if rows[line] >= 0:
+            den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
+            z[k] = focal_px * baseline_m / den if den > 0 else np.inf
+        else:
+            z[k] = np.inf
+            missing = True
+    if not missing:
+        return 0
     count, up, down = 0, -1, _next_finite(z, 0)
     for k in range(k_count):
         if down <= k:
@@ -176,7 +184,7 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
             if good[k, c]:
                 values[n] = rows[k, c]
                 n += 1
-        line = median(values[:n]) if n >= min_line else np.inf
+        line = np.nan  # taken when a block needs it
         for lo in range(0, width, block):
             hi = min(lo + block, width)
             m = 0
@@ -188,6 +196,8 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
                         i -= 1
                     kept[i] = rows[k, c]
                     m += 1
+            if m < min_block and np.isnan(line):
+                line = median(values[:n]) if n >= min_line else np.inf
             out[k, lo:hi] = kept[m // 2] if m >= min_block else line
     return out
 
@@ -206,18 +216,20 @@ def _continuity_cost(rows: IntArray, differ: npt.NDArray[np.bool_], ref: FloatAr
     return total
 
 
-@kernel(f"Tuple((int64[:, :], int64[:], boolean[:], float64[:, :]))({_I2}, {_I1}, {_I1}, "
-      f"{_I1}, int64, boolean, boolean, {_F1}, {_F1}, {_F2}, {_I1}, int64, int64, int64)")
+@kernel(f"Tuple((int64[:, :], int64[:], boolean[:], float64[:, :], int64[:]))({_I2}, {_I1}, "
+      f"{_I1}, {_I1}, int64, boolean, boolean, {_F1}, {_F1}, {_F2}, {_I1}, int64, int64, int64)")
 def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray, sep: int,
                     aligned: bool, has_prior: bool, cot_alpha: FloatArray,
                     geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
                     block: int, min_block: int, min_line: int
-                    ) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_], FloatArray]:
+                    ) -> tuple[IntArray, IntArray, npt.NDArray[np.bool_], FloatArray, IntArray]:
     """The greedy identity of :func:`atris_node.pipeline.identity.identify_lines`: (K, W)
     rows by line (-1 = none), (W,) ambiguous samples, (W,) columns where the two greedy matchings
     differ and, with ``aligned``, the (K, W) continuity reference of the columns where
-    they agree ((0, 0) without). Bands ``[lo, hi)`` and their ``line`` in image order;
-    the prior as :func:`unexplained` takes it, used only with ``has_prior``."""
+    they agree ((0, 0) without), and (W,) the prior's count of the rows' lines missing
+    without a reason where it was taken (-1 elsewhere). Bands ``[lo, hi)`` and their
+    ``line`` in image order; the prior as :func:`unexplained` takes it, used only with
+    ``has_prior``."""
     down = assign_down(peaks, lo, hi, line)
     up = assign_up(peaks, lo, hi, line)
     k_count, width = down.shape
@@ -225,15 +237,17 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
     unsettled = np.zeros(width, dtype=np.bool_)
     pick_up = np.zeros(width, dtype=np.bool_)
     pick_down = np.zeros(width, dtype=np.bool_)
+    miss_down = np.full(width, -1, dtype=np.int64)
+    miss_up = np.full(width, -1, dtype=np.int64)
     z = np.empty(k_count)
     for c in range(width):
         unsettled[c] = differ[:, c].any()
         if unsettled[c] and has_prior:
-            miss_down = _unexplained_column(down[:, c], c, cot_alpha, geometry,
-                                            ground_range_m, image_order, z)
-            miss_up = _unexplained_column(up[:, c], c, cot_alpha, geometry, ground_range_m,
-                                          image_order, z)
-            pick_up[c], pick_down[c] = miss_up < miss_down, miss_down < miss_up
+            miss_down[c] = _unexplained_column(down[:, c], c, cot_alpha, geometry,
+                                               ground_range_m, image_order, z)
+            miss_up[c] = _unexplained_column(up[:, c], c, cot_alpha, geometry, ground_range_m,
+                                             image_order, z)
+            pick_up[c], pick_down[c] = miss_up[c] < miss_down[c], miss_down[c] < miss_up[c]
     settled = ~unsettled | pick_up | pick_down
     chosen = down.copy()
     good = np.empty((k_count, width), dtype=np.bool_)
@@ -245,6 +259,7 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
     ref = continuity_reference(chosen, good, block, min_block, min_line)
     rows = down.copy()
     unsure = np.zeros(width, dtype=np.int64)
+    missing = np.full(width, -1, dtype=np.int64)
     for c in range(width):
         if not unsettled[c]:
             continue
@@ -260,11 +275,15 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
             elif not use_down and differ[k, c]:
                 unsure[c] += down[k, c] >= 0
                 rows[k, c] = -1
+        if use_up:
+            missing[c] = miss_up[c]
+        elif use_down or unsure[c] == 0:  # the rows are those of the downward matching
+            missing[c] = miss_down[c]
     certain = np.empty((0, 0))
     if aligned:
         certain = continuity_reference(down, ~differ & (down >= 0), block, min_block,
                                        min_line)
-    return rows, unsure, unsettled, certain
+    return rows, unsure, unsettled, certain, missing
 
 
 def warm_up() -> None:

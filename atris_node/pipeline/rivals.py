@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.pipeline import identity_kernels, rivals_kernels
+from atris_node.pipeline import rivals_kernels
 from atris_node.pipeline.bands import Band, in_image_order
 from atris_node.pipeline.identity import (
     _COSTS,
@@ -71,6 +71,10 @@ INFINITY_PX = 1.0
 #: px; beyond a line's last anchor its median row is a reference only in columns whose
 #: chosen rows all lie this near their lines' medians (elsewhere it is another surface's)
 MEDIAN_PX = 6.0
+#: the rival test's px and column counts as :func:`rivals_kernels.unique` takes them
+_MARGINS = np.array([RIVAL_MARGIN_PX, BRIDGE_PX, MEDIAN_PX])
+_SPANS = np.array([CONTINUITY_REACH, CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES,
+                   CONTINUITY_ROUNDS], dtype=np.int64)
 
 
 def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
@@ -85,31 +89,34 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
         rows: (K, W) int64, the identity chosen so far (:func:`identify_lines`).
         prior: the visibility prior; without it only bands, order and continuity count.
     """
-    lo, hi, order = in_image_order(bands)
+    rows, ambiguous, _ = _unique_rows(peaks, in_image_order(bands), rows, prior, None)
+    return rows, ambiguous
+
+
+def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
+                 rows: IntArray, prior: VisibilityPrior | None,
+                 earlier: tuple[IntArray, BoolArray] | None
+                 ) -> tuple[IntArray, IntArray, IntArray]:
+    """:func:`unique_identity` (bands as ``edges``, :func:`in_image_order`), and (K, W)
+    the rival test's result without continuity (pass 1) in every column. ``earlier``:
+    that pass-1 result of an earlier identity and (W,) the columns where its peaks and
+    ``rows`` were these, which take it over."""
+    lo, hi, order = edges
     # a stripe from past its line's z_max (the ground or a wall beyond the range) is as
     # good an explanation as the next line at a near range, and the rival test must see
     # that tie: each line may take peaks down to its row at infinite range, with no
     # BEYOND_PX (the identity's own choice keeps both)
     hi = _to_infinity(hi, order, prior)
-    peaks = np.ascontiguousarray(peaks, dtype=np.int64)
     rows = np.array(rows, dtype=np.int64, order="C")
-    shape = rows.shape
-    ambiguous = np.full(shape, -1, dtype=np.int64)
-    beyond = np.full(order.size, np.inf)
-    loose = np.full(shape, np.inf)  # pass 1: no continuity
-    _test(peaks, (lo, hi, order), rows, ambiguous, _has_peaks(rows), loose, beyond, prior)
-    left = -1
-    for _ in range(CONTINUITY_ROUNDS):
-        anchored = np.asarray(~(ambiguous >= 0).any(axis=0), dtype=np.bool_)
-        again = np.flatnonzero(~anchored)
-        if again.size in (0, left):
-            break  # all anchored, or the last round anchored nothing new
-        left = again.size
-        ref = _reference(rows, anchored)
-        ambiguous[:, again] = -1
-        _test(peaks, (lo, hi, order), rows, ambiguous, again, ref[order], beyond, prior)
-    rows[ambiguous >= 0] = -1
-    return rows, ambiguous
+    ambiguous = np.full(rows.shape, -1, dtype=np.int64)
+    if earlier is None:
+        passed, reuse = np.empty_like(ambiguous), np.zeros(rows.shape[1], dtype=np.bool_)
+    else:
+        passed, reuse = earlier[0].copy(), np.ascontiguousarray(earlier[1], dtype=np.bool_)
+    rivals_kernels.unique(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, order, rows,
+                          ambiguous, passed, reuse, _MARGINS, _SPANS, _COSTS,
+                          *prior_arrays(prior, rows.shape))
+    return rows, ambiguous, passed
 
 
 @dataclass(frozen=True)
@@ -126,11 +133,6 @@ class Identity:
     doubt_col: IntArray
     doubt_line: IntArray
 
-    def with_doubts(self, row: IntArray, col: IntArray, line: IntArray) -> Identity:
-        return Identity(self.rows, self.unsure, np.concatenate([self.doubt_row, row]),
-                        np.concatenate([self.doubt_col, col]),
-                        np.concatenate([self.doubt_line, line]))
-
 
 def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
                     bands: tuple[Band, ...], sep: int, prior: VisibilityPrior | None, *,
@@ -145,25 +147,23 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
     samples both identities agree on are kept, the others count as ambiguous, with the
     nearer of their two lines as their doubt.
     """
-    full = _unique(peaks, bands, sep, prior, aligned)
+    edges = in_image_order(bands)
+    full, first, passed = _unique(peaks, bands, edges, sep, prior, aligned, None)
     weak_peaks = weak(peaks) & (peaks >= 0)
     if not weak_peaks.any():
         return full
     strong, _ = set_aside(peaks, weak_peaks)
-    alone = _unique(strong, bands, sep, prior, aligned)
-    rows, rows_b = full.rows, alone.rows
-    held = (rows >= 0) & ~weak(rows)
-    unstable = ((rows != rows_b) & ((rows_b >= 0) | held)).any(axis=0)
-    dropped = unstable[None, :] & (rows != rows_b) & (rows >= 0)
-    kept = np.where(dropped, -1, rows)
-    lost = (rows >= 0).sum(axis=0) - (kept >= 0).sum(axis=0)
-    k, c = np.nonzero(dropped)
-    other = _line_of(rows_b, rows[k, c], c)
-    position = _positions(bands)
-    nearer = np.where((other >= 0) & (position[np.maximum(other, 0)] > position[k]), other, k)
-    out = Identity(kept, full.unsure + lost, full.doubt_row, full.doubt_col, full.doubt_line)
-    out = out.with_doubts(rows[k, c], c.astype(np.int64), nearer.astype(np.int64))
-    return out.with_doubts(alone.doubt_row, alone.doubt_col, alone.doubt_line)
+    # columns where no peak is weak keep their peaks: where the identity chooses the same
+    # rows again, their rival test without continuity is the one just made
+    alone, _, _ = _unique(strong, bands, edges, sep, prior, aligned,
+                          (first, passed, np.asarray(~weak_peaks.any(axis=0))))
+    rows = full.rows
+    kept, lost, row, col, line = rivals_kernels.stable(
+        rows, alone.rows, np.ascontiguousarray((rows >= 0) & ~weak(rows)), _positions(edges[2]))
+    doubts = [np.concatenate(parts) for parts in zip(
+        (full.doubt_row, full.doubt_col, full.doubt_line), (row, col, line),
+        (alone.doubt_row, alone.doubt_col, alone.doubt_line), strict=True)]
+    return Identity(kept, full.unsure + lost, *doubts)
 
 
 def _to_infinity(hi: IntArray, order: IntArray, prior: VisibilityPrior | None) -> IntArray:
@@ -178,66 +178,43 @@ def _to_infinity(hi: IntArray, order: IntArray, prior: VisibilityPrior | None) -
     return np.minimum(np.maximum(hi, reach), prior.height_px).astype(np.int64)
 
 
-def _line_of(rows: IntArray, row: IntArray, col: IntArray) -> IntArray:
-    """(n,) the line holding ``row`` in column ``col`` of ``rows`` (K, W), -1 if none."""
-    match = rows[:, col] == row[None, :]
-    return np.where(match.any(axis=0), match.argmax(axis=0), -1).astype(np.int64)
-
-
-def _positions(bands: tuple[Band, ...]) -> IntArray:
-    """(K,) each line's position from the top of the image (0 = top)."""
-    _, _, order = in_image_order(bands)
+def _positions(order: IntArray) -> IntArray:
+    """(K,) each line's position from the top of the image (0 = top), from the (K,) lines
+    in image ``order``."""
     position = np.empty(order.size, dtype=np.int64)
     position[order] = np.arange(order.size)
     return position
 
 
-def _lowest_band(rows: IntArray, bands: tuple[Band, ...]) -> IntArray:
-    """(n,) the line lowest in the image whose band holds each row (-1 if none): the
-    nearest range a peak of unknown line may stand for."""
-    lo, hi, order = in_image_order(bands)
-    inside = (rows[:, None] >= lo[None, :]) & (rows[:, None] < hi[None, :])
-    last = inside.shape[1] - 1 - inside[:, ::-1].argmax(axis=1)
-    return np.where(inside.any(axis=1), order[last], -1).astype(np.int64)
-
-
-def _unique(peaks: IntArray, bands: tuple[Band, ...], sep: int,
-            prior: VisibilityPrior | None, aligned: bool) -> Identity:
+def _unique(peaks: IntArray, bands: tuple[Band, ...],
+            edges: tuple[IntArray, IntArray, IntArray], sep: int,
+            prior: VisibilityPrior | None, aligned: bool,
+            earlier: tuple[IntArray, IntArray, BoolArray] | None
+            ) -> tuple[Identity, IntArray, IntArray]:
     """:func:`identify_lines` then :func:`unique_identity`. Peaks the rival test removed
     keep their nearest rival as doubt; peaks the greedy matchings could not place, the
-    lowest band that holds them."""
-    first, unsure = identify_lines(peaks, bands, sep, prior, aligned=aligned)
-    before = (first >= 0).sum(axis=0)
-    rows, nearest = unique_identity(peaks, bands, first, prior)
-    k, c = np.nonzero(nearest >= 0)
-    rivalled = (first[k, c], c.astype(np.int64), nearest[k, c])
-    placed = ((peaks[None, :, :] == rows[:, None, :]) & (rows[:, None, :] >= 0)).any(axis=0)
-    unplaced = (peaks >= 0) & ~placed & (unsure > 0)[None, :]
-    unplaced &= ~_is_rivalled(peaks, rivalled)
-    i, j = np.nonzero(unplaced)
-    lowest = _lowest_band(peaks[i, j], bands)
-    known = lowest >= 0
-    out = Identity(rows, unsure + np.maximum(before - (rows >= 0).sum(axis=0), 0),
-                   *rivalled)
-    return out.with_doubts(peaks[i, j][known], j[known].astype(np.int64), lowest[known])
-
-
-def _is_rivalled(peaks: IntArray, rivalled: tuple[IntArray, IntArray, IntArray]
-                 ) -> BoolArray:
-    """(M, W) True at the peaks listed in ``rivalled`` (rows, columns, lines)."""
-    out = np.zeros(peaks.shape, dtype=np.bool_)
-    row, col, _ = rivalled
-    m, n = np.nonzero(peaks[:, col] == row[None, :])
-    out[m, col[n]] = True
-    return out
+    lowest band that holds them. Also returns the (K, W) identity before the rival test
+    and the test's (K, W) result without continuity, for a later identity of the same
+    map (``earlier``: those two and (W,) the columns where its peaks are these).
+    ``edges``: the bands in image order (:func:`in_image_order`)."""
+    first, unsure = identify_lines(peaks, bands, sep, prior, aligned=aligned, edges=edges)
+    first = np.ascontiguousarray(first, dtype=np.int64)
+    reuse = None
+    if earlier is not None:
+        same = earlier[2] & (first == earlier[0]).all(axis=0)
+        reuse = (earlier[1], same)
+    rows, nearest, passed = _unique_rows(peaks, edges, first, prior, reuse)
+    doubts = rivals_kernels.doubts(np.ascontiguousarray(peaks, dtype=np.int64), first, rows,
+                                   nearest, np.ascontiguousarray(unsure, dtype=np.int64),
+                                   *edges)
+    return Identity(rows, *doubts), first, passed
 
 
 def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
     """``peaks`` without the ``drop`` ones, each column sorted down with the -1 padding
     last (as the greedy matchings expect), and the (W,) count dropped."""
-    big = np.iinfo(np.int64).max
-    kept = np.sort(np.where(drop | (peaks < 0), big, peaks), axis=0)
-    return np.where(kept == big, -1, kept), drop.sum(axis=0).astype(np.int64)
+    return rivals_kernels.set_aside(np.ascontiguousarray(peaks, dtype=np.int64),
+                                    np.ascontiguousarray(drop, dtype=np.bool_))
 
 
 def stripe_peaks(peaks: IntArray, reach: int = LONE_REACH, max_step: int = LONE_STEP_PX
@@ -254,11 +231,6 @@ def stripe_peaks(peaks: IntArray, reach: int = LONE_REACH, max_step: int = LONE_
     return set_aside(peaks, lone)
 
 
-def _has_peaks(rows: IntArray) -> IntArray:
-    """(n,) int64 columns where some line took a peak."""
-    return np.flatnonzero((rows >= 0).any(axis=0)).astype(np.int64)
-
-
 def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     """(K, W) continuity reference by line: the row in the nearest anchored column within
     CONTINUITY_REACH; where there is none, the median of the anchored rows of the line in
@@ -270,31 +242,11 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     no reference: it mixes surfaces at different ranges, and a comb shifted by one line
     can match it better than the true one (a wall turned away, its far part a line
     spacing higher in the image: a phantom at 1.4 m for a wall at 5.7 m)."""
-    local = rivals_kernels.local_reference(rows, anchored, CONTINUITY_REACH)
-    good = np.ascontiguousarray((rows >= 0) & anchored[None, :])
-    block = identity_kernels.continuity_reference(rows, good, CONTINUITY_BLOCK,
-                                                  MIN_BLOCK_SAMPLES, rows.shape[1] + 1)
-    line = identity_kernels.continuity_reference(rows, good, rows.shape[1],
-                                                 MIN_LINE_SAMPLES, MIN_LINE_SAMPLES)
-    bridge, sides = rivals_kernels.bridge(rows, good, float(BRIDGE_PX))
-    # between anchors the bridge (or nothing where they disagree); the line's median
-    # only beyond its last anchor, and only in columns whose chosen comb lies on it
-    far = ~np.isfinite(local) & ~np.isfinite(block) & (sides < 2)
-    off = far & (rows >= 0) & (np.abs(rows - line) > MEDIAN_PX)
-    line = np.where(off.any(axis=0)[None, :], np.inf, line)
-    wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
-    return np.where(np.isfinite(local), local, wide)
-
-
-def _test(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray], rows: IntArray,
-          ambiguous: IntArray, columns: IntArray, ref: npt.NDArray[np.float64],
-          beyond: npt.NDArray[np.float64], prior: VisibilityPrior | None) -> None:
-    """One pass of the compiled rival test over ``columns`` (in place)."""
-    lo, hi, order = edges
-    rivals_kernels.rivals(peaks, lo, hi, order.astype(np.int64), rows, ambiguous,
-                          np.ascontiguousarray(columns, dtype=np.int64),
-                          np.ascontiguousarray(ref, dtype=np.float64), beyond,
-                          RIVAL_MARGIN_PX, _COSTS, *prior_arrays(prior, rows.shape))
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    return np.asarray(rivals_kernels.continuity(
+        rows, np.ascontiguousarray(anchored, dtype=np.bool_),
+        np.arange(rows.shape[1], dtype=np.int64), CONTINUITY_REACH, CONTINUITY_BLOCK,
+        MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES, BRIDGE_PX, MEDIAN_PX))
 
 
 def warm_up() -> None:

@@ -8,7 +8,12 @@ peaks i..). The cheapest assignment in which peak i is taken by line j then cost
 ``F[j, i] + match(j, i) + G[j + 1, i + 1]`` (a max-marginal), and the assignment itself
 is read back from both tables. :func:`rivals` adds the visibility prior's cost of lines
 missing without a reason to each, and reports every assigned peak for which an assignment
-giving it another line costs less than the chosen one plus a margin.
+giving it another line costs less than the chosen one plus a margin. :func:`unique` runs
+its rounds (without continuity, then with the :func:`continuity` reference of the anchored
+columns), :func:`doubts` and :func:`stable` do the bookkeeping of
+:mod:`atris_node.pipeline.rivals` around them, :func:`set_aside` drops peaks from the
+columns. A column's test depends only on that column's peaks, rows, prior and reference:
+a test already made with the same ones is not made again.
 
 Types: rows and lines int64 (-1 = none), costs float64 px. Costs are sums of whole and
 half pixels, exact in float64, so equal sums compare equal when the tables are read back.
@@ -20,8 +25,9 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.alignment_kernels import _in_any
+from atris_node.pipeline.alignment_kernels import _in_any, _missing
 from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column
+from atris_node.pipeline.selection import kth
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -169,11 +175,12 @@ def _peak_index(column: IntArray, m: int, row: int) -> int:
 
 @kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
         "int64[:], float64[:, :], float64[:], float64, float64[:], boolean, "
-        "float64[:], float64[:], float64[:, :], int64[:])")
+        "float64[:], float64[:], float64[:, :], int64[:], int64[:])")
 def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
            ambiguous: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
            margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
-           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
+           counted: IntArray) -> None:
     """:func:`atris_node.pipeline.rivals.unique_identity` on the given ``columns``.
 
     ``rows`` (K, W) by line is the chosen identity (never changed: a cheaper assignment is a
@@ -183,7 +190,9 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     nearest range the peak may stand for. ``peaks`` (M, W) -1 padded; ``lo``, ``hi``,
     ``beyond`` (K,) and ``ref`` (K, W) in image order, ``order`` the line of each; ``costs``
     (skip, spare, beyond, unexplained) px; the prior as
-    :func:`atris_node.pipeline.identity_kernels.unexplained` takes it."""
+    :func:`atris_node.pipeline.identity_kernels.unexplained` takes it, and ``counted`` (W,)
+    its count of the chosen rows' missing lines per column where taken (-1 where not yet;
+    filled in where this call takes it)."""
     k_count, m_count = lo.size, peaks.shape[0]
     column = np.empty(m_count, dtype=np.int64)
     spare = np.zeros(m_count)
@@ -199,26 +208,40 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     owner = np.empty(m_count, dtype=np.int64)
     seen = np.empty((SEEN_PATHS, k_count), dtype=np.int64)
     seen_count = np.empty(SEEN_PATHS, dtype=np.int64)
+    spare_tables = np.zeros(m_count)  # the costs of the tables last filled
+    m_tables = -1
     for c in columns:
         n_seen = 0
+        ref_c = ref[:, c]
         m = _sorted_peaks(peaks[:, c], column)
         for i in range(m):
             spare[i] = costs[1] if _in_any(column[i], lo, hi) else 0.0
         for k in range(k_count):
             image[k] = rows[order[k], c]
-        best = _chosen_cost(image, column, m, lo, hi, ref[:, c], beyond, costs, spare)
+        best = _chosen_cost(image, column, m, lo, hi, ref_c, beyond, costs, spare)
         if best == 0.0 and costs[0] + costs[1] >= margin:
             # every line holds a peak in its band, no peak in a band is left over, nothing
             # past z_max, no continuity cost: another order-preserving assignment must skip
             # a line and leave a peak over, which costs more than the margin
             continue
-        if has_prior:
-            best += costs[3] * _unexplained_column(rows[:, c], c, cot_alpha, geometry,
-                                                   ground_range_m, image_order, z)
+        # the prior's count of the chosen lines missing without a reason is at most the
+        # count of lines missing: taken only when a rival comes within that bound
+        priced = not has_prior
+        bound = best if priced else best + costs[3] * _missing(image)
+        # the tables are those of the last column tested when its costs are these (the
+        # neighbouring columns of a stripe mostly have the same bands for their peaks)
+        same = m == m_tables
+        for i in range(m):
+            same &= spare[i] == spare_tables[i]
+            spare_tables[i] = spare[i]
         for j in range(k_count):
             for i in range(m):
-                match[j, i] = _match(j, column[i], lo, hi, ref[:, c], beyond, costs[2])
-        _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
+                cost = _match(j, column[i], lo, hi, ref_c, beyond, costs[2])
+                same &= cost == match[j, i]
+                match[j, i] = cost
+        if not same:
+            _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
+            m_tables = m
         owner[:] = -1
         for k in range(k_count):
             if image[k] >= 0:
@@ -230,22 +253,32 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 if j == owner[i] or not lo[j] <= column[i] < hi[j]:
                     continue
                 through = f[j, i] + match[j, i] + g[j + 1, i + 1]
-                if through >= best + margin:
+                if through >= bound + margin:
                     continue  # no assignment giving peak i to line j comes close
+                if not priced:
+                    if counted[c] < 0:
+                        counted[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry,
+                                                         ground_range_m, image_order, z)
+                    best += costs[3] * counted[c]
+                    bound, priced = best, True
+                    if through >= best + margin:
+                        continue
                 if has_prior:
                     other[:] = -1
                     _read_forward(j, i, column, f_step, other)
                     other[j] = column[i]
                     _read_backward(j + 1, i + 1, column, g_step, other)
-                    missing = _known_count(seen, seen_count, n_seen, other)
-                    if missing < 0:  # a path not yet priced in this column
-                        missing = _unexplained_column(_by_line(other, order, line_rows), c,
-                                                      cot_alpha, geometry, ground_range_m,
-                                                      image_order, z)
-                        if n_seen < SEEN_PATHS:
-                            seen[n_seen], seen_count[n_seen] = other, missing
-                            n_seen += 1
-                    through += costs[3] * missing
+                    if through + costs[3] * _missing(other) >= best + margin:
+                        # the path's own count of lines missing without a reason decides
+                        missing = _known_count(seen, seen_count, n_seen, other)
+                        if missing < 0:  # a path not yet priced in this column
+                            missing = _unexplained_column(_by_line(other, order, line_rows),
+                                                          c, cot_alpha, geometry,
+                                                          ground_range_m, image_order, z)
+                            if n_seen < SEEN_PATHS:
+                                seen[n_seen], seen_count[n_seen] = other, missing
+                                n_seen += 1
+                        through += costs[3] * missing
                 if through < best + margin:
                     ambiguous[order[owner[i]], c] = order[max(j, owner[i])]
                     break
@@ -277,32 +310,374 @@ def isolated(peaks: IntArray, reach: int, max_step: int) -> BoolArray:
     return out
 
 
-@kernel("float64[:, :](int64[:, :], boolean[:], int64)")
-def local_reference(rows: IntArray, anchored: BoolArray, reach: int) -> FloatArray:
-    """(K, W) per line the row of that line in the nearest anchored column within
-    ``reach`` columns that holds it (the left one on a tie), inf where there is none:
-    continuity from neighbouring columns whose identity is certain."""
+@kernel()
+def _block_median(row: IntArray, good: BoolArray, lo: int, hi: int, min_block: int,
+                  kept: FloatArray) -> float:
+    """The upper median of the ``good`` rows of ``row`` in columns ``[lo, hi)``, inf with
+    fewer than ``min_block``; ``kept`` (hi - lo,) work space."""
+    m = 0
+    for c in range(lo, hi):
+        if good[c]:
+            i = m
+            while i > 0 and kept[i - 1] > row[c]:
+                kept[i] = kept[i - 1]
+                i -= 1
+            kept[i] = row[c]
+            m += 1
+    return kept[m // 2] if m >= min_block else np.inf
+
+
+@kernel()
+def _line_median(row: IntArray, good: BoolArray, min_line: int, values: FloatArray) -> float:
+    """The upper median of all the ``good`` rows of ``row``, inf with fewer than
+    ``min_line``; ``values`` (W,) work space."""
+    n = 0
+    for c in range(row.size):
+        if good[c]:
+            values[n] = row[c]
+            n += 1
+    return kth(values[:n], n // 2) if n >= min_line else np.inf
+
+
+@kernel()
+def _far_or_bridged(row: IntArray, c: int, left: int, right: int, bridge_px: float) -> float:
+    """Column c's bridge between its nearest good columns ``left`` <= c <= ``right`` (-1 /
+    W: none): the nearer one's row (the left one on a tie) when both exist and agree
+    within ``bridge_px``, else inf; NaN when a side has none (the line's median decides)."""
+    if left < 0 or right >= row.size:
+        return np.nan
+    row_l, row_r = np.float64(row[left]), np.float64(row[right])
+    if abs(row_l - row_r) <= bridge_px:
+        return row_l if c - left <= right - c else row_r
+    return np.inf
+
+
+@kernel("float64[:, :](int64[:, :], boolean[:], int64[:], int64, int64, int64, int64, "
+        "float64, float64)")
+def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: int, block: int,
+               min_block: int, min_line: int, bridge_px: float, median_px: float
+               ) -> FloatArray:
+    """The continuity reference of :func:`atris_node.pipeline.rivals._reference` in the
+    given ``columns``: (K, W) per line, from its anchored rows (``anchored`` (W,) and a
+    row >= 0), the first of
+
+    - the row in the nearest anchored column within ``reach`` columns (not the column
+      itself; the left one on a tie);
+    - the upper median of the anchored rows in the column's block of ``block`` columns
+      (at least ``min_block`` of them);
+    - where there are anchored rows on both sides (the column's own counts for both): the
+      nearer one's row (the left one on a tie) when the two agree within ``bridge_px``,
+      else inf;
+    - the upper median of all the line's anchored rows (at least ``min_line``; inf
+      otherwise), and inf for every line of a column where some line of this case has a
+      row more than ``median_px`` off (or no) median.
+
+    inf in the other columns. The block and line medians are taken only where they are
+    needed."""
     k_count, width = rows.shape
+    n_blocks = (width + block - 1) // block
     out = np.full((k_count, width), np.inf)
+    far = np.zeros((k_count, width), dtype=np.bool_)
+    off = np.zeros(width, dtype=np.bool_)
+    good = np.empty(width, dtype=np.bool_)
+    before = np.empty(width, dtype=np.int64)
+    after = np.empty(width, dtype=np.int64)
+    medians = np.empty(n_blocks)
+    values = np.empty(width)
+    kept = np.empty(block)
     for k in range(k_count):
-        last, at = -1, -1
-        left_row = np.full(width, -1, dtype=np.int64)
-        left_gap = np.full(width, reach + 1, dtype=np.int64)
+        row = rows[k]
+        at = -1
         for c in range(width):
-            if at >= 0:
-                left_row[c], left_gap[c] = last, c - at
-            if anchored[c] and rows[k, c] >= 0:
-                last, at = rows[k, c], c
-        last, at = -1, -1
+            before[c] = at
+            good[c] = anchored[c] and row[c] >= 0
+            if good[c]:
+                at = c
+        if at < 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
+            for c in columns:
+                far[k, c] = True
+                off[c] |= row[c] >= 0
+            continue
+        at = width
         for c in range(width - 1, -1, -1):
-            right_gap = at - c if at >= 0 else reach + 1
-            if left_gap[c] <= reach and left_gap[c] <= right_gap:
-                out[k, c] = left_row[c]
+            after[c] = at
+            if good[c]:
+                at = c
+        medians[:] = np.nan
+        line = np.nan
+        for c in columns:
+            left_gap = c - before[c] if before[c] >= 0 else reach + 1
+            right_gap = after[c] - c if after[c] < width else reach + 1
+            if left_gap <= reach and left_gap <= right_gap:
+                out[k, c] = row[before[c]]
             elif right_gap <= reach:
-                out[k, c] = last
-            if anchored[c] and rows[k, c] >= 0:
-                last, at = rows[k, c], c
+                out[k, c] = row[after[c]]
+            else:
+                b = c // block
+                if np.isnan(medians[b]):
+                    medians[b] = _block_median(row, good, b * block,
+                                               min(b * block + block, width), min_block, kept)
+                ref = medians[b]
+                if not np.isfinite(ref):
+                    ref = _far_or_bridged(row, c, c if good[c] else before[c],
+                                          c if good[c] else after[c], bridge_px)
+                if np.isnan(ref):
+                    if np.isnan(line):
+                        line = _line_median(row, good, min_line, values)
+                    ref = line
+                    far[k, c] = True
+                    off[c] |= row[c] >= 0 and abs(row[c] - line) > median_px
+                out[k, c] = ref
+    for k in range(k_count):
+        for c in columns:
+            if far[k, c] and off[c]:
+                out[k, c] = np.inf
     return out
+
+
+@kernel()
+def _anchored(ambiguous: IntArray, anchored: BoolArray, again: IntArray) -> int:
+    """Columns without an ambiguous line into ``anchored`` (W,), the others' indices into
+    ``again`` (W,); their count."""
+    k_count, width = ambiguous.shape
+    n = 0
+    for c in range(width):
+        anchored[c] = True
+        for k in range(k_count):
+            if ambiguous[k, c] >= 0:
+                anchored[c] = False
+                break
+        if not anchored[c]:
+            again[n] = c
+            n += 1
+    return n
+
+
+@kernel()
+def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: int) -> bool:
+    """True when column c of ``ref`` (K, W, image ``order``) is ``by_line`` (K, W) there."""
+    for k in range(order.size):  # noqa: SIM110 (a generator does not compile)
+        if ref[k, c] != by_line[order[k], c]:
+            return False
+    return True
+
+
+@kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
+        "int64[:, :], boolean[:], float64[:], int64[:], float64[:], boolean, float64[:], "
+        "float64[:], float64[:, :], int64[:])")
+def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
+           ambiguous: IntArray, passed: IntArray, reuse: BoolArray, margins: FloatArray,
+           spans: IntArray, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
+           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+    """The rounds of :func:`atris_node.pipeline.rivals.unique_identity`, in place on
+    ``rows`` (K, W) by line (every sample with a rival set to -1) and ``ambiguous`` (K, W)
+    (-1 on entry; the nearest rival line of each removed sample).
+
+    Pass 1 (no continuity) tests every column where a line holds a peak, except the
+    ``reuse`` (W,) ones, which take their pass-1 result from ``passed`` (K, W): the rival
+    test of a column without continuity depends only on its own peaks, rows and prior, so
+    a column whose peaks and rows are those of an earlier identity has that identity's
+    result. ``passed`` receives this pass-1 result of every column. Then at most
+    ``spans[4]`` rounds of :func:`rivals` on the columns not anchored yet, with the
+    :func:`continuity` reference of the anchored ones (``spans[:4]``: reach, block,
+    min_block, min_line; ``margins``: rival margin, bridge px, median px), until a round
+    anchors nothing new. A column whose reference is the one of its last test is not
+    tested again (the test is a function of the column's peaks, rows, prior and
+    reference). Bands ``lo``, ``hi`` and ``order`` and the prior as
+    :func:`rivals` takes them."""
+    k_count, width = rows.shape
+    margin, bridge_px, median_px = margins[0], margins[1], margins[2]
+    reach, block, min_block, min_line, rounds = spans[0], spans[1], spans[2], spans[3], spans[4]
+    beyond = np.full(k_count, np.inf)
+    columns = np.empty(width, dtype=np.int64)
+    n = 0
+    for c in range(width):
+        if reuse[c]:
+            ambiguous[:, c] = passed[:, c]
+            continue
+        for k in range(k_count):
+            if rows[k, c] >= 0:
+                columns[n] = c
+                n += 1
+                break
+    ref = np.full((k_count, width), np.inf)  # the reference of each column's last test
+    counted = np.full(width, -1, dtype=np.int64)  # the rows do not change: nor their count
+    rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
+           has_prior, cot_alpha, geometry, ground_range_m, image_order, counted)
+    passed[:, :] = ambiguous
+    anchored = np.empty(width, dtype=np.bool_)
+    again = np.empty(width, dtype=np.int64)
+    left = -1
+    for _ in range(rounds):
+        n = _anchored(ambiguous, anchored, columns)
+        if n in (0, left):
+            break  # all anchored, or the last round anchored nothing new
+        left = n
+        by_line = continuity(rows, anchored, columns[:n], reach, block, min_block, min_line,
+                             bridge_px, median_px)
+        n_again = 0
+        for c in columns[:n]:  # each was tested in the last round (or pass 1)
+            if _same_reference(ref, by_line, order, c):
+                continue  # the same test again: the same result
+            for k in range(k_count):
+                ref[k, c] = by_line[order[k], c]
+                ambiguous[k, c] = -1
+            again[n_again] = c
+            n_again += 1
+        rivals(peaks, lo, hi, order, rows, ambiguous, again[:n_again], ref, beyond, margin,
+               costs, has_prior, cot_alpha, geometry, ground_range_m, image_order, counted)
+    for k in range(k_count):
+        for c in range(width):
+            if ambiguous[k, c] >= 0:
+                rows[k, c] = -1
+
+
+@kernel()
+def _lowest_band(row: int, lo: IntArray, hi: IntArray, order: IntArray) -> int:
+    """The line lowest in the image whose band ``[lo, hi)`` (image ``order``) holds
+    ``row``, -1 if none."""
+    for k in range(lo.size - 1, -1, -1):
+        if lo[k] <= row < hi[k]:
+            return order[k]
+    return -1
+
+
+@kernel()
+def _rivalled(p: int, first: IntArray, nearest: IntArray, c: int) -> bool:
+    """True when a line of ``first`` whose sample in column c has a rival (``nearest``)
+    holds the row ``p`` there."""
+    for k in range(first.shape[0]):  # noqa: SIM110 (a generator does not compile)
+        if nearest[k, c] >= 0 and first[k, c] == p:
+            return True
+    return False
+
+
+@kernel()
+def _held(peaks: IntArray, rows: IntArray, i: int, c: int) -> bool:
+    """True when some line of ``rows`` holds the peak ``peaks[i, c]``."""
+    for k in range(rows.shape[0]):  # noqa: SIM110 (a generator does not compile)
+        if rows[k, c] >= 0 and rows[k, c] == peaks[i, c]:
+            return True
+    return False
+
+
+@kernel("Tuple((int64[:], int64[:], int64[:], int64[:]))(int64[:, :], int64[:, :], "
+        "int64[:, :], int64[:, :], int64[:], int64[:], int64[:], int64[:])")
+def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
+           unsure: IntArray, lo: IntArray, hi: IntArray, order: IntArray
+           ) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+    """The doubts of :func:`atris_node.pipeline.rivals._unique`: (W,) ``unsure`` plus the
+    samples of ``first`` (K, W) the rival test removed from ``rows``, and (n,) row, column
+    and line of every doubt: first each removed sample (line by line, column by column)
+    with its ``nearest`` rival line, then each peak of ``peaks`` (M, W) no line holds in
+    a column with ``unsure`` peaks and no rival (peak slot by slot, column by column) with
+    the lowest band ``[lo, hi)`` (image ``order``) that holds it (none: left out)."""
+    k_count, width = rows.shape
+    m_count = peaks.shape[0]
+    out = np.empty(width, dtype=np.int64)
+    unsure_at = np.empty(width, dtype=np.int64)
+    n_rival, n_unsure = 0, 0
+    for c in range(width):
+        before, after = 0, 0
+        for k in range(k_count):
+            before += first[k, c] >= 0
+            after += rows[k, c] >= 0
+            n_rival += nearest[k, c] >= 0
+        out[c] = unsure[c] + max(before - after, 0)
+        if unsure[c] > 0:
+            unsure_at[n_unsure] = c
+            n_unsure += 1
+    lone = np.full((m_count, n_unsure), -1, dtype=np.int64)
+    n_lone = 0
+    for i in range(m_count):
+        for u in range(n_unsure):
+            c = unsure_at[u]
+            p = peaks[i, c]
+            if p >= 0 and not _rivalled(p, first, nearest, c) and not _held(peaks, rows, i, c):
+                lone[i, u] = _lowest_band(p, lo, hi, order)
+                n_lone += lone[i, u] >= 0
+    row = np.empty(n_rival + n_lone, dtype=np.int64)
+    col = np.empty(n_rival + n_lone, dtype=np.int64)
+    line = np.empty(n_rival + n_lone, dtype=np.int64)
+    n = 0
+    for k in range(k_count):
+        for c in range(width):
+            if nearest[k, c] >= 0:
+                row[n], col[n], line[n] = first[k, c], c, nearest[k, c]
+                n += 1
+    for i in range(m_count):
+        for u in range(n_unsure):
+            if lone[i, u] >= 0:
+                row[n], col[n], line[n] = peaks[i, unsure_at[u]], unsure_at[u], lone[i, u]
+                n += 1
+    return out, row, col, line
+
+
+@kernel("Tuple((int64[:, :], int64[:], int64[:], int64[:], int64[:]))(int64[:, :], "
+        "int64[:, :], boolean[:, :], int64[:])")
+def stable(rows: IntArray, alone: IntArray, held: BoolArray, position: IntArray
+           ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray]:
+    """The identity ``rows`` (K, W) that stands without the weak peaks (``alone``, (K, W)):
+    in every column where some line takes another row (or none) without them while it
+    took a peak that is not weak (``held``) or takes a peak without them, the samples the
+    two disagree on dropped. Returns the kept (K, W) rows, (W,) samples dropped, and per
+    dropped sample (line by line, column by column) its row, column and the nearer
+    (greater ``position`` (K,) from the top of the image) of its two lines."""
+    k_count, width = rows.shape
+    kept = rows.copy()
+    lost = np.zeros(width, dtype=np.int64)
+    unstable = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        for k in range(k_count):
+            if rows[k, c] != alone[k, c] and (alone[k, c] >= 0 or held[k, c]):
+                unstable[c] = True
+                break
+        if unstable[c]:
+            for k in range(k_count):
+                if rows[k, c] != alone[k, c] and rows[k, c] >= 0:
+                    kept[k, c] = -1
+                    lost[c] += 1
+    n = lost.sum()
+    row = np.empty(n, dtype=np.int64)
+    col = np.empty(n, dtype=np.int64)
+    line = np.empty(n, dtype=np.int64)
+    n = 0
+    for k in range(k_count):
+        for c in range(width):
+            if kept[k, c] != rows[k, c]:
+                other = -1
+                for j in range(k_count):
+                    if alone[j, c] == rows[k, c]:
+                        other = j
+                        break
+                row[n], col[n] = rows[k, c], c
+                line[n] = other if other >= 0 and position[other] > position[k] else k
+                n += 1
+    return kept, lost, row, col, line
+
+
+@kernel("Tuple((int64[:, :], int64[:]))(int64[:, :], boolean[:, :])")
+def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
+    """``peaks`` (M, W) without the ``drop`` ones and the -1 padding, each column sorted
+    down (insertion: the columns mostly are) with -1 padding last, and the (W,) count of
+    ``drop``."""
+    m_count, width = peaks.shape
+    out = np.full((m_count, width), -1, dtype=np.int64)
+    count = np.zeros(width, dtype=np.int64)
+    for c in range(width):
+        m = 0
+        for i in range(m_count):
+            p = peaks[i, c]
+            count[c] += drop[i, c]
+            if drop[i, c] or p < 0:
+                continue
+            j = m
+            while j > 0 and out[j - 1, c] > p:
+                out[j, c] = out[j - 1, c]
+                j -= 1
+            out[j, c] = p
+            m += 1
+    return out, count
 
 
 @kernel("Tuple((float64[:, :], int64[:, :]))(int64[:, :], boolean[:, :], float64)")
@@ -339,10 +714,17 @@ def warm_up() -> None:
     peaks = np.array([[1], [-1]], dtype=i64)
     one = np.array([0], dtype=i64)
     rows = np.array([[1]], dtype=i64)
-    rivals(peaks, one, np.array([4], dtype=i64), one, rows.copy(),
-           np.full((1, 1), -1, dtype=i64), one, np.full((1, 1), np.inf), np.array([np.inf]),
-           10.0, np.array([10.0, 40.0, 10.0, 10.0]), False, np.zeros(1), np.zeros(5),
-           np.zeros((1, 1)), one)
+    hi, none = np.array([4], dtype=i64), np.full((1, 1), -1, dtype=i64)
+    costs, prior = np.array([10.0, 40.0, 10.0, 10.0]), (False, np.zeros(1), np.zeros(5),
+                                                         np.zeros((1, 1)), one)
+    rivals(peaks, one, hi, one, rows.copy(), none.copy(), one, np.full((1, 1), np.inf),
+           np.array([np.inf]), 10.0, costs, *prior, np.full(1, -1, dtype=i64))
+    unique(peaks, one, hi, one, rows.copy(), none.copy(), none.copy(),
+           np.zeros(1, dtype=np.bool_), np.array([10.0, 4.0, 6.0]),
+           np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior)
+    doubts(peaks, rows, rows, none, one, one, hi, one)
+    stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
+    set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
     isolated(peaks, 2, 2)
-    local_reference(rows, np.ones(1, dtype=np.bool_), 4)
+    continuity(rows, np.ones(1, dtype=np.bool_), one, 4, 2, 1, 1, 4.0, 6.0)
     bridge(rows, np.ones((1, 1), dtype=np.bool_), 4.0)
