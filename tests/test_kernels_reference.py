@@ -109,3 +109,155 @@ def test_bridge_is_the_numpy_form() -> None:
         got = rivals_kernels.bridge(rows, good, float(BRIDGE_PX))
         np.testing.assert_array_equal(got[0], expected[0])
         np.testing.assert_array_equal(got[1], expected[1])
+
+
+# --------------------------------------------------------------------------- pixel passes
+# (the per-pixel passes over the rows read: chunks tested in one vectorised step first)
+
+
+def _pixel_map(rng: np.random.Generator, dtype: type, height: int, width: int
+               ) -> npt.NDArray[Any]:
+    """A map of small whole values (many ties and plateaus), a few strong positive and
+    negative stripes, in ``dtype``; float maps get a few NaN and fractional values."""
+    values = rng.integers(-6, 7, (height, width)).astype(np.float64)
+    for _ in range(int(rng.integers(0, 6))):
+        row = int(rng.integers(0, height))
+        values[row, :] += rng.choice([-1.0, 1.0]) * rng.integers(20, 200)
+    values[rng.random((height, width)) < 0.01] += 150.0
+    if np.dtype(dtype).kind == "f":
+        values += rng.random((height, width)) < 0.1
+        values[rng.random((height, width)) < 0.002] = np.nan
+    return values.astype(dtype)
+
+
+def _random_spans(rng: np.random.Generator, height: int) -> npt.NDArray[np.int64]:
+    """(S, 2) sorted row intervals [lo, hi) inside the map, some empty or adjacent."""
+    cuts = np.sort(rng.integers(0, height + 1, 2 * int(rng.integers(1, 4))))
+    return cuts.reshape(-1, 2).astype(np.int64)
+
+
+def _sequential_sum(terms: npt.NDArray[np.float64]) -> float:
+    """float64 sum of ``terms`` added one after another from 0.0 (np.sum adds pairwise)."""
+    return float(np.cumsum(terms)[-1]) if terms.size else 0.0
+
+
+def _signed_energy_numpy(values: npt.NDArray[Any], saturated: npt.NDArray[np.bool_],
+                         spans: npt.NDArray[np.int64], background: np.float32,
+                         threshold: np.float32) -> tuple[float, float, npt.NDArray[np.bool_]]:
+    """peaks_kernels.signed_energy as whole-array numpy steps over the rows read."""
+    rows = np.concatenate([np.arange(lo, hi) for lo, hi in spans] + [np.zeros(0, np.int64)])
+    v = np.where(saturated[rows], np.float32(0.0),
+                 values[rows].astype(np.float32) - background).astype(np.float32)
+    weak = -threshold / np.float32(2.0)
+    positive = v > threshold
+    negative = ~positive & (v < -threshold)
+    negative[:, 0] = negative[:, -1] = False
+    negative[:, 1:-1] &= (v[:, :-2] < weak) & (v[:, 2:] < weak)
+    return (_sequential_sum(-v[negative].astype(np.float64)),
+            _sequential_sum(v[positive].astype(np.float64)), negative.any(axis=0))
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_signed_energy_is_the_numpy_form(dtype: type) -> None:
+    """Random maps, saturation masks, spans, backgrounds and thresholds (zero and below
+    zero too), widths across the chunk size: the chunked pass gives the numpy form's sums
+    bit for bit and its columns."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(21)
+    for trial in range(120):
+        height = int(rng.integers(1, 40))
+        width = int(rng.choice([1, 2, 3, 63, 64, 65, 130, 200]))
+        values = _pixel_map(rng, dtype, height, width)
+        saturated = rng.random((height, width)) < rng.choice([0.0, 0.05])
+        if trial % 2:
+            values.flags.writeable = False
+            saturated.flags.writeable = False
+        spans = _random_spans(rng, height)
+        background = np.float32(rng.normal(0.0, 2.0))
+        threshold = np.float32(rng.choice([0.0, -3.0, 2.5, 10.0, 60.0]))
+        columns = np.zeros(width, dtype=np.bool_)
+        negative, positive = peaks_kernels.signed_energy(values, saturated, spans, background,
+                                                         threshold, columns)
+        want = _signed_energy_numpy(values, saturated, spans, background, threshold)
+        assert (negative, positive) == want[:2]
+        np.testing.assert_array_equal(columns, want[2])
+
+
+def _strong_maxima_numpy(values: npt.NDArray[Any], spans: npt.NDArray[np.int64],
+                         threshold_tiles: npt.NDArray[np.float32],
+                         tile_row: npt.NDArray[np.int64], tile_px: int, sep: int,
+                         inside: npt.NDArray[np.bool_] | None, per_column: int
+                         ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """peaks_kernels.strong_maxima as whole-array numpy steps per span: (rows, counts)."""
+    height, width = values.shape
+    threshold = threshold_tiles[tile_row][:, np.arange(width) // tile_px].astype(np.float64)
+    found = np.zeros((height, width), dtype=np.bool_)
+    for lo, hi in spans:
+        block = values[lo:hi].astype(np.float64)
+        ok = block >= threshold[lo:hi]
+        for d in range(1, sep + 1):
+            ok[d:] &= block[d:] > block[:-d]
+            ok[:-d] &= block[:-d] >= block[d:]
+        found[lo:hi] |= ok
+    if inside is not None:
+        found &= inside[:, None]
+    out = np.full((per_column, width), -1, dtype=np.int64)
+    for c in range(width):
+        rows = np.flatnonzero(found[:, c])[:per_column]
+        out[:rows.size, c] = rows
+    return out, found.sum(axis=0).astype(np.int64)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_strong_maxima_is_the_numpy_form(dtype: type) -> None:
+    """Random maps (plateaus, NaN in float maps), tile thresholds, spans and row masks:
+    the pass that tests rows and tiles first finds the numpy form's maxima and counts."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(22)
+    for trial in range(120):
+        height = int(rng.integers(1, 70))
+        width = int(rng.choice([1, 5, 31, 32, 33, 64, 100]))
+        tile_px = int(rng.choice([4, 8, 32]))
+        values = _pixel_map(rng, dtype, height, width)
+        if trial % 2:
+            values.flags.writeable = False
+        spans = _random_spans(rng, height)
+        tiles = rng.normal(rng.choice([-2.0, 3.0, 30.0]), 2.0,
+                           (height // tile_px + 2, -(-width // tile_px))).astype(np.float32)
+        if trial % 2:
+            tiles = np.round(tiles)  # whole thresholds: pixels that reach them exactly
+        tile_row = rng.integers(-1, tiles.shape[0], height).astype(np.int64)
+        inside = rng.random(height) < 0.7 if trial % 3 == 0 else None
+        sep, per_column = int(rng.integers(1, 4)), int(rng.integers(1, 5))
+        out = np.full((per_column, width), -1, dtype=np.int64)
+        count = np.zeros(width, dtype=np.int64)
+        peaks_kernels.strong_maxima(
+            values, spans, tiles, tile_row, tile_px, sep,
+            np.zeros(height, np.bool_) if inside is None else inside, inside is not None,
+            out, count)
+        want = _strong_maxima_numpy(values, spans, tiles, tile_row, tile_px, sep, inside,
+                                    per_column)
+        np.testing.assert_array_equal(out, want[0])
+        np.testing.assert_array_equal(count, want[1])
+
+
+def test_strong_maxima_pre_test_keeps_int32_values_past_float32_precision() -> None:
+    """Whole values past 2**24 (not all float32): 2**25 + 1 reaches a threshold of 2**25
+    and is found, 2**25 - 1 does not and is not, although the pre-test compares their
+    float32 roundings (both 2**25)."""
+    from atris_node.pipeline import peaks_kernels
+
+    values = np.zeros((5, 40), dtype=np.int32)
+    values[2, 7] = 2**25 + 1
+    values[2, 30] = 2**25 - 1
+    spans, tile_row = np.array([[0, 5]], np.int64), np.zeros(5, np.int64)
+    tiles = np.array([[np.float32(2**25)]], dtype=np.float32)
+    out = np.full((1, 40), -1, dtype=np.int64)
+    count = np.zeros(40, dtype=np.int64)
+    peaks_kernels.strong_maxima(values, spans, tiles, tile_row, 64, 2, np.zeros(5, np.bool_),
+                                False, out, count)
+    assert np.flatnonzero(count).tolist() == [7] and out[0, 7] == 2
+    want = _strong_maxima_numpy(values, spans, tiles, tile_row, 64, 2, None, 1)
+    np.testing.assert_array_equal(out, want[0])

@@ -70,6 +70,41 @@ def _maxima_signatures() -> list[Any]:
             for readonly in (False, True)]
 
 
+@kernel()
+def _reaches(values: npt.NDArray[np.generic], r: int, lo: int, hi: int,
+             threshold: np.float32) -> bool:
+    """True when a pixel of row r, columns [lo, hi), may reach ``threshold`` (DN): its
+    value rounded to float32 reaches it. Rounding keeps the order and a float32
+    threshold is its own rounding, so every pixel whose exact value reaches it is found
+    (an int32 or float64 value just below it may be found too). A loop without branches
+    over a row slice, which the compiler vectorises."""
+    row = values[r, lo:hi]
+    found = False
+    for c in range(row.size):
+        found |= bool(np.float32(row[c]) >= threshold)
+    return found
+
+
+@kernel()
+def _row_reaches(values: npt.NDArray[np.generic], r: int,
+                 threshold_px: npt.NDArray[np.float32]) -> bool:
+    """:func:`_reaches` for the whole row r against a threshold per column
+    ``threshold_px`` (W,) float32."""
+    row = values[r]
+    found = False
+    for c in range(row.size):
+        found |= bool(np.float32(row[c]) >= threshold_px[c])
+    return found
+
+
+@kernel()
+def _spread(tiles: npt.NDArray[np.float32], tile_px: int,
+            out: npt.NDArray[np.float32]) -> None:
+    """``out`` (W,) the value of each column's tile in ``tiles`` (C,)."""
+    for c in range(out.size):
+        out[c] = tiles[c // tile_px]
+
+
 @kernel(_maxima_signatures())
 def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
                   threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray, tile_px: int,
@@ -80,17 +115,32 @@ def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
     zeros in, the maxima found per column out (may exceed P). A maximum reaches its
     tile's threshold (``threshold_tiles[tile_row[r], c // tile_px]``, DN), is strictly
     above the ``sep`` rows over it and not below the ``sep`` rows under it, within its
-    span; with ``use_inside`` only rows where ``inside`` (H,) is True count."""
+    span; with ``use_inside`` only rows where ``inside`` (H,) is True count.
+
+    Few pixels reach the threshold: a row, then each tile's columns of it, are first
+    tested for one (:func:`_row_reaches`, :func:`_reaches`, vectorised), and only the
+    pixels of a tile that holds one are compared with the threshold and their
+    neighbours, as a plain scan would."""
     per_column, width = out.shape
+    threshold_px = np.empty(width, dtype=np.float32)
+    spread = -2  # the tile row threshold_px holds (none yet)
     for s in range(spans.shape[0]):
         lo, hi = spans[s, 0], spans[s, 1]
         for r in range(lo, hi):
             if use_inside and not inside[r]:
                 continue
             tiles = threshold_tiles[tile_row[r]]
+            if tile_row[r] != spread:
+                _spread(tiles, tile_px, threshold_px)
+                spread = tile_row[r]
+            if not _row_reaches(values, r, threshold_px):
+                continue
             for tile in range(tiles.size):
+                first, last = tile * tile_px, min((tile + 1) * tile_px, width)
+                if not _reaches(values, r, first, last, tiles[tile]):
+                    continue
                 threshold = np.float64(tiles[tile])
-                for c in range(tile * tile_px, min((tile + 1) * tile_px, width)):
+                for c in range(first, last):
                     if np.float64(values[r, c]) >= threshold and _is_maximum(
                             values, r, c, lo, hi, sep):
                         if count[c] < per_column:
@@ -611,6 +661,24 @@ def _signed(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_], r
     return np.float32(values[r, c]) - background
 
 
+#: columns of a row :func:`signed_energy` tests in one vectorised step before it looks
+#: at single pixels (most chunks hold no pixel beyond the threshold)
+ENERGY_CHUNK_PX = 64
+
+
+@kernel()
+def _beyond(values: npt.NDArray[np.generic], r: int, lo: int, hi: int,
+            background: np.float32, threshold: np.float32) -> bool:
+    """True when a pixel of row r, columns [lo, hi), lies more than ``threshold`` from
+    ``background`` (float32, DN; saturation not looked at). A loop without branches over
+    a row slice, which the compiler vectorises."""
+    row = values[r, lo:hi]
+    found = False
+    for c in range(row.size):
+        found |= bool(abs(np.float32(row[c]) - background) > threshold)
+    return found
+
+
 @kernel(_energy_signatures())
 def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
                   spans: IntArray, background: np.float32, threshold: np.float32,
@@ -619,21 +687,32 @@ def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.boo
     -v over the line-like negative pixels (v below ``-threshold`` with both row neighbours
     below ``-threshold / 2``; not in the first or last column) and of v over the pixels
     above ``threshold``, v = value - ``background`` in float32, 0 where saturated. The
-    columns of line-like negative pixels are set in ``columns`` (W,). One pass."""
+    columns of line-like negative pixels are set in ``columns`` (W,).
+
+    One pass: each ENERGY_CHUNK_PX chunk of a row is first tested for a pixel beyond
+    ``threshold`` (:func:`_beyond`; a saturated pixel's v = 0 is beyond only when
+    ``threshold`` < 0, and then every chunk is looked at); only chunks that hold one are
+    summed pixel by pixel, in the same order as a plain scan, so the float64 sums are
+    those of the scan, bit for bit."""
     negative = positive = 0.0
     weak = -threshold / np.float32(2.0)
     width = values.shape[1]
+    everywhere = not threshold >= 0
     for s in range(spans.shape[0]):
         for r in range(spans[s, 0], spans[s, 1]):
-            for c in range(width):
-                v = _signed(values, saturated, r, c, background)
-                if v > threshold:
-                    positive += v
-                elif v < -threshold and 0 < c < width - 1 and (
-                        _signed(values, saturated, r, c - 1, background) < weak
-                        and _signed(values, saturated, r, c + 1, background) < weak):
-                    negative -= v
-                    columns[c] = True
+            for lo in range(0, width, ENERGY_CHUNK_PX):
+                hi = min(lo + ENERGY_CHUNK_PX, width)
+                if not (everywhere or _beyond(values, r, lo, hi, background, threshold)):
+                    continue
+                for c in range(lo, hi):
+                    v = _signed(values, saturated, r, c, background)
+                    if v > threshold:
+                        positive += v
+                    elif v < -threshold and 0 < c < width - 1 and (
+                            _signed(values, saturated, r, c - 1, background) < weak
+                            and _signed(values, saturated, r, c + 1, background) < weak):
+                        negative -= v
+                        columns[c] = True
     return negative, positive
 
 
