@@ -261,3 +261,39 @@ def test_strong_maxima_pre_test_keeps_int32_values_past_float32_precision() -> N
     assert np.flatnonzero(count).tolist() == [7] and out[0, 7] == 2
     want = _strong_maxima_numpy(values, spans, tiles, tile_row, 64, 2, None, 1)
     np.testing.assert_array_equal(out, want[0])
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32])
+def test_subsample_counts_are_the_bincount_of_the_gathered_subsample(dtype: type) -> None:
+    """Random integer maps (odd and even sizes, several spans, negative values, int32
+    values past 2**16): the counts from the least value of the whole rows read are the
+    np.bincount of the gathered 2x2 subsample, with empty counts below its least value,
+    and noise_floor gives the numbers of the gathered sample's counts."""
+    from atris_node.pipeline import noise, peaks_kernels
+
+    rng = np.random.default_rng(23)
+    for trial in range(150):
+        height, width = int(rng.integers(1, 50)), int(rng.integers(1, 70))
+        scale = 100_000 if dtype is np.int32 and trial % 3 == 0 else 30
+        values = rng.integers(-scale, scale, (height, width)).astype(dtype)
+        if trial % 2:
+            values.flags.writeable = False
+        spans = [(int(lo), int(hi)) for lo, hi in _random_spans(rng, height)]
+        rows = [range(*slice(lo, hi, 2).indices(height)) for lo, hi in spans]
+        sample = np.concatenate([values[lo:hi:2, ::2].ravel() for lo, hi in spans])
+        starts = np.array([r.start for r in rows], dtype=np.int64)
+        stops = np.array([r.stop for r in rows], dtype=np.int64)
+        low, high = peaks_kernels.rows_range(values, starts, stops)
+        if not sample.size:
+            assert (low, high) == (0, -1)
+            assert noise.noise_floor(values, spans) == (0.0, noise.MIN_NOISE_DN)
+            continue
+        whole = np.concatenate([values[r] for r in rows])
+        assert (low, high) == (whole.min(), whole.max())
+        counts = peaks_kernels.subsample_counts(values, starts, stops, low, high - low + 1)
+        want = np.bincount(sample.astype(np.int64) - low, minlength=high - low + 1)
+        np.testing.assert_array_equal(counts, want)
+        got = noise.noise_floor(values, spans)
+        q25, median = noise._quartile_and_median(sample)
+        assert got == (float(median), max(float(median - q25) / noise.QUARTILE_TO_SIGMA,
+                                          noise.MIN_NOISE_DN))

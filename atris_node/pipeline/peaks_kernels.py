@@ -2,7 +2,8 @@
 
 The maxima search compares each pixel of the rows read with its tile's threshold and its
 neighbours above and below; the peak methods read a few pixels around each peak; the
-support and median along lines and the per-line median SNR look at a few samples each. As
+support and median along lines and the per-line median SNR look at a few samples each; the
+noise floor's subsample is counted where it lies (:mod:`atris_node.pipeline.noise`). As
 numpy vector steps these were many passes and temporaries per map; here one pass each
 (about 0.45 ms in all at 640x400). Each function is the kernel of one of
 :mod:`atris_node.pipeline.peaks`, which checks the arguments, documents the methods and is
@@ -716,6 +717,65 @@ def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.boo
     return negative, positive
 
 
+def _subsample_signatures(out: Any, *rest: Any) -> list[Any]:
+    """Signatures of the noise kernels, per integer map dtype (int16, int32), writable or
+    read-only, as (map, ``rest``...) -> ``out``."""
+    return [out(types.Array(dtype, 2, "C", readonly=readonly), *rest)
+            for dtype in (types.int16, types.int32) for readonly in (False, True)]
+
+
+_ROWS = (types.Array(types.int64, 1, "C"), types.Array(types.int64, 1, "C"))
+
+
+@kernel(_subsample_signatures(types.UniTuple(types.int64, 2), *_ROWS))
+def rows_range(values: npt.NDArray[np.integer[Any]], starts: IntArray, stops: IntArray
+               ) -> tuple[int, int]:
+    """(least, greatest) value (DN) of the whole map rows ``starts[s]``,
+    ``starts[s] + 2``, ... below ``stops[s]``: bounds of :func:`subsample_counts`'s
+    values (those rows' even columns); (0, -1) when there is no such row. A loop without
+    branches per row, which the compiler vectorises."""
+    low, high = np.int64(0), np.int64(-1)
+    for s in range(starts.size):
+        for r in range(starts[s], stops[s], 2):
+            row = values[r]
+            lo = hi = row[0]
+            for c in range(row.size):
+                v = row[c]
+                lo = v if v < lo else lo
+                hi = v if v > hi else hi
+            if high < low:
+                low, high = np.int64(lo), np.int64(hi)
+            else:
+                low, high = min(low, np.int64(lo)), max(high, np.int64(hi))
+    return int(low), int(high)
+
+
+@kernel(_subsample_signatures(types.Array(types.int64, 1, "C"), *_ROWS, types.int64,
+                              types.int64))
+def subsample_counts(values: npt.NDArray[np.integer[Any]], starts: IntArray, stops: IntArray,
+                     low: int, size: int) -> IntArray:
+    """(size,) how many pixels of the 2x2 subsample (rows ``starts[s]``, ``starts[s] + 2``,
+    ... below ``stops[s]``, even columns) hold each value ``low``, ``low + 1``, ... (DN);
+    every value must lie in that range (:func:`rows_range`). Four partial counts, added at
+    the end, keep runs of equal values from waiting on each other."""
+    part = np.zeros((4, size), dtype=np.int64)
+    width = values.shape[1]
+    for s in range(starts.size):
+        for r in range(starts[s], stops[s], 2):
+            row = values[r]
+            c = 0
+            while c + 6 < width:
+                part[0, np.int64(row[c]) - low] += 1
+                part[1, np.int64(row[c + 2]) - low] += 1
+                part[2, np.int64(row[c + 4]) - low] += 1
+                part[3, np.int64(row[c + 6]) - low] += 1
+                c += 8
+            while c < width:
+                part[0, np.int64(row[c]) - low] += 1
+                c += 2
+    return part[0] + part[1] + part[2] + part[3]
+
+
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -744,3 +804,6 @@ def warm_up() -> None:
     peak_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
              np.zeros(4, dtype=i64), np.zeros((1, 1), dtype=np.float32),
              np.ones((1, 1), dtype=np.float32), 32)
+    rows = np.array([0], dtype=i64), np.array([4], dtype=i64)
+    rows_range(np.zeros((4, 3), dtype=np.int16), *rows)
+    subsample_counts(np.zeros((4, 3), dtype=np.int16), *rows, 0, 1)
