@@ -297,3 +297,82 @@ def test_subsample_counts_are_the_bincount_of_the_gathered_subsample(dtype: type
         q25, median = noise._quartile_and_median(sample)
         assert got == (float(median), max(float(median - q25) / noise.QUARTILE_TO_SIGMA,
                                           noise.MIN_NOISE_DN))
+
+
+def _band_noise_numpy(local: NoiseMap, bands: tuple[Any, ...]) -> npt.NDArray[np.float32]:
+    """peaks.band_noise in the numpy form it had before its compiled pass."""
+    out = np.zeros((len(bands), local.width), dtype=np.float32)
+    columns = np.arange(local.width) // NOISE_TILE_PX
+    for k, band in enumerate(bands):
+        if band.empty:
+            continue
+        tiles = np.unique(local.tile_row[band.row_lo:band.row_hi])
+        out[k] = local.sigma_tiles[tiles].max(axis=0)[columns]
+    return out
+
+
+def test_band_noise_is_the_numpy_form() -> None:
+    """Random tile tables (a few NaN σ), tile rows (-1 too) and bands (empty ones too):
+    the compiled band_noise equals the numpy form exactly."""
+    from atris_node.pipeline.bands import Band
+
+    rng = np.random.default_rng(24)
+    for _ in range(200):
+        height, width = int(rng.integers(1, 120)), int(rng.integers(1, 150))
+        tiles = rng.gamma(2.0, 3.0, (int(rng.integers(1, 6)), -(-width // NOISE_TILE_PX)))
+        tiles[rng.random(tiles.shape) < 0.03] = np.nan
+        tile_row = rng.integers(-1, tiles.shape[0], height).astype(np.int64)
+        local = NoiseMap(tile_row, np.zeros_like(tiles, dtype=np.float32),
+                         tiles.astype(np.float32), width)
+        bands = tuple(Band(k, int(lo), int(hi)) for k, (lo, hi) in
+                      enumerate(rng.integers(0, height + 1, (int(rng.integers(1, 5)), 2))))
+        got = peaks.band_noise(local, bands)
+        want = _band_noise_numpy(local, bands)
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
+def test_peak_pixels_is_the_nonzero_form() -> None:
+    """Random maxima tables (-1 padding) and tile tables: slots, columns, flat indices and
+    tile σ in np.nonzero's order, as temporal.not_own_light computed them before."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(25)
+    for _ in range(200):
+        height, width, slots = (int(rng.integers(1, 80)), int(rng.integers(1, 90)),
+                                int(rng.integers(1, 6)))
+        peak_rows = rng.integers(-1, height, (slots, width)).astype(np.int64)
+        peak_rows[rng.random((slots, width)) < 0.5] = -1
+        tiles = rng.random((int(rng.integers(1, 5)), -(-width // NOISE_TILE_PX)))
+        tile_row = rng.integers(-1, tiles.shape[0], height).astype(np.int64)
+        m, c, flat, sigma = peaks_kernels.peak_pixels(peak_rows, tile_row,
+                                                      tiles.astype(np.float32), NOISE_TILE_PX)
+        want_m, want_c = np.nonzero(peak_rows >= 0)
+        r = peak_rows[want_m, want_c]
+        np.testing.assert_array_equal(m, want_m)
+        np.testing.assert_array_equal(c, want_c)
+        np.testing.assert_array_equal(flat, r * width + want_c)
+        np.testing.assert_array_equal(
+            sigma, tiles.astype(np.float32)[tile_row[r], want_c // NOISE_TILE_PX])
+
+
+def test_ambient_level_is_numpys_mean_var_and_maximum() -> None:
+    """Random series (whole DN as the sub-frames hold, and values of very different size
+    where the order of the additions shows), 1 to 17 OFF rows: level and ratio equal
+    numpy's max(mean, 1) and var(ddof=1) / level bit for bit."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(26)
+    for trial in range(300):
+        frames, size = int(rng.integers(1, 18)), int(rng.integers(1, 300))
+        if trial % 2:
+            series = rng.integers(0, 4096, (frames, size)).astype(np.float64)
+        else:
+            series = rng.random((frames, size)) * 10.0 ** rng.integers(-3, 17, (frames, size))
+        rows = np.sort(rng.choice(frames, int(rng.integers(1, frames + 1)), replace=False))
+        level, ratio = peaks_kernels.ambient_level(series, rows.astype(np.int64))
+        ambient = series[rows]
+        want_level = np.maximum(ambient.mean(axis=0), 1.0)
+        spread = ambient.var(axis=0, ddof=1) if rows.size > 1 else np.zeros(size)
+        np.testing.assert_array_equal(level, want_level)
+        np.testing.assert_array_equal(ratio, spread / want_level)

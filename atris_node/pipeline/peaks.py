@@ -367,15 +367,12 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
 def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float32]:
     """(K, W) float32, DN: per line and column the highest tile σ of ``local`` over the
     line's band rows (0 for an empty band): the noise a return anywhere in the operating
-    range has to rise above."""
-    out = np.zeros((len(bands), local.width), dtype=np.float32)
-    columns = np.arange(local.width) // NOISE_TILE_PX
-    for k, band in enumerate(bands):
-        if band.empty:
-            continue
-        tiles = np.unique(local.tile_row[band.row_lo:band.row_hi])
-        out[k] = local.sigma_tiles[tiles].max(axis=0)[columns]
-    return out
+    range has to rise above. One compiled pass
+    (:func:`atris_node.pipeline.peaks_kernels.band_noise`)."""
+    rows = np.array([(b.row_lo, max(b.row_hi, b.row_lo)) for b in bands],
+                    dtype=np.int64).reshape(-1, 2)
+    return np.asarray(kernels.band_noise(local.tile_row, local.sigma_tiles, rows,
+                                         NOISE_TILE_PX, local.width))
 
 
 def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray | None,

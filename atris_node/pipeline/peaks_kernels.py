@@ -776,6 +776,85 @@ def subsample_counts(values: npt.NDArray[np.integer[Any]], starts: IntArray, sto
     return part[0] + part[1] + part[2] + part[3]
 
 
+@kernel("float32[:, :](int64[:], float32[:, :], int64[:, :], int64, int64)")
+def band_noise(tile_row: IntArray, sigma_tiles: npt.NDArray[np.float32], bands: IntArray,
+               tile_px: int, width: int) -> npt.NDArray[np.float32]:
+    """(K, W) float32, DN: per band k (``bands`` (K, 2) rows [lo, hi)) and column c the
+    highest σ in ``sigma_tiles`` (R + 1, C) of the tiles ``tile_row`` (H,) gives the
+    band's rows, in c's tile column (NaN where one is NaN, as ``np.max``); 0 for a band
+    without rows."""
+    out = np.zeros((bands.shape[0], width), dtype=np.float32)
+    seen = np.zeros(sigma_tiles.shape[0], dtype=np.bool_)
+    high = np.empty(sigma_tiles.shape[1], dtype=np.float32)
+    for k in range(bands.shape[0]):
+        seen[:] = False
+        first = True
+        for r in range(bands[k, 0], bands[k, 1]):
+            t = tile_row[r]
+            if seen[t]:
+                continue
+            seen[t] = True
+            for j in range(high.size):
+                v = sigma_tiles[t, j]
+                if first or (not np.isnan(high[j]) and (np.isnan(v) or v > high[j])):
+                    high[j] = v
+            first = False
+        if not first:
+            for c in range(width):
+                out[k, c] = high[c // tile_px]
+    return out
+
+
+@kernel("Tuple((int64[:], int64[:], int64[:], float32[:]))"
+        "(int64[:, :], int64[:], float32[:, :], int64)")
+def peak_pixels(peaks: IntArray, tile_row: IntArray, sigma_tiles: npt.NDArray[np.float32],
+                tile_px: int) -> tuple[IntArray, IntArray, IntArray, npt.NDArray[np.float32]]:
+    """The maxima ``peaks`` (M, W) (rows, -1 padding), slot by slot in row-major order
+    (as ``np.nonzero(peaks >= 0)``): (n,) each their slot m, column c, flat pixel index
+    ``row · W + c`` and their noise tile's σ (DN, float32) in ``sigma_tiles`` (R + 1, C)."""
+    width = peaks.shape[1]
+    n = 0
+    for m in range(peaks.shape[0]):
+        for c in range(width):
+            n += peaks[m, c] >= 0
+    slot, col = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    flat, sigma = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.float32)
+    i = 0
+    for m in range(peaks.shape[0]):
+        for c in range(width):
+            r = peaks[m, c]
+            if r >= 0:
+                slot[i], col[i], flat[i] = m, c, r * width + c
+                sigma[i] = sigma_tiles[tile_row[r], c // tile_px]
+                i += 1
+    return slot, col, flat, sigma
+
+
+@kernel("Tuple((float64[:], float64[:]))(float64[:, :], int64[:])")
+def ambient_level(series: FloatArray, rows: IntArray) -> tuple[FloatArray, FloatArray]:
+    """Per column p of ``series`` (n, P) float64 (DN) over its ``rows`` (k,) (the OFF
+    sub-frames, k >= 1): the level ``max(mean, 1)`` and the ratio of the variance (ddof
+    1; 0 for k = 1) to it, (P,) each, computed as numpy's ``mean``, ``var`` (the rows
+    added one after another) and ``maximum`` do."""
+    k, size = rows.size, series.shape[1]
+    level, ratio = np.empty(size), np.empty(size)
+    for p in range(size):
+        total = 0.0
+        for i in range(k):
+            total += series[rows[i], p]
+        mean = total / k
+        level[p] = mean if (mean >= 1.0 or np.isnan(mean)) else 1.0
+        spread = 0.0
+        if k > 1:
+            squares = 0.0
+            for i in range(k):
+                d = series[rows[i], p] - mean
+                squares += d * d
+            spread = squares / (k - 1)
+        ratio[p] = spread / level[p]
+    return level, ratio
+
+
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -807,3 +886,8 @@ def warm_up() -> None:
     rows = np.array([0], dtype=i64), np.array([4], dtype=i64)
     rows_range(np.zeros((4, 3), dtype=np.int16), *rows)
     subsample_counts(np.zeros((4, 3), dtype=np.int16), *rows, 0, 1)
+    band_noise(np.zeros(4, dtype=i64), np.ones((1, 1), dtype=np.float32),
+               np.array([[0, 4]], dtype=i64), 32, 1)
+    peak_pixels(np.array([[2]], dtype=i64), np.zeros(4, dtype=i64),
+                np.ones((1, 1), dtype=np.float32), 32)
+    ambient_level(np.zeros((2, 1)), np.array([0, 1], dtype=i64))
