@@ -376,3 +376,32 @@ def test_ambient_level_is_numpys_mean_var_and_maximum() -> None:
         spread = ambient.var(axis=0, ddof=1) if rows.size > 1 else np.zeros(size)
         np.testing.assert_array_equal(level, want_level)
         np.testing.assert_array_equal(ratio, spread / want_level)
+
+
+def _subsample_tiles_numpy(block: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """noise._tile_statistics' tiles in the numpy form they had before the compiled pass."""
+    t = NOISE_TILE_PX // 2
+    sub = block[::2, ::2]
+    nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
+    padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])), "symmetric")
+    return padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_subsample_tiles_are_the_padded_numpy_tiles(dtype: type) -> None:
+    """Blocks of every size from one row or column up (subsamples shorter than a tile
+    reflect more than once), writable and read-only: the same tiles as pad, reshape and
+    transpose."""
+    from atris_node.pipeline import peaks_kernels
+
+    assert peaks_kernels.SUBSAMPLE_TILE_PX == NOISE_TILE_PX // 2
+    rng = np.random.default_rng(27)
+    for trial in range(150):
+        block = rng.normal(0.0, 50.0, (int(rng.integers(1, 80)), int(rng.integers(1, 140))))
+        block = block.astype(dtype)
+        if trial % 2:
+            block.flags.writeable = False
+        got = peaks_kernels.subsample_tiles(block)
+        want = _subsample_tiles_numpy(block)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        np.testing.assert_array_equal(got, want)

@@ -855,6 +855,54 @@ def ambient_level(series: FloatArray, rows: IntArray) -> tuple[FloatArray, Float
     return level, ratio
 
 
+#: side (px) of a noise tile in the 2×2 subsample: NOISE_TILE_PX / 2
+#: (:mod:`atris_node.pipeline.noise`)
+SUBSAMPLE_TILE_PX = 16
+
+
+def _tiles_signatures() -> list[Any]:
+    """Signatures of :func:`subsample_tiles`, per map dtype, writable or read-only."""
+    return [types.Array(dtype, 3, "C")(types.Array(dtype, 2, "C", readonly=readonly))
+            for dtype in (types.int16, types.int32, types.float32, types.float64)
+            for readonly in (False, True)]
+
+
+@kernel()
+def _mirrored(i: int, n: int) -> int:
+    """Index into n values of position i of their symmetric extension (as ``np.pad``
+    "symmetric": the edge value repeated, then the values backwards, and so on)."""
+    m = i % (2 * n)
+    return m if m < n else 2 * n - 1 - m
+
+
+@kernel(_tiles_signatures())
+def subsample_tiles(block: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
+    """(nr, nc, T²) the 2×2 subsample of ``block`` (h, w) (h, w >= 1) cut into T × T
+    tiles (T = SUBSAMPLE_TILE_PX) from the top left corner, each tile's values row by
+    row, the subsample extended symmetrically to whole tiles: the values of ``np.pad``
+    "symmetric", reshape and transpose, in one pass (tiles inside the subsample's width
+    copied 16 values at a time)."""
+    side = SUBSAMPLE_TILE_PX
+    rows, cols = (block.shape[0] + 1) // 2, (block.shape[1] + 1) // 2
+    nr, nc = -(-rows // side), -(-cols // side)
+    out = np.empty((nr, nc, side * side), dtype=block.dtype)
+    flat = out.reshape(-1)
+    inside = cols // side  # tiles that need no mirrored column
+    for i in range(nr * side):
+        row = block[2 * _mirrored(i, rows)]
+        base = (i // side) * nc * side * side + (i % side) * side
+        for tc in range(inside):
+            start = base + tc * side * side
+            into, source = flat[start:start + side], row[2 * side * tc:2 * side * (tc + 1)]
+            for b in range(side):
+                into[b] = source[2 * b]
+        for tc in range(inside, nc):
+            start = base + tc * side * side
+            for b in range(side):
+                flat[start + b] = row[2 * _mirrored(tc * side + b, cols)]
+    return out
+
+
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -891,3 +939,4 @@ def warm_up() -> None:
     peak_pixels(np.array([[2]], dtype=i64), np.zeros(4, dtype=i64),
                 np.ones((1, 1), dtype=np.float32), 32)
     ambient_level(np.zeros((2, 1)), np.array([0, 1], dtype=i64))
+    subsample_tiles(np.zeros((4, 3), dtype=np.int16))
