@@ -405,3 +405,40 @@ def test_subsample_tiles_are_the_padded_numpy_tiles(dtype: type) -> None:
         want = _subsample_tiles_numpy(block)
         assert got.dtype == want.dtype and got.shape == want.shape
         np.testing.assert_array_equal(got, want)
+
+
+def _above_elsewhere_numpy(values: npt.NDArray[Any], local: NoiseMap, snr_min: float,
+                           elsewhere: tuple[tuple[int, int], ...]) -> bool:
+    """peaks._above_elsewhere in the numpy form it had before its compiled pass."""
+    if not elsewhere:
+        return False
+    threshold = local.threshold(snr_min)
+    return any(bool((values[lo:hi] >= threshold[lo:hi]).any()) for lo, hi in elsewhere)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64, np.uint8])
+def test_above_elsewhere_is_the_numpy_form(dtype: type) -> None:
+    """Random maps, noise maps and row intervals (thresholds reached exactly too): the
+    compiled test answers as the comparison with the (H, W) threshold image."""
+    rng = np.random.default_rng(28)
+    answers = set()
+    for trial in range(200):
+        height, width = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        values = _pixel_map(rng, np.float64, height, width)
+        if np.dtype(dtype).kind != "f":
+            values = np.nan_to_num(values)
+        values = np.abs(values) if dtype is np.uint8 else values
+        values = values.astype(dtype)
+        if trial % 2:
+            values.flags.writeable = False
+        spans = [(int(lo), int(hi)) for lo, hi in _random_spans(rng, height)]
+        local = noise_map(values, spans)
+        if trial % 3 == 0:
+            local = NoiseMap(local.tile_row, np.round(local.background_tiles),
+                             np.round(local.sigma_tiles), local.width)
+        elsewhere = tuple((lo, hi) for lo, hi in _random_spans(rng, height) if hi > lo)
+        snr_min = float(rng.choice([0.5, 3.0, 6.0]))
+        got = peaks._above_elsewhere(values, local, snr_min, elsewhere)
+        assert got == _above_elsewhere_numpy(values, local, snr_min, elsewhere)
+        answers.add(got)
+    assert answers == {True, False}

@@ -282,11 +282,15 @@ def _above_elsewhere(values: npt.NDArray[Any], noise: NoiseMap, snr_min: float,
                      elsewhere: tuple[tuple[int, int], ...]) -> bool:
     """True when a pixel of the ``elsewhere`` rows reaches the local threshold. Every
     maximum :func:`strong_maxima` keeps reaches it, so False proves that searching the
-    other rows alone finds every maximum of the rows read."""
+    other rows alone finds every maximum of the rows read. One compiled pass over those
+    rows (:func:`atris_node.pipeline.peaks_kernels.any_reaches`), per tile."""
     if not elsewhere:
         return False
-    threshold = noise.threshold(snr_min)
-    return any(bool((values[lo:hi] >= threshold[lo:hi]).any()) for lo, hi in elsewhere)
+    rows = np.array([slice(lo, hi).indices(values.shape[0])[:2] for lo, hi in elsewhere],
+                    dtype=np.int64).reshape(-1, 2)
+    return bool(kernels.any_reaches(kernels.map_values(values), rows,
+                                    noise.threshold_tiles(snr_min), noise.tile_row,
+                                    NOISE_TILE_PX))
 
 
 def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,

@@ -149,6 +149,39 @@ def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
                         count[c] += 1
 
 
+def _reach_signatures() -> list[Any]:
+    """Signatures of :func:`any_reaches`, per map dtype, writable or read-only."""
+    i64 = types.int64
+    return [types.boolean(types.Array(dtype, 2, "C", readonly=readonly),
+                          types.Array(i64, 2, "A"), types.Array(types.float32, 2, "C"),
+                          types.Array(i64, 1, "A"), i64)
+            for dtype in (types.int16, types.int32, types.float32, types.float64)
+            for readonly in (False, True)]
+
+
+@kernel(_reach_signatures())
+def any_reaches(values: npt.NDArray[np.generic], spans: IntArray,
+                threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray,
+                tile_px: int) -> bool:
+    """True when a pixel of ``values`` (H, W) in the row ``spans`` (S, 2) [lo, hi) reaches
+    its tile's threshold (``threshold_tiles[tile_row[r], c // tile_px]``, DN, compared in
+    float64 as numpy compares the map with a float32 image). Tiles are tested first
+    (:func:`_reaches`); no (H, W) threshold image is made."""
+    width = values.shape[1]
+    for s in range(spans.shape[0]):
+        for r in range(spans[s, 0], spans[s, 1]):
+            tiles = threshold_tiles[tile_row[r]]
+            for tile in range(tiles.size):
+                first, last = tile * tile_px, min((tile + 1) * tile_px, width)
+                if not _reaches(values, r, first, last, tiles[tile]):
+                    continue
+                threshold = np.float64(tiles[tile])
+                for c in range(first, last):
+                    if np.float64(values[r, c]) >= threshold:
+                        return True
+    return False
+
+
 @kernel()
 def _line_grid(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
                pad: int) -> FloatArray:
@@ -912,6 +945,8 @@ def warm_up() -> None:
                   np.ones((1, 1), dtype=np.float32), np.zeros(4, dtype=i64), 32, 2,
                   np.zeros(4, dtype=np.bool_), False, np.full((2, 1), -1, dtype=i64),
                   np.zeros(1, dtype=i64))
+    any_reaches(np.zeros((4, 1), dtype=np.int16), np.array([[0, 4]], dtype=i64),
+                np.ones((1, 1), dtype=np.float32), np.zeros(4, dtype=i64), 32)
     supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
     smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)
     line_samples(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
