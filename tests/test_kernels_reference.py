@@ -442,3 +442,47 @@ def test_above_elsewhere_is_the_numpy_form(dtype: type) -> None:
         assert got == _above_elsewhere_numpy(values, local, snr_min, elsewhere)
         answers.add(got)
     assert answers == {True, False}
+
+
+def _blinded_numpy(values: npt.NDArray[Any], saturated: npt.NDArray[np.bool_],
+                   bands: npt.NDArray[np.int64], threshold_tiles: npt.NDArray[np.float32],
+                   tile_row: npt.NDArray[np.int64], tile_px: int
+                   ) -> tuple[bool, npt.NDArray[np.bool_]]:
+    """peaks_kernels.blinded as whole-array numpy steps per band."""
+    height, width = values.shape
+    threshold = threshold_tiles[tile_row][:, np.arange(width) // tile_px].astype(np.float64)
+    out = np.zeros((bands.shape[0], width), dtype=np.bool_)
+    for k, (lo, hi) in enumerate(bands):
+        rows = np.arange(max(lo, 0), min(hi, height))
+        out[k] = (saturated[rows] & (values[rows].astype(np.float64) < threshold[rows])).any(
+            axis=0)
+    return bool(out.any()), out
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_blinded_is_the_numpy_form(dtype: type) -> None:
+    """Random maps, saturation masks (none, sparse, clustered), tile thresholds and bands
+    (overlapping, reaching past the image): the pass that tests rows and chunks for a
+    saturated pixel first marks the numpy form's columns."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(29)
+    for trial in range(150):
+        height, width = int(rng.integers(1, 60)), int(rng.choice([1, 3, 63, 64, 65, 150]))
+        values = _pixel_map(rng, dtype, height, width)
+        saturated = rng.random((height, width)) < rng.choice([0.0, 0.005, 0.05])
+        if trial % 3 == 0:
+            saturated[:, int(rng.integers(0, width))] = True
+        if trial % 2:
+            values.flags.writeable = False
+            saturated.flags.writeable = False
+        tile_px = int(rng.choice([4, 32]))
+        tiles = rng.normal(5.0, 20.0, (3, -(-width // tile_px))).astype(np.float32)
+        tile_row = rng.integers(-1, 3, height).astype(np.int64)
+        bands = np.sort(rng.integers(-5, height + 5, (int(rng.integers(1, 5)), 2)), axis=1)
+        out = np.zeros((bands.shape[0], width), dtype=np.bool_)
+        found = peaks_kernels.blinded(values, saturated, bands.astype(np.int64), tiles,
+                                      tile_row, tile_px, out)
+        want = _blinded_numpy(values, saturated, bands, tiles, tile_row, tile_px)
+        assert found == want[0]
+        np.testing.assert_array_equal(out, want[1])

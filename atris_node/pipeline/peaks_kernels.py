@@ -654,24 +654,46 @@ def _blinded_signatures() -> list[Any]:
             for readonly in (False, True)]
 
 
+@kernel()
+def _any_set(mask: npt.NDArray[np.bool_], r: int, lo: int, hi: int) -> bool:
+    """True when ``mask`` holds a True in row r, columns [lo, hi). A loop without branches
+    over a row slice, which the compiler vectorises."""
+    row = mask[r, lo:hi]
+    found = False
+    for c in range(row.size):
+        found |= row[c]
+    return found
+
+
+#: columns of a row :func:`blinded` tests for a saturated pixel in one vectorised step
+SATURATED_CHUNK_PX = 64
+
+
 @kernel(_blinded_signatures())
 def blinded(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
             bands: IntArray, threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray,
             tile_px: int, out: npt.NDArray[np.bool_]) -> bool:
     """``out`` (K, W) zeros in; True out where band k (``bands`` (K, 2) rows [lo, hi))
     holds in column c a saturated pixel below its tile's threshold (DN): full scale in
-    the OFF sub-frames too, no laser light. Only the band rows are read. Returns whether
-    any was found."""
+    the OFF sub-frames too, no laser light. Only the band rows are read, and of them only
+    the rows, then the SATURATED_CHUNK_PX chunks, that hold a saturated pixel
+    (:func:`_any_set`) pixel by pixel. Returns whether any was found."""
     found = False
     width = values.shape[1]
     for k in range(bands.shape[0]):
         for r in range(max(bands[k, 0], 0), min(bands[k, 1], values.shape[0])):
+            if not _any_set(saturated, r, 0, width):
+                continue
             tiles = threshold_tiles[tile_row[r]]
-            for c in range(width):
-                if saturated[r, c] and not out[k, c] and (
-                        np.float64(values[r, c]) < np.float64(tiles[c // tile_px])):
-                    out[k, c] = True
-                    found = True
+            for lo in range(0, width, SATURATED_CHUNK_PX):
+                hi = min(lo + SATURATED_CHUNK_PX, width)
+                if not _any_set(saturated, r, lo, hi):
+                    continue
+                for c in range(lo, hi):
+                    if saturated[r, c] and not out[k, c] and (
+                            np.float64(values[r, c]) < np.float64(tiles[c // tile_px])):
+                        out[k, c] = True
+                        found = True
     return found
 
 
