@@ -745,8 +745,8 @@ def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.boo
     above ``threshold``, v = value - ``background`` in float32, 0 where saturated. The
     columns of line-like negative pixels are set in ``columns`` (W,).
 
-    One pass: each ENERGY_CHUNK_PX chunk of a row is first tested for a pixel beyond
-    ``threshold`` (:func:`_beyond`; a saturated pixel's v = 0 is beyond only when
+    One pass: each row, then each ENERGY_CHUNK_PX chunk of it, is first tested for a pixel
+    beyond ``threshold`` (:func:`_beyond`; a saturated pixel's v = 0 is beyond only when
     ``threshold`` < 0, and then every chunk is looked at); only chunks that hold one are
     summed pixel by pixel, in the same order as a plain scan, so the float64 sums are
     those of the scan, bit for bit."""
@@ -756,6 +756,8 @@ def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.boo
     everywhere = not threshold >= 0
     for s in range(spans.shape[0]):
         for r in range(spans[s, 0], spans[s, 1]):
+            if not (everywhere or _beyond(values, r, 0, width, background, threshold)):
+                continue
             for lo in range(0, width, ENERGY_CHUNK_PX):
                 hi = min(lo + ENERGY_CHUNK_PX, width)
                 if not (everywhere or _beyond(values, r, lo, hi, background, threshold)):
