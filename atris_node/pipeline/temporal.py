@@ -37,6 +37,7 @@ Known limit: ambient light that drops right after an ON first sub-frame of the f
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -103,15 +104,26 @@ def not_own_light(peaks: IntArray, window: WindowFrames | None, local: NoiseMap)
     if not m.size or min(window.signs) > 0:
         return out
     before = window.before
-    u = local_weights(window.signs, None if before is None else before[0])
-    test = u - LOCAL_SHARE * np.concatenate([[0.0], np.asarray(window.signs, np.float64)])
+    test, norm = _test_weights(tuple(window.signs), None if before is None else before[0])
     frames = ((before[1],) if before is not None else ()) + window.pixels
-    if before is None:
-        test = test[1:]
     series = _series(frames, flat)  # (n, P), DN
     sigma = _pixel_sigma(series, window, tile_sigma)
-    out[m, c] = test @ series < -LOCAL_SIGMAS * sigma * float(np.linalg.norm(test))
+    out[m, c] = test @ series < -LOCAL_SIGMAS * sigma * norm
     return out
+
+
+@functools.lru_cache(maxsize=64)
+def _test_weights(signs: tuple[int, ...], before: int | None) -> tuple[FloatArray, float]:
+    """The weights of the test statistic ``sum_j (u_j - LOCAL_SHARE s_j) F_j`` over the
+    frames read ((N + 1,) with a sub-frame before the window at time ``before``, else
+    (N,)), read-only, and their Euclidean norm. Kept per code and lag: a unit's windows
+    repeat a few of them."""
+    u = local_weights(signs, before)
+    test = u - LOCAL_SHARE * np.concatenate([[0.0], np.asarray(signs, np.float64)])
+    if before is None:
+        test = test[1:]
+    test.setflags(write=False)
+    return test, float(np.linalg.norm(test))
 
 
 def _series(frames: tuple[npt.NDArray[Any], ...], flat: IntArray) -> FloatArray:
