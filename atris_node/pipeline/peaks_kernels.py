@@ -807,30 +807,36 @@ def rows_range(values: npt.NDArray[np.integer[Any]], starts: IntArray, stops: In
     return int(low), int(high)
 
 
+#: partial counts :func:`subsample_counts` keeps (interleaved columns)
+PARTIAL_COUNTS = 8
+
+
 @kernel(_subsample_signatures(types.Array(types.int64, 1, "C"), *_ROWS, types.int64,
                               types.int64))
 def subsample_counts(values: npt.NDArray[np.integer[Any]], starts: IntArray, stops: IntArray,
                      low: int, size: int) -> IntArray:
     """(size,) how many pixels of the 2x2 subsample (rows ``starts[s]``, ``starts[s] + 2``,
     ... below ``stops[s]``, even columns) hold each value ``low``, ``low + 1``, ... (DN);
-    every value must lie in that range (:func:`rows_range`). Four partial counts, added at
-    the end, keep runs of equal values from waiting on each other."""
-    part = np.zeros((4, size), dtype=np.int64)
+    every value must lie in that range (:func:`rows_range`). PARTIAL_COUNTS partial
+    counts, added at the end, keep runs of equal values from waiting on each other."""
+    part = np.zeros((PARTIAL_COUNTS, size), dtype=np.int64)
     width = values.shape[1]
+    step = 2 * PARTIAL_COUNTS
     for s in range(starts.size):
         for r in range(starts[s], stops[s], 2):
             row = values[r]
             c = 0
-            while c + 6 < width:
-                part[0, np.int64(row[c]) - low] += 1
-                part[1, np.int64(row[c + 2]) - low] += 1
-                part[2, np.int64(row[c + 4]) - low] += 1
-                part[3, np.int64(row[c + 6]) - low] += 1
-                c += 8
+            while c + step - 2 < width:
+                for j in range(PARTIAL_COUNTS):
+                    part[j, np.int64(row[c + 2 * j]) - low] += 1
+                c += step
             while c < width:
                 part[0, np.int64(row[c]) - low] += 1
                 c += 2
-    return part[0] + part[1] + part[2] + part[3]
+    out = np.zeros(size, dtype=np.int64)
+    for j in range(PARTIAL_COUNTS):
+        out += part[j]
+    return out
 
 
 @kernel("float32[:, :](int64[:], float32[:, :], int64[:, :], int64, int64)")
