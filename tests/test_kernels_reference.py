@@ -228,7 +228,7 @@ def test_strong_maxima_is_the_numpy_form(dtype: type) -> None:
                            (height // tile_px + 2, -(-width // tile_px))).astype(np.float32)
         if trial % 2:
             tiles = np.round(tiles)  # whole thresholds: pixels that reach them exactly
-        tile_row = rng.integers(-1, tiles.shape[0], height).astype(np.int64)
+        tile_row = rng.integers(-tiles.shape[0], tiles.shape[0], height).astype(np.int64)
         inside = rng.random(height) < 0.7 if trial % 3 == 0 else None
         sep, per_column = int(rng.integers(1, 4)), int(rng.integers(1, 5))
         out = np.full((per_column, width), -1, dtype=np.int64)

@@ -124,16 +124,16 @@ def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
     neighbours, as a plain scan would."""
     per_column, width = out.shape
     threshold_px = np.empty(width, dtype=np.float32)
-    spread = -2  # the tile row threshold_px holds (none yet)
+    spread, filled = 0, False  # the tile row threshold_px holds, once it holds one
     for s in range(spans.shape[0]):
         lo, hi = spans[s, 0], spans[s, 1]
         for r in range(lo, hi):
             if use_inside and not inside[r]:
                 continue
             tiles = threshold_tiles[tile_row[r]]
-            if tile_row[r] != spread:
+            if not filled or tile_row[r] != spread:
                 _spread(tiles, tile_px, threshold_px)
-                spread = tile_row[r]
+                spread, filled = tile_row[r], True
             if not _row_reaches(values, r, threshold_px):
                 continue
             for tile in range(tiles.size):
