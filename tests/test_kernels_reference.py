@@ -180,6 +180,298 @@ def test_continuity_reference_of_the_rival_test_is_the_composed_form() -> None:
             anchored = np.repeat(rng.random(width // 20 + 1) < 0.4, 20)[:width]
         got = _reference(rows, anchored)
         want = _reference_by_definition(rows, anchored)
+# --------------------------------------------------------------------------- pixel passes
+# (the per-pixel passes over the rows read: chunks tested in one vectorised step first)
+
+
+def _pixel_map(rng: np.random.Generator, dtype: type, height: int, width: int
+               ) -> npt.NDArray[Any]:
+    """A map of small whole values (many ties and plateaus), a few strong positive and
+    negative stripes, in ``dtype``; float maps get a few NaN and fractional values."""
+    values = rng.integers(-6, 7, (height, width)).astype(np.float64)
+    for _ in range(int(rng.integers(0, 6))):
+        row = int(rng.integers(0, height))
+        values[row, :] += rng.choice([-1.0, 1.0]) * rng.integers(20, 200)
+    values[rng.random((height, width)) < 0.01] += 150.0
+    if np.dtype(dtype).kind == "f":
+        values += rng.random((height, width)) < 0.1
+        values[rng.random((height, width)) < 0.002] = np.nan
+    return values.astype(dtype)
+
+
+def _random_spans(rng: np.random.Generator, height: int) -> npt.NDArray[np.int64]:
+    """(S, 2) sorted row intervals [lo, hi) inside the map, some empty or adjacent."""
+    cuts = np.sort(rng.integers(0, height + 1, 2 * int(rng.integers(1, 4))))
+    return cuts.reshape(-1, 2).astype(np.int64)
+
+
+def _sequential_sum(terms: npt.NDArray[np.float64]) -> float:
+    """float64 sum of ``terms`` added one after another from 0.0 (np.sum adds pairwise)."""
+    return float(np.cumsum(terms)[-1]) if terms.size else 0.0
+
+
+def _signed_energy_numpy(values: npt.NDArray[Any], saturated: npt.NDArray[np.bool_],
+                         spans: npt.NDArray[np.int64], background: np.float32,
+                         threshold: np.float32) -> tuple[float, float, npt.NDArray[np.bool_]]:
+    """peaks_kernels.signed_energy as whole-array numpy steps over the rows read."""
+    rows = np.concatenate([np.arange(lo, hi) for lo, hi in spans] + [np.zeros(0, np.int64)])
+    v = np.where(saturated[rows], np.float32(0.0),
+                 values[rows].astype(np.float32) - background).astype(np.float32)
+    weak = -threshold / np.float32(2.0)
+    positive = v > threshold
+    negative = ~positive & (v < -threshold)
+    negative[:, 0] = negative[:, -1] = False
+    negative[:, 1:-1] &= (v[:, :-2] < weak) & (v[:, 2:] < weak)
+    return (_sequential_sum(-v[negative].astype(np.float64)),
+            _sequential_sum(v[positive].astype(np.float64)), negative.any(axis=0))
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_signed_energy_is_the_numpy_form(dtype: type) -> None:
+    """Random maps, saturation masks, spans, backgrounds and thresholds (zero and below
+    zero too), widths across the chunk size: the chunked pass gives the numpy form's sums
+    bit for bit and its columns."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(21)
+    for trial in range(120):
+        height = int(rng.integers(1, 40))
+        width = int(rng.choice([1, 2, 3, 63, 64, 65, 130, 200]))
+        values = _pixel_map(rng, dtype, height, width)
+        saturated = rng.random((height, width)) < rng.choice([0.0, 0.05])
+        if trial % 2:
+            values.flags.writeable = False
+            saturated.flags.writeable = False
+        spans = _random_spans(rng, height)
+        background = np.float32(rng.normal(0.0, 2.0))
+        threshold = np.float32(rng.choice([0.0, -3.0, 2.5, 10.0, 60.0]))
+        columns = np.zeros(width, dtype=np.bool_)
+        negative, positive = peaks_kernels.signed_energy(values, saturated, spans, background,
+                                                         threshold, columns)
+        want = _signed_energy_numpy(values, saturated, spans, background, threshold)
+        assert (negative, positive) == want[:2]
+        np.testing.assert_array_equal(columns, want[2])
+
+
+def _strong_maxima_numpy(values: npt.NDArray[Any], spans: npt.NDArray[np.int64],
+                         threshold_tiles: npt.NDArray[np.float32],
+                         tile_row: npt.NDArray[np.int64], tile_px: int, sep: int,
+                         inside: npt.NDArray[np.bool_] | None, per_column: int
+                         ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """peaks_kernels.strong_maxima as whole-array numpy steps per span: (rows, counts)."""
+    height, width = values.shape
+    threshold = threshold_tiles[tile_row][:, np.arange(width) // tile_px].astype(np.float64)
+    found = np.zeros((height, width), dtype=np.bool_)
+    for lo, hi in spans:
+        block = values[lo:hi].astype(np.float64)
+        ok = block >= threshold[lo:hi]
+        for d in range(1, sep + 1):
+            ok[d:] &= block[d:] > block[:-d]
+            ok[:-d] &= block[:-d] >= block[d:]
+        found[lo:hi] |= ok
+    if inside is not None:
+        found &= inside[:, None]
+    out = np.full((per_column, width), -1, dtype=np.int64)
+    for c in range(width):
+        rows = np.flatnonzero(found[:, c])[:per_column]
+        out[:rows.size, c] = rows
+    return out, found.sum(axis=0).astype(np.int64)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_strong_maxima_is_the_numpy_form(dtype: type) -> None:
+    """Random maps (plateaus, NaN in float maps), tile thresholds, spans and row masks:
+    the pass that tests rows and tiles first finds the numpy form's maxima and counts."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(22)
+    for trial in range(120):
+        height = int(rng.integers(1, 70))
+        width = int(rng.choice([1, 5, 31, 32, 33, 64, 100]))
+        tile_px = int(rng.choice([4, 8, 32]))
+        values = _pixel_map(rng, dtype, height, width)
+        if trial % 2:
+            values.flags.writeable = False
+        spans = _random_spans(rng, height)
+        tiles = rng.normal(rng.choice([-2.0, 3.0, 30.0]), 2.0,
+                           (height // tile_px + 2, -(-width // tile_px))).astype(np.float32)
+        if trial % 2:
+            tiles = np.round(tiles)  # whole thresholds: pixels that reach them exactly
+        tile_row = rng.integers(-tiles.shape[0], tiles.shape[0], height).astype(np.int64)
+        inside = rng.random(height) < 0.7 if trial % 3 == 0 else None
+        sep, per_column = int(rng.integers(1, 4)), int(rng.integers(1, 5))
+        out = np.full((per_column, width), -1, dtype=np.int64)
+        count = np.zeros(width, dtype=np.int64)
+        peaks_kernels.strong_maxima(
+            values, spans, tiles, tile_row, tile_px, sep,
+            np.zeros(height, np.bool_) if inside is None else inside, inside is not None,
+            out, count)
+        want = _strong_maxima_numpy(values, spans, tiles, tile_row, tile_px, sep, inside,
+                                    per_column)
+        np.testing.assert_array_equal(out, want[0])
+        np.testing.assert_array_equal(count, want[1])
+
+
+def test_strong_maxima_pre_test_keeps_int32_values_past_float32_precision() -> None:
+    """Whole values past 2**24 (not all float32): 2**25 + 1 reaches a threshold of 2**25
+    and is found, 2**25 - 1 does not and is not, although the pre-test compares their
+    float32 roundings (both 2**25)."""
+    from atris_node.pipeline import peaks_kernels
+
+    values = np.zeros((5, 40), dtype=np.int32)
+    values[2, 7] = 2**25 + 1
+    values[2, 30] = 2**25 - 1
+    spans, tile_row = np.array([[0, 5]], np.int64), np.zeros(5, np.int64)
+    tiles = np.array([[np.float32(2**25)]], dtype=np.float32)
+    out = np.full((1, 40), -1, dtype=np.int64)
+    count = np.zeros(40, dtype=np.int64)
+    peaks_kernels.strong_maxima(values, spans, tiles, tile_row, 64, 2, np.zeros(5, np.bool_),
+                                False, out, count)
+    assert np.flatnonzero(count).tolist() == [7] and out[0, 7] == 2
+    want = _strong_maxima_numpy(values, spans, tiles, tile_row, 64, 2, None, 1)
+    np.testing.assert_array_equal(out, want[0])
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32])
+def test_subsample_counts_are_the_bincount_of_the_gathered_subsample(dtype: type) -> None:
+    """Random integer maps (odd and even sizes, several spans, negative values, int32
+    values past 2**16): the counts from the least value of the whole rows read are the
+    np.bincount of the gathered 2x2 subsample, with empty counts below its least value,
+    and noise_floor gives the numbers of the gathered sample's counts."""
+    from atris_node.pipeline import noise, peaks_kernels
+
+    rng = np.random.default_rng(23)
+    for trial in range(150):
+        height, width = int(rng.integers(1, 50)), int(rng.integers(1, 70))
+        scale = 100_000 if dtype is np.int32 and trial % 3 == 0 else 30
+        values = rng.integers(-scale, scale, (height, width)).astype(dtype)
+        if trial % 2:
+            values.flags.writeable = False
+        spans = [(int(lo), int(hi)) for lo, hi in _random_spans(rng, height)]
+        rows = [range(*slice(lo, hi, 2).indices(height)) for lo, hi in spans]
+        sample = np.concatenate([values[lo:hi:2, ::2].ravel() for lo, hi in spans])
+        starts = np.array([r.start for r in rows], dtype=np.int64)
+        stops = np.array([r.stop for r in rows], dtype=np.int64)
+        low, high = peaks_kernels.rows_range(values, starts, stops)
+        if not sample.size:
+            assert (low, high) == (0, -1)
+            assert noise.noise_floor(values, spans) == (0.0, noise.MIN_NOISE_DN)
+            continue
+        whole = np.concatenate([values[r] for r in rows])
+        assert (low, high) == (whole.min(), whole.max())
+        counts = peaks_kernels.subsample_counts(values, starts, stops, low, high - low + 1)
+        want = np.bincount(sample.astype(np.int64) - low, minlength=high - low + 1)
+        np.testing.assert_array_equal(counts, want)
+        got = noise.noise_floor(values, spans)
+        q25, median = noise._quartile_and_median(sample)
+        assert got == (float(median), max(float(median - q25) / noise.QUARTILE_TO_SIGMA,
+                                          noise.MIN_NOISE_DN))
+
+
+def _band_noise_numpy(local: NoiseMap, bands: tuple[Any, ...]) -> npt.NDArray[np.float32]:
+    """peaks.band_noise in the numpy form it had before its compiled pass."""
+    out = np.zeros((len(bands), local.width), dtype=np.float32)
+    columns = np.arange(local.width) // NOISE_TILE_PX
+    for k, band in enumerate(bands):
+        if band.empty:
+            continue
+        tiles = np.unique(local.tile_row[band.row_lo:band.row_hi])
+        out[k] = local.sigma_tiles[tiles].max(axis=0)[columns]
+    return out
+
+
+def test_band_noise_is_the_numpy_form() -> None:
+    """Random tile tables (a few NaN σ), tile rows (-1 too) and bands (empty ones too):
+    the compiled band_noise equals the numpy form exactly."""
+    from atris_node.pipeline.bands import Band
+
+    rng = np.random.default_rng(24)
+    for _ in range(200):
+        height, width = int(rng.integers(1, 120)), int(rng.integers(1, 150))
+        tiles = rng.gamma(2.0, 3.0, (int(rng.integers(1, 6)), -(-width // NOISE_TILE_PX)))
+        tiles[rng.random(tiles.shape) < 0.03] = np.nan
+        tile_row = rng.integers(-1, tiles.shape[0], height).astype(np.int64)
+        local = NoiseMap(tile_row, np.zeros_like(tiles, dtype=np.float32),
+                         tiles.astype(np.float32), width)
+        bands = tuple(Band(k, int(lo), int(hi)) for k, (lo, hi) in
+                      enumerate(rng.integers(0, height + 1, (int(rng.integers(1, 5)), 2))))
+        got = peaks.band_noise(local, bands)
+        want = _band_noise_numpy(local, bands)
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+
+
+def test_peak_pixels_is_the_nonzero_form() -> None:
+    """Random maxima tables (-1 padding) and tile tables: slots, columns, flat indices and
+    tile σ in np.nonzero's order, as temporal.not_own_light computed them before."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(25)
+    for _ in range(200):
+        height, width, slots = (int(rng.integers(1, 80)), int(rng.integers(1, 90)),
+                                int(rng.integers(1, 6)))
+        peak_rows = rng.integers(-1, height, (slots, width)).astype(np.int64)
+        peak_rows[rng.random((slots, width)) < 0.5] = -1
+        tiles = rng.random((int(rng.integers(1, 5)), -(-width // NOISE_TILE_PX)))
+        tile_row = rng.integers(-1, tiles.shape[0], height).astype(np.int64)
+        m, c, flat, sigma = peaks_kernels.peak_pixels(peak_rows, tile_row,
+                                                      tiles.astype(np.float32), NOISE_TILE_PX)
+        want_m, want_c = np.nonzero(peak_rows >= 0)
+        r = peak_rows[want_m, want_c]
+        np.testing.assert_array_equal(m, want_m)
+        np.testing.assert_array_equal(c, want_c)
+        np.testing.assert_array_equal(flat, r * width + want_c)
+        np.testing.assert_array_equal(
+            sigma, tiles.astype(np.float32)[tile_row[r], want_c // NOISE_TILE_PX])
+
+
+def test_ambient_level_is_numpys_mean_var_and_maximum() -> None:
+    """Random series (whole DN as the sub-frames hold, and values of very different size
+    where the order of the additions shows), 1 to 17 OFF rows: level and ratio equal
+    numpy's max(mean, 1) and var(ddof=1) / level bit for bit."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(26)
+    for trial in range(300):
+        frames, size = int(rng.integers(1, 18)), int(rng.integers(1, 300))
+        if trial % 2:
+            series = rng.integers(0, 4096, (frames, size)).astype(np.float64)
+        else:
+            series = rng.random((frames, size)) * 10.0 ** rng.integers(-3, 17, (frames, size))
+        rows = np.sort(rng.choice(frames, int(rng.integers(1, frames + 1)), replace=False))
+        level, ratio = peaks_kernels.ambient_level(series, rows.astype(np.int64))
+        ambient = series[rows]
+        want_level = np.maximum(ambient.mean(axis=0), 1.0)
+        spread = ambient.var(axis=0, ddof=1) if rows.size > 1 else np.zeros(size)
+        np.testing.assert_array_equal(level, want_level)
+        np.testing.assert_array_equal(ratio, spread / want_level)
+
+
+def _subsample_tiles_numpy(block: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """noise._tile_statistics' tiles in the numpy form they had before the compiled pass."""
+    t = NOISE_TILE_PX // 2
+    sub = block[::2, ::2]
+    nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
+    padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])), "symmetric")
+    return padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_subsample_tiles_are_the_padded_numpy_tiles(dtype: type) -> None:
+    """Blocks of every size from one row or column up (subsamples shorter than a tile
+    reflect more than once), writable and read-only: the same tiles as pad, reshape and
+    transpose."""
+    from atris_node.pipeline import peaks_kernels
+
+    assert peaks_kernels.SUBSAMPLE_TILE_PX == NOISE_TILE_PX // 2
+    rng = np.random.default_rng(27)
+    for trial in range(150):
+        block = rng.normal(0.0, 50.0, (int(rng.integers(1, 80)), int(rng.integers(1, 140))))
+        block = block.astype(dtype)
+        if trial % 2:
+            block.flags.writeable = False
+        got = peaks_kernels.subsample_tiles(block)
+        want = _subsample_tiles_numpy(block)
         assert got.dtype == want.dtype and got.shape == want.shape
         np.testing.assert_array_equal(got, want)
 
@@ -335,3 +627,82 @@ def test_continuity_reference_of_some_columns_is_that_of_all_columns_there() -> 
         want = np.full(rows.shape, np.inf)
         want[:, columns] = _reference(rows, anchored)[:, columns]
         np.testing.assert_array_equal(got, want)
+def _above_elsewhere_numpy(values: npt.NDArray[Any], local: NoiseMap, snr_min: float,
+                           elsewhere: tuple[tuple[int, int], ...]) -> bool:
+    """peaks._above_elsewhere in the numpy form it had before its compiled pass."""
+    if not elsewhere:
+        return False
+    threshold = local.threshold(snr_min)
+    return any(bool((values[lo:hi] >= threshold[lo:hi]).any()) for lo, hi in elsewhere)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64, np.uint8])
+def test_above_elsewhere_is_the_numpy_form(dtype: type) -> None:
+    """Random maps, noise maps and row intervals (thresholds reached exactly too): the
+    compiled test answers as the comparison with the (H, W) threshold image."""
+    rng = np.random.default_rng(28)
+    answers = set()
+    for trial in range(200):
+        height, width = int(rng.integers(1, 70)), int(rng.integers(1, 100))
+        values = _pixel_map(rng, np.float64, height, width)
+        if np.dtype(dtype).kind != "f":
+            values = np.nan_to_num(values)
+        values = np.abs(values) if dtype is np.uint8 else values
+        values = values.astype(dtype)
+        if trial % 2:
+            values.flags.writeable = False
+        spans = [(int(lo), int(hi)) for lo, hi in _random_spans(rng, height)]
+        local = noise_map(values, spans)
+        if trial % 3 == 0:
+            local = NoiseMap(local.tile_row, np.round(local.background_tiles),
+                             np.round(local.sigma_tiles), local.width)
+        elsewhere = tuple((lo, hi) for lo, hi in _random_spans(rng, height) if hi > lo)
+        snr_min = float(rng.choice([0.5, 3.0, 6.0]))
+        got = peaks._above_elsewhere(values, local, snr_min, elsewhere)
+        assert got == _above_elsewhere_numpy(values, local, snr_min, elsewhere)
+        answers.add(got)
+    assert answers == {True, False}
+
+
+def _blinded_numpy(values: npt.NDArray[Any], saturated: npt.NDArray[np.bool_],
+                   bands: npt.NDArray[np.int64], threshold_tiles: npt.NDArray[np.float32],
+                   tile_row: npt.NDArray[np.int64], tile_px: int
+                   ) -> tuple[bool, npt.NDArray[np.bool_]]:
+    """peaks_kernels.blinded as whole-array numpy steps per band."""
+    height, width = values.shape
+    threshold = threshold_tiles[tile_row][:, np.arange(width) // tile_px].astype(np.float64)
+    out = np.zeros((bands.shape[0], width), dtype=np.bool_)
+    for k, (lo, hi) in enumerate(bands):
+        rows = np.arange(max(lo, 0), min(hi, height))
+        out[k] = (saturated[rows] & (values[rows].astype(np.float64) < threshold[rows])).any(
+            axis=0)
+    return bool(out.any()), out
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_blinded_is_the_numpy_form(dtype: type) -> None:
+    """Random maps, saturation masks (none, sparse, clustered), tile thresholds and bands
+    (overlapping, reaching past the image): the pass that tests rows and chunks for a
+    saturated pixel first marks the numpy form's columns."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(29)
+    for trial in range(150):
+        height, width = int(rng.integers(1, 60)), int(rng.choice([1, 3, 63, 64, 65, 150]))
+        values = _pixel_map(rng, dtype, height, width)
+        saturated = rng.random((height, width)) < rng.choice([0.0, 0.005, 0.05])
+        if trial % 3 == 0:
+            saturated[:, int(rng.integers(0, width))] = True
+        if trial % 2:
+            values.flags.writeable = False
+            saturated.flags.writeable = False
+        tile_px = int(rng.choice([4, 32]))
+        tiles = rng.normal(5.0, 20.0, (3, -(-width // tile_px))).astype(np.float32)
+        tile_row = rng.integers(-1, 3, height).astype(np.int64)
+        bands = np.sort(rng.integers(-5, height + 5, (int(rng.integers(1, 5)), 2)), axis=1)
+        out = np.zeros((bands.shape[0], width), dtype=np.bool_)
+        found = peaks_kernels.blinded(values, saturated, bands.astype(np.int64), tiles,
+                                      tile_row, tile_px, out)
+        want = _blinded_numpy(values, saturated, bands, tiles, tile_row, tile_px)
+        assert found == want[0]
+        np.testing.assert_array_equal(out, want[1])

@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from atris_node.pipeline import peaks_kernels
+
 IntArray = npt.NDArray[np.int64]
 
 #: distance from the median to the lower quartile of a normal distribution, in σ
@@ -29,18 +31,48 @@ def noise_floor(values: npt.NDArray[np.generic], spans: list[tuple[int, int]]) -
 
     σ comes from the lower quartile, ``(median - q25) / 0.6745``: laser pixels only add
     positive values, so the lower half of the distribution is background noise alone.
+    An int16 or int32 map's subsample is counted where it lies, in one compiled pass
+    (:func:`_subsample_quartile_and_median`); other maps' is gathered first.
     """
-    parts = [values[lo:hi:2, ::2].ravel() for lo, hi in spans]
-    if not parts or sum(p.size for p in parts) == 0:
+    height, width = values.shape
+    rows = [range(*slice(lo, hi, 2).indices(height)) for lo, hi in spans]
+    if sum(len(r) for r in rows) * len(range(0, width, 2)) == 0:
         return 0.0, MIN_NOISE_DN
-    sample = np.concatenate(parts)
-    counted = _counted_quartile_and_median(sample)
-    q25, median = counted if counted is not None else _quartile_and_median(sample)
+    counted = _subsample_quartile_and_median(values, rows)
+    if counted is None:
+        sample = np.concatenate([values[lo:hi:2, ::2].ravel() for lo, hi in spans])
+        counted = _counted_quartile_and_median(sample)
+        q25, median = counted if counted is not None else _quartile_and_median(sample)
+    else:
+        q25, median = counted
     return float(median), max(float(median - q25) / QUARTILE_TO_SIGMA, MIN_NOISE_DN)
 
 
 #: value range (max - min + 1) up to which order statistics are counted, not sorted
 COUNTED_RANGE_MAX = 1 << 20
+
+
+def _subsample_quartile_and_median(values: npt.NDArray[Any], rows: list[range]
+                                   ) -> tuple[np.float32, np.float32] | None:
+    """:func:`_counted_quartile_and_median` of the 2×2 subsample of an int16 or int32
+    ``values`` (H, W) on the ``rows`` (steps of 2), counted in place
+    (:func:`atris_node.pipeline.peaks_kernels.subsample_counts`) with no copy of the
+    subsample; None for other dtypes or a value range above COUNTED_RANGE_MAX.
+
+    The counts start at the least value of the whole rows, at or below the subsample's
+    least: the empty counts below it move no order statistic, so the numbers are those
+    of the subsample's own counts (and of its sort)."""
+    if values.dtype not in (np.int16, np.int32):
+        return None
+    values = np.ascontiguousarray(values)
+    starts = np.array([r.start for r in rows], dtype=np.int64)
+    stops = np.array([r.stop for r in rows], dtype=np.int64)
+    low, high = peaks_kernels.rows_range(values, starts, stops)
+    if high - low + 1 > COUNTED_RANGE_MAX:
+        return None
+    counts = peaks_kernels.subsample_counts(values, starts, stops, low, high - low + 1)
+    n = sum(len(r) for r in rows) * len(range(0, values.shape[1], 2))
+    return _quartile_and_median_of_counts(low, counts, n)
 
 
 def _counted_quartile_and_median(a: npt.NDArray[Any]) -> tuple[np.float32, np.float32] | None:
@@ -56,8 +88,16 @@ def _counted_quartile_and_median(a: npt.NDArray[Any]) -> tuple[np.float32, np.fl
     low, high = int(a.min()), int(a.max())
     if high - low + 1 > COUNTED_RANGE_MAX:
         return None
-    cumulative = np.cumsum(np.bincount((a - low).astype(np.intp, copy=False)))
-    n = a.size
+    counts = np.bincount((a - low).astype(np.intp, copy=False))
+    return _quartile_and_median_of_counts(low, counts, a.size)
+
+
+def _quartile_and_median_of_counts(low: int, counts: npt.NDArray[Any], n: int
+                                   ) -> tuple[np.float32, np.float32]:
+    """(25th percentile, median), float32 as :func:`_quartile_and_median`, of the ``n``
+    values whose counts of ``low``, ``low + 1``, ... are ``counts``: the k-th smallest
+    value is the first whose cumulative count exceeds k."""
+    cumulative = np.cumsum(counts)
 
     def kth(k: int) -> np.float32:
         return np.float32(low + int(np.searchsorted(cumulative, k, side="right")))
@@ -144,12 +184,19 @@ class NoiseMap:
 def _tile_statistics(block: npt.NDArray[Any]) -> tuple[npt.NDArray[np.float32],
                                                         npt.NDArray[np.float32]]:
     """Per NOISE_TILE_PX tile of ``block`` (h, w): (median, σ), each (nr, nc) float32,
-    tiles from the top left corner."""
+    tiles from the top left corner. The tiles of the 2×2 subsample are cut in one
+    compiled pass (:func:`atris_node.pipeline.peaks_kernels.subsample_tiles`) for the map
+    dtypes the kernels take."""
     t = NOISE_TILE_PX // 2
-    sub = block[::2, ::2]
-    nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
-    padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])), "symmetric")
-    tiles = padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
+    if (block.size and t == peaks_kernels.SUBSAMPLE_TILE_PX
+            and block.dtype in (np.int16, np.int32, np.float32, np.float64)):
+        tiles = peaks_kernels.subsample_tiles(np.ascontiguousarray(block))
+    else:
+        sub = block[::2, ::2]
+        nr, nc = -(-sub.shape[0] // t), -(-sub.shape[1] // t)
+        padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])),
+                        "symmetric")
+        tiles = padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
     q25, median = _quartile_and_median(tiles)
     return median, np.maximum((median - q25) / QUARTILE_TO_SIGMA, np.float32(MIN_NOISE_DN))
 

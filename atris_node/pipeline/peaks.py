@@ -282,11 +282,15 @@ def _above_elsewhere(values: npt.NDArray[Any], noise: NoiseMap, snr_min: float,
                      elsewhere: tuple[tuple[int, int], ...]) -> bool:
     """True when a pixel of the ``elsewhere`` rows reaches the local threshold. Every
     maximum :func:`strong_maxima` keeps reaches it, so False proves that searching the
-    other rows alone finds every maximum of the rows read."""
+    other rows alone finds every maximum of the rows read. One compiled pass over those
+    rows (:func:`atris_node.pipeline.peaks_kernels.any_reaches`), per tile."""
     if not elsewhere:
         return False
-    threshold = noise.threshold(snr_min)
-    return any(bool((values[lo:hi] >= threshold[lo:hi]).any()) for lo, hi in elsewhere)
+    rows = np.array([slice(lo, hi).indices(values.shape[0])[:2] for lo, hi in elsewhere],
+                    dtype=np.int64).reshape(-1, 2)
+    return bool(kernels.any_reaches(kernels.map_values(values), rows,
+                                    noise.threshold_tiles(snr_min), noise.tile_row,
+                                    NOISE_TILE_PX))
 
 
 def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
@@ -367,15 +371,12 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
 def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float32]:
     """(K, W) float32, DN: per line and column the highest tile σ of ``local`` over the
     line's band rows (0 for an empty band): the noise a return anywhere in the operating
-    range has to rise above."""
-    out = np.zeros((len(bands), local.width), dtype=np.float32)
-    columns = np.arange(local.width) // NOISE_TILE_PX
-    for k, band in enumerate(bands):
-        if band.empty:
-            continue
-        tiles = np.unique(local.tile_row[band.row_lo:band.row_hi])
-        out[k] = local.sigma_tiles[tiles].max(axis=0)[columns]
-    return out
+    range has to rise above. One compiled pass
+    (:func:`atris_node.pipeline.peaks_kernels.band_noise`)."""
+    rows = np.array([(b.row_lo, max(b.row_hi, b.row_lo)) for b in bands],
+                    dtype=np.int64).reshape(-1, 2)
+    return np.asarray(kernels.band_noise(local.tile_row, local.sigma_tiles, rows,
+                                         NOISE_TILE_PX, local.width))
 
 
 def blinded_bands(values: npt.NDArray[np.generic], saturated: BoolArray | None,

@@ -2,7 +2,8 @@
 
 The maxima search compares each pixel of the rows read with its tile's threshold and its
 neighbours above and below; the peak methods read a few pixels around each peak; the
-support and median along lines and the per-line median SNR look at a few samples each. As
+support and median along lines and the per-line median SNR look at a few samples each; the
+noise floor's subsample is counted where it lies (:mod:`atris_node.pipeline.noise`). As
 numpy vector steps these were many passes and temporaries per map; here one pass each
 (about 0.45 ms in all at 640x400). Each function is the kernel of one of
 :mod:`atris_node.pipeline.peaks`, which checks the arguments, documents the methods and is
@@ -70,6 +71,41 @@ def _maxima_signatures() -> list[Any]:
             for readonly in (False, True)]
 
 
+@kernel()
+def _reaches(values: npt.NDArray[np.generic], r: int, lo: int, hi: int,
+             threshold: np.float32) -> bool:
+    """True when a pixel of row r, columns [lo, hi), may reach ``threshold`` (DN): its
+    value rounded to float32 reaches it. Rounding keeps the order and a float32
+    threshold is its own rounding, so every pixel whose exact value reaches it is found
+    (an int32 or float64 value just below it may be found too). A loop without branches
+    over a row slice, which the compiler vectorises."""
+    row = values[r, lo:hi]
+    found = False
+    for c in range(row.size):
+        found |= bool(np.float32(row[c]) >= threshold)
+    return found
+
+
+@kernel()
+def _row_reaches(values: npt.NDArray[np.generic], r: int,
+                 threshold_px: npt.NDArray[np.float32]) -> bool:
+    """:func:`_reaches` for the whole row r against a threshold per column
+    ``threshold_px`` (W,) float32."""
+    row = values[r]
+    found = False
+    for c in range(row.size):
+        found |= bool(np.float32(row[c]) >= threshold_px[c])
+    return found
+
+
+@kernel()
+def _spread(tiles: npt.NDArray[np.float32], tile_px: int,
+            out: npt.NDArray[np.float32]) -> None:
+    """``out`` (W,) the value of each column's tile in ``tiles`` (C,)."""
+    for c in range(out.size):
+        out[c] = tiles[c // tile_px]
+
+
 @kernel(_maxima_signatures())
 def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
                   threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray, tile_px: int,
@@ -80,22 +116,70 @@ def strong_maxima(values: npt.NDArray[np.generic], spans: IntArray,
     zeros in, the maxima found per column out (may exceed P). A maximum reaches its
     tile's threshold (``threshold_tiles[tile_row[r], c // tile_px]``, DN), is strictly
     above the ``sep`` rows over it and not below the ``sep`` rows under it, within its
-    span; with ``use_inside`` only rows where ``inside`` (H,) is True count."""
+    span; with ``use_inside`` only rows where ``inside`` (H,) is True count.
+
+    Few pixels reach the threshold: a row, then each tile's columns of it, are first
+    tested for one (:func:`_row_reaches`, :func:`_reaches`, vectorised), and only the
+    pixels of a tile that holds one are compared with the threshold and their
+    neighbours, as a plain scan would."""
     per_column, width = out.shape
+    threshold_px = np.empty(width, dtype=np.float32)
+    spread, filled = 0, False  # the tile row threshold_px holds, once it holds one
     for s in range(spans.shape[0]):
         lo, hi = spans[s, 0], spans[s, 1]
         for r in range(lo, hi):
             if use_inside and not inside[r]:
                 continue
             tiles = threshold_tiles[tile_row[r]]
+            if not filled or tile_row[r] != spread:
+                _spread(tiles, tile_px, threshold_px)
+                spread, filled = tile_row[r], True
+            if not _row_reaches(values, r, threshold_px):
+                continue
             for tile in range(tiles.size):
+                first, last = tile * tile_px, min((tile + 1) * tile_px, width)
+                if not _reaches(values, r, first, last, tiles[tile]):
+                    continue
                 threshold = np.float64(tiles[tile])
-                for c in range(tile * tile_px, min((tile + 1) * tile_px, width)):
+                for c in range(first, last):
                     if np.float64(values[r, c]) >= threshold and _is_maximum(
                             values, r, c, lo, hi, sep):
                         if count[c] < per_column:
                             out[count[c], c] = r
                         count[c] += 1
+
+
+def _reach_signatures() -> list[Any]:
+    """Signatures of :func:`any_reaches`, per map dtype, writable or read-only."""
+    i64 = types.int64
+    return [types.boolean(types.Array(dtype, 2, "C", readonly=readonly),
+                          types.Array(i64, 2, "A"), types.Array(types.float32, 2, "C"),
+                          types.Array(i64, 1, "A"), i64)
+            for dtype in (types.int16, types.int32, types.float32, types.float64)
+            for readonly in (False, True)]
+
+
+@kernel(_reach_signatures())
+def any_reaches(values: npt.NDArray[np.generic], spans: IntArray,
+                threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray,
+                tile_px: int) -> bool:
+    """True when a pixel of ``values`` (H, W) in the row ``spans`` (S, 2) [lo, hi) reaches
+    its tile's threshold (``threshold_tiles[tile_row[r], c // tile_px]``, DN, compared in
+    float64 as numpy compares the map with a float32 image). Tiles are tested first
+    (:func:`_reaches`); no (H, W) threshold image is made."""
+    width = values.shape[1]
+    for s in range(spans.shape[0]):
+        for r in range(spans[s, 0], spans[s, 1]):
+            tiles = threshold_tiles[tile_row[r]]
+            for tile in range(tiles.size):
+                first, last = tile * tile_px, min((tile + 1) * tile_px, width)
+                if not _reaches(values, r, first, last, tiles[tile]):
+                    continue
+                threshold = np.float64(tiles[tile])
+                for c in range(first, last):
+                    if np.float64(values[r, c]) >= threshold:
+                        return True
+    return False
 
 
 @kernel()
@@ -570,24 +654,46 @@ def _blinded_signatures() -> list[Any]:
             for readonly in (False, True)]
 
 
+@kernel()
+def _any_set(mask: npt.NDArray[np.bool_], r: int, lo: int, hi: int) -> bool:
+    """True when ``mask`` holds a True in row r, columns [lo, hi). A loop without branches
+    over a row slice, which the compiler vectorises."""
+    row = mask[r, lo:hi]
+    found = False
+    for c in range(row.size):
+        found |= row[c]
+    return found
+
+
+#: columns of a row :func:`blinded` tests for a saturated pixel in one vectorised step
+SATURATED_CHUNK_PX = 64
+
+
 @kernel(_blinded_signatures())
 def blinded(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
             bands: IntArray, threshold_tiles: npt.NDArray[np.float32], tile_row: IntArray,
             tile_px: int, out: npt.NDArray[np.bool_]) -> bool:
     """``out`` (K, W) zeros in; True out where band k (``bands`` (K, 2) rows [lo, hi))
     holds in column c a saturated pixel below its tile's threshold (DN): full scale in
-    the OFF sub-frames too, no laser light. Only the band rows are read. Returns whether
-    any was found."""
+    the OFF sub-frames too, no laser light. Only the band rows are read, and of them only
+    the rows, then the SATURATED_CHUNK_PX chunks, that hold a saturated pixel
+    (:func:`_any_set`) pixel by pixel. Returns whether any was found."""
     found = False
     width = values.shape[1]
     for k in range(bands.shape[0]):
         for r in range(max(bands[k, 0], 0), min(bands[k, 1], values.shape[0])):
+            if not _any_set(saturated, r, 0, width):
+                continue
             tiles = threshold_tiles[tile_row[r]]
-            for c in range(width):
-                if saturated[r, c] and not out[k, c] and (
-                        np.float64(values[r, c]) < np.float64(tiles[c // tile_px])):
-                    out[k, c] = True
-                    found = True
+            for lo in range(0, width, SATURATED_CHUNK_PX):
+                hi = min(lo + SATURATED_CHUNK_PX, width)
+                if not _any_set(saturated, r, lo, hi):
+                    continue
+                for c in range(lo, hi):
+                    if saturated[r, c] and not out[k, c] and (
+                            np.float64(values[r, c]) < np.float64(tiles[c // tile_px])):
+                        out[k, c] = True
+                        found = True
     return found
 
 
@@ -611,6 +717,24 @@ def _signed(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_], r
     return np.float32(values[r, c]) - background
 
 
+#: columns of a row :func:`signed_energy` tests in one vectorised step before it looks
+#: at single pixels (most chunks hold no pixel beyond the threshold)
+ENERGY_CHUNK_PX = 64
+
+
+@kernel()
+def _beyond(values: npt.NDArray[np.generic], r: int, lo: int, hi: int,
+            background: np.float32, threshold: np.float32) -> bool:
+    """True when a pixel of row r, columns [lo, hi), lies more than ``threshold`` from
+    ``background`` (float32, DN; saturation not looked at). A loop without branches over
+    a row slice, which the compiler vectorises."""
+    row = values[r, lo:hi]
+    found = False
+    for c in range(row.size):
+        found |= bool(abs(np.float32(row[c]) - background) > threshold)
+    return found
+
+
 @kernel(_energy_signatures())
 def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
                   spans: IntArray, background: np.float32, threshold: np.float32,
@@ -619,22 +743,227 @@ def signed_energy(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.boo
     -v over the line-like negative pixels (v below ``-threshold`` with both row neighbours
     below ``-threshold / 2``; not in the first or last column) and of v over the pixels
     above ``threshold``, v = value - ``background`` in float32, 0 where saturated. The
-    columns of line-like negative pixels are set in ``columns`` (W,). One pass."""
+    columns of line-like negative pixels are set in ``columns`` (W,).
+
+    One pass: each row, then each ENERGY_CHUNK_PX chunk of it, is first tested for a pixel
+    beyond ``threshold`` (:func:`_beyond`; a saturated pixel's v = 0 is beyond only when
+    ``threshold`` < 0, and then every chunk is looked at); only chunks that hold one are
+    summed pixel by pixel, in the same order as a plain scan, so the float64 sums are
+    those of the scan, bit for bit."""
     negative = positive = 0.0
     weak = -threshold / np.float32(2.0)
     width = values.shape[1]
+    everywhere = not threshold >= 0
     for s in range(spans.shape[0]):
         for r in range(spans[s, 0], spans[s, 1]):
-            for c in range(width):
-                v = _signed(values, saturated, r, c, background)
-                if v > threshold:
-                    positive += v
-                elif v < -threshold and 0 < c < width - 1 and (
-                        _signed(values, saturated, r, c - 1, background) < weak
-                        and _signed(values, saturated, r, c + 1, background) < weak):
-                    negative -= v
-                    columns[c] = True
+            if not (everywhere or _beyond(values, r, 0, width, background, threshold)):
+                continue
+            for lo in range(0, width, ENERGY_CHUNK_PX):
+                hi = min(lo + ENERGY_CHUNK_PX, width)
+                if not (everywhere or _beyond(values, r, lo, hi, background, threshold)):
+                    continue
+                for c in range(lo, hi):
+                    v = _signed(values, saturated, r, c, background)
+                    if v > threshold:
+                        positive += v
+                    elif v < -threshold and 0 < c < width - 1 and (
+                            _signed(values, saturated, r, c - 1, background) < weak
+                            and _signed(values, saturated, r, c + 1, background) < weak):
+                        negative -= v
+                        columns[c] = True
     return negative, positive
+
+
+def _subsample_signatures(out: Any, *rest: Any) -> list[Any]:
+    """Signatures of the noise kernels, per integer map dtype (int16, int32), writable or
+    read-only, as (map, ``rest``...) -> ``out``."""
+    return [out(types.Array(dtype, 2, "C", readonly=readonly), *rest)
+            for dtype in (types.int16, types.int32) for readonly in (False, True)]
+
+
+_ROWS = (types.Array(types.int64, 1, "C"), types.Array(types.int64, 1, "C"))
+
+
+@kernel(_subsample_signatures(types.UniTuple(types.int64, 2), *_ROWS))
+def rows_range(values: npt.NDArray[np.integer[Any]], starts: IntArray, stops: IntArray
+               ) -> tuple[int, int]:
+    """(least, greatest) value (DN) of the whole map rows ``starts[s]``,
+    ``starts[s] + 2``, ... below ``stops[s]``: bounds of :func:`subsample_counts`'s
+    values (those rows' even columns); (0, -1) when there is no such row. A loop without
+    branches per row, which the compiler vectorises."""
+    low, high = np.int64(0), np.int64(-1)
+    for s in range(starts.size):
+        for r in range(starts[s], stops[s], 2):
+            row = values[r]
+            lo = hi = row[0]
+            for c in range(row.size):
+                v = row[c]
+                lo = v if v < lo else lo
+                hi = v if v > hi else hi
+            if high < low:
+                low, high = np.int64(lo), np.int64(hi)
+            else:
+                low, high = min(low, np.int64(lo)), max(high, np.int64(hi))
+    return int(low), int(high)
+
+
+#: partial counts :func:`subsample_counts` keeps (interleaved columns)
+PARTIAL_COUNTS = 8
+
+
+@kernel(_subsample_signatures(types.Array(types.int64, 1, "C"), *_ROWS, types.int64,
+                              types.int64))
+def subsample_counts(values: npt.NDArray[np.integer[Any]], starts: IntArray, stops: IntArray,
+                     low: int, size: int) -> IntArray:
+    """(size,) how many pixels of the 2x2 subsample (rows ``starts[s]``, ``starts[s] + 2``,
+    ... below ``stops[s]``, even columns) hold each value ``low``, ``low + 1``, ... (DN);
+    every value must lie in that range (:func:`rows_range`). PARTIAL_COUNTS partial
+    counts, added at the end, keep runs of equal values from waiting on each other."""
+    part = np.zeros((PARTIAL_COUNTS, size), dtype=np.int64)
+    width = values.shape[1]
+    step = 2 * PARTIAL_COUNTS
+    for s in range(starts.size):
+        for r in range(starts[s], stops[s], 2):
+            row = values[r]
+            c = 0
+            while c + step - 2 < width:
+                for j in range(PARTIAL_COUNTS):
+                    part[j, np.int64(row[c + 2 * j]) - low] += 1
+                c += step
+            while c < width:
+                part[0, np.int64(row[c]) - low] += 1
+                c += 2
+    out = np.zeros(size, dtype=np.int64)
+    for j in range(PARTIAL_COUNTS):
+        out += part[j]
+    return out
+
+
+@kernel("float32[:, :](int64[:], float32[:, :], int64[:, :], int64, int64)")
+def band_noise(tile_row: IntArray, sigma_tiles: npt.NDArray[np.float32], bands: IntArray,
+               tile_px: int, width: int) -> npt.NDArray[np.float32]:
+    """(K, W) float32, DN: per band k (``bands`` (K, 2) rows [lo, hi)) and column c the
+    highest σ in ``sigma_tiles`` (R + 1, C) of the tiles ``tile_row`` (H,) gives the
+    band's rows, in c's tile column (NaN where one is NaN, as ``np.max``); 0 for a band
+    without rows."""
+    out = np.zeros((bands.shape[0], width), dtype=np.float32)
+    seen = np.zeros(sigma_tiles.shape[0], dtype=np.bool_)
+    high = np.empty(sigma_tiles.shape[1], dtype=np.float32)
+    for k in range(bands.shape[0]):
+        seen[:] = False
+        first = True
+        for r in range(bands[k, 0], bands[k, 1]):
+            t = tile_row[r]
+            if seen[t]:
+                continue
+            seen[t] = True
+            for j in range(high.size):
+                v = sigma_tiles[t, j]
+                if first or (not np.isnan(high[j]) and (np.isnan(v) or v > high[j])):
+                    high[j] = v
+            first = False
+        if not first:
+            for c in range(width):
+                out[k, c] = high[c // tile_px]
+    return out
+
+
+@kernel("Tuple((int64[:], int64[:], int64[:], float32[:]))"
+        "(int64[:, :], int64[:], float32[:, :], int64)")
+def peak_pixels(peaks: IntArray, tile_row: IntArray, sigma_tiles: npt.NDArray[np.float32],
+                tile_px: int) -> tuple[IntArray, IntArray, IntArray, npt.NDArray[np.float32]]:
+    """The maxima ``peaks`` (M, W) (rows, -1 padding), slot by slot in row-major order
+    (as ``np.nonzero(peaks >= 0)``): (n,) each their slot m, column c, flat pixel index
+    ``row · W + c`` and their noise tile's σ (DN, float32) in ``sigma_tiles`` (R + 1, C)."""
+    width = peaks.shape[1]
+    n = 0
+    for m in range(peaks.shape[0]):
+        for c in range(width):
+            n += peaks[m, c] >= 0
+    slot, col = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    flat, sigma = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.float32)
+    i = 0
+    for m in range(peaks.shape[0]):
+        for c in range(width):
+            r = peaks[m, c]
+            if r >= 0:
+                slot[i], col[i], flat[i] = m, c, r * width + c
+                sigma[i] = sigma_tiles[tile_row[r], c // tile_px]
+                i += 1
+    return slot, col, flat, sigma
+
+
+@kernel("Tuple((float64[:], float64[:]))(float64[:, :], int64[:])")
+def ambient_level(series: FloatArray, rows: IntArray) -> tuple[FloatArray, FloatArray]:
+    """Per column p of ``series`` (n, P) float64 (DN) over its ``rows`` (k,) (the OFF
+    sub-frames, k >= 1): the level ``max(mean, 1)`` and the ratio of the variance (ddof
+    1; 0 for k = 1) to it, (P,) each, computed as numpy's ``mean``, ``var`` (the rows
+    added one after another) and ``maximum`` do."""
+    k, size = rows.size, series.shape[1]
+    level, ratio = np.empty(size), np.empty(size)
+    for p in range(size):
+        total = 0.0
+        for i in range(k):
+            total += series[rows[i], p]
+        mean = total / k
+        level[p] = mean if (mean >= 1.0 or np.isnan(mean)) else 1.0
+        spread = 0.0
+        if k > 1:
+            squares = 0.0
+            for i in range(k):
+                d = series[rows[i], p] - mean
+                squares += d * d
+            spread = squares / (k - 1)
+        ratio[p] = spread / level[p]
+    return level, ratio
+
+
+#: side (px) of a noise tile in the 2×2 subsample: NOISE_TILE_PX / 2
+#: (:mod:`atris_node.pipeline.noise`)
+SUBSAMPLE_TILE_PX = 16
+
+
+def _tiles_signatures() -> list[Any]:
+    """Signatures of :func:`subsample_tiles`, per map dtype, writable or read-only."""
+    return [types.Array(dtype, 3, "C")(types.Array(dtype, 2, "C", readonly=readonly))
+            for dtype in (types.int16, types.int32, types.float32, types.float64)
+            for readonly in (False, True)]
+
+
+@kernel()
+def _mirrored(i: int, n: int) -> int:
+    """Index into n values of position i of their symmetric extension (as ``np.pad``
+    "symmetric": the edge value repeated, then the values backwards, and so on)."""
+    m = i % (2 * n)
+    return m if m < n else 2 * n - 1 - m
+
+
+@kernel(_tiles_signatures())
+def subsample_tiles(block: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
+    """(nr, nc, T²) the 2×2 subsample of ``block`` (h, w) (h, w >= 1) cut into T × T
+    tiles (T = SUBSAMPLE_TILE_PX) from the top left corner, each tile's values row by
+    row, the subsample extended symmetrically to whole tiles: the values of ``np.pad``
+    "symmetric", reshape and transpose, in one pass (tiles inside the subsample's width
+    copied 16 values at a time)."""
+    side = SUBSAMPLE_TILE_PX
+    rows, cols = (block.shape[0] + 1) // 2, (block.shape[1] + 1) // 2
+    nr, nc = -(-rows // side), -(-cols // side)
+    out = np.empty((nr, nc, side * side), dtype=block.dtype)
+    flat = out.reshape(-1)
+    inside = cols // side  # tiles that need no mirrored column
+    for i in range(nr * side):
+        row = block[2 * _mirrored(i, rows)]
+        base = (i // side) * nc * side * side + (i % side) * side
+        for tc in range(inside):
+            start = base + tc * side * side
+            into, source = flat[start:start + side], row[2 * side * tc:2 * side * (tc + 1)]
+            for b in range(side):
+                into[b] = source[2 * b]
+        for tc in range(inside, nc):
+            start = base + tc * side * side
+            for b in range(side):
+                flat[start + b] = row[2 * _mirrored(tc * side + b, cols)]
+    return out
 
 
 def warm_up() -> None:
@@ -646,6 +975,8 @@ def warm_up() -> None:
                   np.ones((1, 1), dtype=np.float32), np.zeros(4, dtype=i64), 32, 2,
                   np.zeros(4, dtype=np.bool_), False, np.full((2, 1), -1, dtype=i64),
                   np.zeros(1, dtype=i64))
+    any_reaches(np.zeros((4, 1), dtype=np.int16), np.array([[0, 4]], dtype=i64),
+                np.ones((1, 1), dtype=np.float32), np.zeros(4, dtype=i64), 32)
     supported(line, line, np.zeros(1), 1, 1, 2, 2.0)
     smooth(line, line, np.zeros(1), 1, 1, 5, 2.0)
     line_samples(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
@@ -665,3 +996,12 @@ def warm_up() -> None:
     peak_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
              np.zeros(4, dtype=i64), np.zeros((1, 1), dtype=np.float32),
              np.ones((1, 1), dtype=np.float32), 32)
+    rows = np.array([0], dtype=i64), np.array([4], dtype=i64)
+    rows_range(np.zeros((4, 3), dtype=np.int16), *rows)
+    subsample_counts(np.zeros((4, 3), dtype=np.int16), *rows, 0, 1)
+    band_noise(np.zeros(4, dtype=i64), np.ones((1, 1), dtype=np.float32),
+               np.array([[0, 4]], dtype=i64), 32, 1)
+    peak_pixels(np.array([[2]], dtype=i64), np.zeros(4, dtype=i64),
+                np.ones((1, 1), dtype=np.float32), 32)
+    ambient_level(np.zeros((2, 1)), np.array([0, 1], dtype=i64))
+    subsample_tiles(np.zeros((4, 3), dtype=np.int16))

@@ -37,12 +37,14 @@ Known limit: ambient light that drops right after an ON first sub-frame of the f
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from atris_node.pipeline import peaks_kernels
 from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap
 from atris_node.types import WindowFrames
 
@@ -90,24 +92,38 @@ def _interpolation(i: int, left: int | None, right: int | None) -> list[tuple[in
 def not_own_light(peaks: IntArray, window: WindowFrames | None, local: NoiseMap) -> BoolArray:
     """(M, W) True for the peaks (rows, -1 padding) whose time course is not own light
     (module docstring). All False when the map has no window (read back from a
-    recording) or the code has no OFF sub-frame."""
+    recording) or the code has no OFF sub-frame. The peak pixels and the OFF sub-frames'
+    statistics come from compiled passes (:func:`atris_node.pipeline.peaks_kernels.peak_pixels`,
+    :func:`atris_node.pipeline.peaks_kernels.ambient_level`)."""
     out = np.zeros(peaks.shape, dtype=bool)
     if window is None or len(window.pixels) != len(window.signs) or not peaks.size:
         return out
-    m, c = np.nonzero(peaks >= 0)
+    m, c, flat, tile_sigma = peaks_kernels.peak_pixels(
+        np.ascontiguousarray(peaks, dtype=np.int64), local.tile_row, local.sigma_tiles,
+        NOISE_TILE_PX)
     if not m.size or min(window.signs) > 0:
         return out
-    r = peaks[m, c]
     before = window.before
-    u = local_weights(window.signs, None if before is None else before[0])
-    test = u - LOCAL_SHARE * np.concatenate([[0.0], np.asarray(window.signs, np.float64)])
+    test, norm = _test_weights(tuple(window.signs), None if before is None else before[0])
     frames = ((before[1],) if before is not None else ()) + window.pixels
+    series = _series(frames, flat)  # (n, P), DN
+    sigma = _pixel_sigma(series, window, tile_sigma)
+    out[m, c] = test @ series < -LOCAL_SIGMAS * sigma * norm
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _test_weights(signs: tuple[int, ...], before: int | None) -> tuple[FloatArray, float]:
+    """The weights of the test statistic ``sum_j (u_j - LOCAL_SHARE s_j) F_j`` over the
+    frames read ((N + 1,) with a sub-frame before the window at time ``before``, else
+    (N,)), read-only, and their Euclidean norm. Kept per code and lag: a unit's windows
+    repeat a few of them."""
+    u = local_weights(signs, before)
+    test = u - LOCAL_SHARE * np.concatenate([[0.0], np.asarray(signs, np.float64)])
     if before is None:
         test = test[1:]
-    series = _series(frames, r * peaks.shape[1] + c)  # (n, P), DN
-    sigma = _pixel_sigma(series, window, local.sigma_tiles[local.tile_row[r], c // NOISE_TILE_PX])
-    out[m, c] = test @ series < -LOCAL_SIGMAS * sigma * float(np.linalg.norm(test))
-    return out
+    test.setflags(write=False)
+    return test, float(np.linalg.norm(test))
 
 
 def _series(frames: tuple[npt.NDArray[Any], ...], flat: IntArray) -> FloatArray:
@@ -122,12 +138,12 @@ def _series(frames: tuple[npt.NDArray[Any], ...], flat: IntArray) -> FloatArray:
 def _pixel_sigma(series: FloatArray, window: WindowFrames,
                  sigma_tiles: npt.NDArray[np.float32]) -> FloatArray:
     """(P,) each peak pixel's σ per sub-frame, DN: the largest of the tile's, the
-    rounding's and the shot noise of its level (the map's photon-transfer gain)."""
+    rounding's and the shot noise of its level (the map's photon-transfer gain). The
+    level and the OFF variance over it in one compiled pass
+    (:func:`atris_node.pipeline.peaks_kernels.ambient_level`)."""
     offs = np.flatnonzero(np.asarray(window.signs) < 0) + (window.before is not None)
-    ambient = series[offs]
-    level = np.maximum(ambient.mean(axis=0), 1.0)
-    spread = ambient.var(axis=0, ddof=1) if offs.size > 1 else np.zeros(level.size)
-    gain = float(np.quantile(spread / level, SHOT_QUANTILE))
+    level, ratio = peaks_kernels.ambient_level(series, offs.astype(np.int64))
+    gain = float(np.quantile(ratio, SHOT_QUANTILE))
     tile = sigma_tiles.astype(np.float64) / math.sqrt(len(window.signs))
     return np.sqrt(np.maximum.reduce([np.square(tile), np.full(level.size, QUANTIZATION_DN ** 2),
                                       gain * level]))
