@@ -146,6 +146,40 @@ class ObstaclePoints:
     #: (n,) camera-frame depth z (m); None: not known, no test of the lines below a surface
     depth_m: FloatArray | None = None
 
+    @property
+    def size(self) -> int:
+        """The number of points n."""
+        return int(self.range_m.size)
+
+    def take(self, index: IntArray | slice) -> ObstaclePoints:
+        """The points at ``index`` (an index array or a slice), in that order."""
+        return ObstaclePoints(
+            self.range_m[index], self.sector[index], self.obstacle[index], self.line[index],
+            self.column[index], self.sigma_m[index], self.snr[index],
+            None if self.depth_m is None else self.depth_m[index])
+
+
+@dataclass(frozen=True)
+class SectorPoints:
+    """The points of one sector: ``inside`` all of them (its obstacle points first, then
+    the others, each in the map's order) and ``hits`` its obstacle points (in the map's
+    order)."""
+
+    inside: ObstaclePoints
+    hits: ObstaclePoints
+
+
+def by_sector(points: ObstaclePoints, count: int) -> list[SectorPoints]:
+    """The :class:`SectorPoints` of sectors 0 .. ``count`` - 1: one stable sort of the
+    map's points by sector (obstacle points first within it), then slices."""
+    key = 2 * points.sector + (~points.obstacle).astype(np.int64)
+    order = np.argsort(key, kind="stable")
+    grouped = points.take(order)
+    bounds = np.searchsorted(key[order], np.arange(2 * count + 1)).tolist()
+    return [SectorPoints(grouped.take(slice(bounds[2 * s], bounds[2 * s + 2])),
+                         grouped.take(slice(bounds[2 * s], bounds[2 * s + 1])))
+            for s in range(count)]
+
 
 @dataclass(frozen=True)
 class ColumnEvidence:
@@ -208,12 +242,17 @@ def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
     idx = np.flatnonzero(mine)
     if idx.size < min_points:
         return None
-    idx = idx[np.argsort(points.range_m[idx], kind="stable")]
-    width = int(points.column.max()) + 1
+    return _credible(points.take(idx), int(points.column.max()) + 1, min_points)
+
+
+def _credible(hits: ObstaclePoints, width: int, min_points: int) -> Credible | None:
+    """:func:`nearest_credible` of all of ``hits`` (their columns below ``width``)."""
+    if hits.size < min_points:
+        return None
+    order = np.argsort(hits.range_m, kind="stable")
     distance, sigma, support, nearer = verdicts_kernels.credible(
-        np.ascontiguousarray(points.range_m[idx]), np.ascontiguousarray(points.sigma_m[idx]),
-        np.ascontiguousarray(points.line[idx], dtype=np.int64),
-        np.ascontiguousarray(points.column[idx], dtype=np.int64), min_points, width, _PARAMS)
+        hits.range_m[order], hits.sigma_m[order], hits.line[order].astype(np.int64),
+        hits.column[order].astype(np.int64), min_points, width, _PARAMS)
     if support < 0:
         return None
     return Credible(float(distance), float(sigma), int(support), int(nearer))
@@ -233,13 +272,12 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
                                    count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
-    holes = None if evidence.seen is None else LineHoles.of(points, evidence.seen,
-                                                            evidence.noisy)
     if top_m is None:
         top_m = np.full(count, np.inf)
-    return tuple(_verdict(s, points, layout, settings, evidence, holes,
-                          ambiguous=int(ambiguous[s]), doubtful=int(doubtful[s]),
-                          doubt_m=float(doubt_m[s]), top_m=float(top_m[s]))
+    view = MapView.of(points, evidence, count, settings)
+    return tuple(_verdict(s, view, layout, settings, ambiguous=int(ambiguous[s]),
+                          doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]),
+                          top_m=float(top_m[s]))
                  for s in range(count))
 
 
@@ -294,8 +332,60 @@ def _runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     return row.astype(np.int64), start.astype(np.int64), stop.astype(np.int64)
 
 
-def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
-                   holes: LineHoles, distance_m: float, settings: SectorSettings) -> int:
+def bright_flanks(holes: LineHoles, points: ObstaclePoints, width: int, snr: float
+                  ) -> BoolArray:
+    """(n,) per hole of ``holes``: its line has an obstacle point of SNR at least ``snr``
+    in each of the GAP_RUN columns before its start and from its stop on (its flanks),
+    columns below ``width``."""
+    lines = int(max(points.line.max(initial=-1), holes.line.max(initial=-1))) + 1
+    bright = np.zeros((lines, width + 1), dtype=np.int64)
+    mine = points.obstacle & (points.snr >= snr)
+    bright[points.line[mine], points.column[mine] + 1] = 1
+    held = np.cumsum(bright, axis=1)  # held[k, c]: columns below c with a bright point
+    k, start, stop = holes.line, holes.start, holes.stop
+    before = held[k, start] - held[k, np.maximum(start - GAP_RUN, 0)]
+    after = held[k, np.minimum(stop + GAP_RUN, width)] - held[k, stop]
+    return np.asarray((before == GAP_RUN) & (after == GAP_RUN), dtype=np.bool_)
+
+
+@dataclass(frozen=True)
+class MapView:
+    """What the verdicts of one map share: the ``points`` and ``evidence``, the points of
+    each sector (``sectors``), each sector's columns (``columns`` (S, W) mask and
+    ``spans``, (first, last) column or None), the line holes (None without
+    ``evidence.seen``) with ``bright`` (n,) per hole (:func:`bright_flanks` at
+    SHADOW_SNR·snr_min), and ``width`` (a bound on the points' columns)."""
+
+    points: ObstaclePoints
+    evidence: ColumnEvidence
+    sectors: list[SectorPoints]
+    columns: BoolArray
+    spans: list[tuple[int, int] | None]
+    holes: LineHoles | None
+    bright: BoolArray
+    width: int
+
+    @classmethod
+    def of(cls, points: ObstaclePoints, evidence: ColumnEvidence, count: int,
+           settings: SectorSettings) -> MapView:
+        """The view of ``points`` and ``evidence`` for ``count`` sectors."""
+        columns = evidence.sector[None, :] == np.arange(count)[:, None]
+        spans: list[tuple[int, int] | None] = []
+        for mask in columns:
+            where = np.flatnonzero(mask)
+            spans.append((int(where[0]), int(where[-1])) if where.size else None)
+        width = int(points.column.max()) + 1 if points.size else 1
+        holes, bright = None, np.zeros(0, dtype=np.bool_)
+        if evidence.seen is not None:
+            holes = LineHoles.of(points, evidence.seen, evidence.noisy)
+            bright = bright_flanks(holes, points, max(width, evidence.seen.shape[1]),
+                                   SHADOW_SNR * settings.snr_min)
+        return cls(points, evidence, by_sector(points, count), columns, spans, holes,
+                   bright, width)
+
+
+def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                   ) -> int:
     """Columns of sector ``s`` where a nearer surface may stand unseen: inside a *hole*
     of a strong line, with no obstacle point in them at most ``distance_m`` + max(
     DOUBT_REL·d, DOUBT_ABS_M) and none of any line beyond that (within GAP_RUN columns:
@@ -311,33 +401,33 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     between surfaces no nearer than d makes no hole, unless its band is too noisy to show
     it over most of the run: then what stands there is not known (a pole before a wall,
     its stripes under a threshold that flicker left by the demodulation raised)."""
-    columns = np.flatnonzero(evidence.sector == s)
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None:
+        return 0
     margin = _doubt_margin_m(distance_m)
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
-            & (holes.start <= columns[-1])
-            & (holes.stop > columns[0])) if columns.size else np.zeros(0, np.bool_)
+            & (holes.start <= span[1]) & (holes.stop > span[0]))
     if not near.any():
         return 0
-    hits = (points.sector == s) & points.obstacle
-    width = evidence.sector.size
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    width = view.evidence.sector.size
     hole = np.zeros(width, dtype=np.bool_)
     whole = np.zeros(width, dtype=np.bool_)  # noisy runs count beyond the sector's edge
     for k, start, stop, noisy in zip(holes.line[near], holes.start[near], holes.stop[near],
                                      holes.noisy[near], strict=True):
-        mine = hits & (points.line == k)
-        if mine.any() and np.median(points.snr[mine]) >= GAP_SNR * settings.snr_min:
+        snr = hits.snr[hits.line == k]
+        if snr.size and _median(snr) >= GAP_SNR * settings.snr_min:
             hole[start:stop] = True
             whole[start:stop] |= noisy
-    hole &= (evidence.sector == s) | whole
-    hole[points.column[hits & (points.range_m <= distance_m + margin)]] = False
-    far = points.column[(points.sector == s) & (points.range_m > distance_m + margin)]
+    hole &= view.columns[s] | whole
+    hole[hits.column[hits.range_m <= distance_m + margin]] = False
+    far = inside.column[inside.range_m > distance_m + margin]
     for shift in range(-GAP_RUN, GAP_RUN + 1):
         hole[np.clip(far + shift, 0, width - 1)] = False
     return int(hole.sum())
 
 
-def shadowed_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
-                     holes: LineHoles, distance_m: float, settings: SectorSettings) -> int:
+def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     """Columns of sector ``s`` in which SHADOW_LINES or more bright lines (seen with an
     SNR of SHADOW_SNR·snr_min in every one of GAP_RUN columns each side) all have a hole
     in one surface, its flanks within
@@ -350,26 +440,25 @@ def shadowed_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     any range between the unit and the surface. Narrower than :func:`unseen_columns`
     asks (GAP_RUN columns, not ``min_points``): a 2 cm plate 1 m long seen edge-on at 7 m
     hides four columns of a wall at 8.7 m."""
-    columns = np.flatnonzero(evidence.sector == s)
-    if not columns.size or not holes.line.size:
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None or not holes.line.size:
         return 0
     margin = _doubt_margin_m(distance_m)
     limit = distance_m + margin
     mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
-            & ~holes.noisy & (holes.start <= columns[-1]) & (holes.stop > columns[0]))
-    hits = (points.sector == s) & points.obstacle
-    count = np.zeros(evidence.sector.size, dtype=np.int64)
-    for k, start, stop in zip(holes.line[mine], holes.start[mine], holes.stop[mine],
-                              strict=True):
-        if _bright_flanks(points, k, start, stop, SHADOW_SNR * settings.snr_min):
-            count[start:stop] += 1
-    shadow = (count >= SHADOW_LINES) & (evidence.sector == s)
-    shadow[points.column[hits & (points.range_m <= limit)]] = False
+            & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
+            & view.bright)
+    count = np.zeros(view.evidence.sector.size, dtype=np.int64)
+    for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
+        count[start:stop] += 1
+    shadow = (count >= SHADOW_LINES) & view.columns[s]
+    hits = view.sectors[s].hits
+    shadow[hits.column[hits.range_m <= limit]] = False
     return int(shadow.sum())
 
 
-def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
-                       distance_m: float, settings: SectorSettings) -> int:
+def missing_on_surface(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                       ) -> int:
     """Columns of sector ``s`` in which the surface found at ``distance_m`` should show a
     line that has no peak there at all: something lower stands before it, unseen.
 
@@ -391,17 +480,18 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     A dark kerb before a bright wall: the wall's lines above the kerb are
     seen, the one that would meet the wall at the kerb's height is missing. Needs
     ``evidence.prior``, ``evidence.seen`` and ``points.depth_m`` (0 without them)."""
+    evidence = view.evidence
     prior, seen = evidence.prior, evidence.seen
-    if prior is None or seen is None or points.depth_m is None:
+    if prior is None or seen is None or view.points.depth_m is None:
         return 0
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
     margin = _doubt_margin_m(distance_m)
-    on = ((points.sector == s) & points.obstacle
-          & (np.abs(points.range_m - distance_m) <= margin))
+    on = hits.take(np.flatnonzero(np.abs(hits.range_m - distance_m) <= margin))
     strong = SURFACE_SNR * settings.snr_min
-    surface = np.flatnonzero(on & (points.snr >= strong))
+    surface = on.take(np.flatnonzero(on.snr >= strong))
     if surface.size < settings.min_points:
         return 0
-    first, onto, bottom = _expected_on_surface(surface, points, evidence, prior)
+    first, onto, bottom = _expected_on_surface(surface, evidence, prior)
     shown = np.zeros_like(onto)
     shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
     lost = onto & ~shown
@@ -409,25 +499,24 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     long = stop - start >= SURFACE_RUN * settings.min_points
     if not long.any():
         return 0
-    beyond = np.flatnonzero((points.sector == s) & (points.range_m > distance_m + margin))
+    beyond = inside.take(np.flatnonzero(inside.range_m > distance_m + margin))
     rank = prior.image_rank
     hole = np.zeros(onto.shape[1], dtype=np.bool_)
     for k, a, b in zip(line[long], start[long], stop[long], strict=True):
         # a line between the surface's lowest seen one and this one, seen beyond it
         # in the run: the surface does not reach down there, the lines pass under (beside
         # the run is no sign: the wall beside a pole)
-        near = beyond[(points.column[beyond] >= first + a)
-                      & (points.column[beyond] < first + b)]
-        under = rank[points.line[near]]
+        near = (beyond.column >= first + a) & (beyond.column < first + b)
+        under = rank[beyond.line[near]]
         passes = ((under > bottom[a:b].max()) & (under <= rank[k])).any()
         if (not passes and _solid(onto, shown, int(k), int(a), int(b), settings.min_points)
-                and _abrupt(points, on, int(k), first + int(a), first + int(b), strong)):
+                and _abrupt(on, int(k), first + int(a), first + int(b), strong)):
             hole[a:b] = True
     return int(hole.sum())
 
 
-def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
-                         evidence: ColumnEvidence, prior: VisibilityPrior
+def _expected_on_surface(surface: ObstaclePoints, evidence: ColumnEvidence,
+                         prior: VisibilityPrior
                          ) -> tuple[int, BoolArray, IntArray]:
     """The first column c0 the surface (the points ``surface``) is seen in; (K, n + 1)
     True where line k would show on it in column c0 + j: below the topmost line seen on
@@ -438,11 +527,10 @@ def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
     columns; the last column is False (a run's end)."""
     lines = prior.cot_alpha.size
     rank = prior.image_rank
-    columns, group = np.unique(points.column[surface], return_inverse=True)
-    z = (np.bincount(group, weights=np.asarray(points.depth_m)[surface])
-         / np.bincount(group))
+    columns, group = np.unique(surface.column, return_inverse=True)
+    z = np.bincount(group, weights=np.asarray(surface.depth_m)) / np.bincount(group)
     held = np.zeros((columns.size, lines), dtype=np.bool_)
-    held[group, rank[points.line[surface]]] = True  # by column and image position
+    held[group, rank[surface.line]] = True  # by column and image position
     top = held.argmax(axis=1)
     low = lines - 1 - held[:, ::-1].argmax(axis=1)
     fb = prior.focal_px * prior.baseline_m
@@ -484,8 +572,7 @@ def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
     return bool(others.size and np.median(others) >= SURFACE_SOLID and own)
 
 
-def _abrupt(points: ObstaclePoints, on: BoolArray, line: int, start: int, stop: int,
-            snr: float) -> bool:
+def _abrupt(on: ObstaclePoints, line: int, start: int, stop: int, snr: float) -> bool:
     """True when ``line`` stops abruptly at its run [start, stop) on the surface (the
     points ``on``): one of its points there within 2·GAP_RUN columns of the run has an
     SNR of at least ``snr``, or it has fewer than two there (the other lines predict
@@ -493,47 +580,38 @@ def _abrupt(points: ObstaclePoints, on: BoolArray, line: int, start: int, stop: 
     (a glossy surface turning its lobe away from that sheet), does not count; the
     point at a blocking object's very edge may be weak, so the strongest one counts."""
     reach = 2 * GAP_RUN
-    edge = on & (points.line == line) & (
-        ((points.column >= start - reach) & (points.column < start))
-        | ((points.column >= stop) & (points.column < stop + reach)))
+    edge = (on.line == line) & (
+        ((on.column >= start - reach) & (on.column < start))
+        | ((on.column >= stop) & (on.column < stop + reach)))
     if np.count_nonzero(edge) < 2:
         return True
-    return bool(points.snr[edge].max() >= snr)
+    return bool(on.snr[edge].max() >= snr)
 
 
-def _bright_flanks(points: ObstaclePoints, line: int, start: int, stop: int,
-                   snr: float) -> bool:
-    """True when ``line`` has an obstacle point of SNR at least ``snr`` in each of the
-    GAP_RUN columns before ``start`` and from ``stop`` on (its hole's flanks)."""
-    mine = (points.line == line) & points.obstacle & (points.snr >= snr)
-    before = (points.column >= start - GAP_RUN) & (points.column < start)
-    after = (points.column >= stop) & (points.column < stop + GAP_RUN)
-    return bool(np.unique(points.column[mine & before]).size == GAP_RUN
-                and np.unique(points.column[mine & after]).size == GAP_RUN)
-
-
-def straddles(s: int, points: ObstaclePoints, count: int, distance_m: float,
-              settings: SectorSettings) -> bool:
+def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
     """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
     max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
     object that is credible across the boundary: ``min_points`` or more obstacle points
     of a neighbouring sector, from more than one line, within STRADDLE_COLUMNS columns
     and the cluster window of range of one of them. A thin pole on a sector boundary
     stands in both sectors; the one holding its edge must not read what stands behind."""
-    near = np.flatnonzero((points.sector == s) & points.obstacle
-                          & (points.range_m < distance_m - _doubt_margin_m(distance_m)))
+    hits = view.sectors[s].hits
+    near = np.flatnonzero(hits.range_m < distance_m - _doubt_margin_m(distance_m))
     if near.size == 0:
         return False
-    other = np.flatnonzero(points.obstacle & (np.abs(points.sector - s) == 1)
-                           & (points.sector >= 0) & (points.sector < count))
-    if other.size < settings.min_points:
+    beside = [view.sectors[t].hits for t in (s - 1, s + 1) if 0 <= t < len(view.sectors)]
+    other_range = np.concatenate([b.range_m for b in beside])
+    if other_range.size < settings.min_points:
         return False
+    other_column = np.concatenate([b.column for b in beside])
+    other_line = np.concatenate([b.line for b in beside])
     for i in near:
-        r = points.range_m[i]
-        window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * points.sigma_m[i])
-        mine = other[(np.abs(points.range_m[other] - r) <= window)
-                     & (np.abs(points.column[other] - points.column[i]) <= STRADDLE_COLUMNS)]
-        if mine.size >= settings.min_points and np.unique(points.line[mine]).size > 1:
+        r = hits.range_m[i]
+        window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * hits.sigma_m[i])
+        mine = ((np.abs(other_range - r) <= window)
+                & (np.abs(other_column - hits.column[i]) <= STRADDLE_COLUMNS))
+        if (np.count_nonzero(mine) >= settings.min_points
+                and np.unique(other_line[mine]).size > 1):
             return True
     return False
 
@@ -543,22 +621,33 @@ def _doubt_margin_m(distance_m: float) -> float:
     return max(DOUBT_REL * distance_m, DOUBT_ABS_M)
 
 
-def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: SectorSettings,
-             evidence: ColumnEvidence, holes: LineHoles | None, *, ambiguous: int,
-             doubtful: int, doubt_m: float, top_m: float) -> SectorDistance:
+def _median(values: FloatArray) -> float:
+    """np.median of a non-empty (n,) float64 array without NaN, as np.median computes it
+    (the middle value, or the mean of the middle two), without its overhead."""
+    n = values.size
+    if n == 1:
+        return float(values[0])
+    half = n // 2
+    part = np.partition(values, (half - 1, half))
+    if n % 2:
+        return float(part[half])
+    return float((part[half - 1] + part[half]) / 2.0)
+
+
+def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettings, *,
+             ambiguous: int, doubtful: int, doubt_m: float, top_m: float) -> SectorDistance:
     bearing = layout.bearing_of(s)
-    in_sector = points.sector == s
-    samples = int(in_sector.sum())
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    samples = inside.size
     if samples < settings.min_points:
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=samples)
-    hits = in_sector & points.obstacle
-    snr = float(np.median(points.snr[hits if hits.any() else in_sector]))
-    if not hits.any():
+    snr = _median(hits.snr if hits.size else inside.snr)
+    if not hits.size:
         conf = _confidence(samples, snr, settings)
         free = ambiguous == 0 and doubtful == 0 and conf >= settings.min_confidence
         return SectorDistance(s, bearing, SectorState.NO_RETURN if free else
                               SectorState.INVALID, 0.0, conf, samples)
-    found = nearest_credible(points, hits, settings.min_points)
+    found = _credible(hits, view.width, settings.min_points)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
             found.distance_m + _doubt_margin_m(found.distance_m)) or top_m < (
             found.distance_m - max(TOP_REL * found.distance_m, TOP_ABS_M)):
@@ -566,23 +655,20 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
         # line could not be told may stand as near (the cluster found may be one such
         # guess itself), or a low surface nearer may rise above the clearance unseen:
         # no distance
-        return SectorDistance(s, bearing, SectorState.INVALID, point_count=int(hits.sum()))
-    conf = _confidence(int(hits.sum()), snr, settings)
+        return SectorDistance(s, bearing, SectorState.INVALID, point_count=hits.size)
+    conf = _confidence(hits.size, snr, settings)
     if conf < settings.min_confidence or found.sigma_m > settings.sigma_limit_m(
             found.distance_m):
         # too little support, or a distance the points do not pin down
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if holes is not None and (unseen_columns(s, points, evidence, holes, found.distance_m,
-                                             settings) >= settings.min_points
-                              or shadowed_columns(s, points, evidence, holes,
-                                                  found.distance_m, settings) >= GAP_RUN):
+    if (unseen_columns(s, view, found.distance_m, settings) >= settings.min_points
+            or shadowed_columns(s, view, found.distance_m) >= GAP_RUN):
         # a nearer surface may go on, too dark for the lines, where they stop; or
         # something stands in the rays of every bright line over a few columns
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if missing_on_surface(s, points, evidence, found.distance_m,
-                          settings) >= settings.min_points:
+    if missing_on_surface(s, view, found.distance_m, settings) >= settings.min_points:
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if straddles(s, points, layout.count, found.distance_m, settings):
+    if straddles(s, view, found.distance_m, settings):
         # an object credible across the boundary stands nearer in this sector's edge
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,
