@@ -127,6 +127,8 @@ STRADDLE_COLUMNS = 8
 #: the constants as the kernel takes them
 _PARAMS = np.array([CLUSTER_REL, CLUSTER_ABS_M, SPREAD_SIGMAS, SLIVER_COLUMNS,
                     WINDOW_QUANTILE])
+#: no band too noisy, as the kernels take it
+_NOWHERE = np.zeros((0, 0), dtype=np.bool_)
 
 
 @dataclass(frozen=True)
@@ -325,11 +327,9 @@ class LineHoles:
 
 def _runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
-    (exclusive) of each, row by row."""
-    step = np.diff(mask.astype(np.int8), axis=1, prepend=0, append=0)
-    row, start = np.nonzero(step == 1)
-    stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
-    return row.astype(np.int64), start.astype(np.int64), stop.astype(np.int64)
+    (exclusive) of each, row by row (compiled: :func:`verdicts_kernels.runs`)."""
+    row, start, stop = verdicts_kernels.runs(mask)
+    return row, start, stop
 
 
 def bright_flanks(holes: LineHoles, points: ObstaclePoints, width: int, snr: float
@@ -524,35 +524,18 @@ def _expected_on_surface(surface: ObstaclePoints, evidence: ColumnEvidence,
     depth there (SURFACE_SEEN_ROWS_PX for a line seen on the surface in other columns),
     inside the image, its band quiet; and (n + 1,) the image position (0 = top) of the
     lowest line seen on it per column (-1 where it is not seen). n spans the surface's
-    columns; the last column is False (a run's end)."""
-    lines = prior.cot_alpha.size
-    rank = prior.image_rank
-    columns, group = np.unique(surface.column, return_inverse=True)
-    z = np.bincount(group, weights=np.asarray(surface.depth_m)) / np.bincount(group)
-    held = np.zeros((columns.size, lines), dtype=np.bool_)
-    held[group, rank[surface.line]] = True  # by column and image position
-    top = held.argmax(axis=1)
-    low = lines - 1 - held[:, ::-1].argmax(axis=1)
-    fb = prior.focal_px * prior.baseline_m
-    with np.errstate(divide="ignore"):
-        rows_off = fb / z[None, :] - fb / prior.ground_range_m[:, columns]
-    row = prior.cy_px + prior.focal_px * prior.cot_alpha[:, None] - fb / z[None, :]
-    # a line seen on the surface somewhere reaches it: a smaller margin from its ground
-    # row then (the surface's depth in the column still decides)
-    reached = np.asarray(held.any(axis=0), dtype=np.bool_)[rank]
-    margin = np.where(reached, SURFACE_SEEN_ROWS_PX, SURFACE_ROWS_PX)
-    here = ((rank[:, None] > top[None, :]) & (rows_off >= margin[:, None]) & (row >= 0)
-            & (row < prior.height_px))
-    if evidence.noisy is not None:
-        here &= ~evidence.noisy[:, columns]
-    # the span from the least and greatest column, not from the order np.unique gives
-    # (a node in the vcan tier's VM stopped on an index past a span taken from its ends)
-    first, last = int(columns.min()), int(columns.max())
-    onto = np.zeros((lines, last - first + 2), dtype=np.bool_)
-    onto[:, columns - first] = here
-    bottom = np.full(onto.shape[1], -1, dtype=np.int64)
-    bottom[columns - first] = low
-    return first, onto, bottom
+    columns; the last column is False (a run's end). Compiled
+    (:func:`atris_node.pipeline.verdicts_kernels.expected_on_surface`)."""
+    noisy = _NOWHERE if evidence.noisy is None else evidence.noisy
+    geometry = np.array([prior.focal_px, prior.cy_px, prior.height_px,
+                         prior.focal_px * prior.baseline_m, SURFACE_ROWS_PX,
+                         SURFACE_SEEN_ROWS_PX])
+    first, onto, bottom = verdicts_kernels.expected_on_surface(
+        np.asarray(surface.column, dtype=np.int64),
+        np.asarray(surface.depth_m, dtype=np.float64),
+        np.asarray(surface.line, dtype=np.int64), prior.image_rank,
+        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m, noisy, geometry)
+    return int(first), onto, bottom
 
 
 def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
