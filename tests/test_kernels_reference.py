@@ -201,3 +201,75 @@ def test_expected_on_surface_is_the_numpy_form() -> None:
         assert got[0] == expected[0]
         np.testing.assert_array_equal(got[1], expected[1])
         np.testing.assert_array_equal(got[2], expected[2])
+
+
+def _line_holes_numpy(points: Any, seen: Any, noisy: Any, bright_snr: float
+                      ) -> tuple[Any, ...]:
+    """The numpy form verdicts.LineHoles.of (and the bright flanks that shadowed_columns
+    asked of each hole) had before their compiled pass."""
+    from atris_node.pipeline.verdicts import GAP_RUN
+
+    lines, width = seen.shape
+    flank = np.full((lines, width), np.nan)
+    flank[points.line[points.obstacle], points.column[points.obstacle]] = (
+        points.range_m[points.obstacle])
+    k, start, stop = _runs_numpy(~seen)
+    keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
+    k, start, stop = k[keep], start[keep], stop[keep]
+    left, right = flank[k, start - 1], flank[k, stop]
+    flanked = np.isfinite(left) & np.isfinite(right)
+    hidden = np.zeros(k.size, dtype=np.bool_)
+    if noisy is not None and k.size:
+        inside = np.cumsum(np.concatenate([np.zeros((lines, 1), np.int64),
+                                           noisy.astype(np.int64)], axis=1), axis=1)
+        hidden = 2 * (inside[k, stop] - inside[k, start]) >= stop - start
+    keep = flanked | hidden
+    nearer = np.where(flanked, np.minimum(left, right), np.inf)
+    farther = np.where(flanked, np.maximum(left, right), np.inf)
+    k, start, stop = k[keep], start[keep], stop[keep]
+    bright = np.zeros(k.size, dtype=np.bool_)
+    for i, (line, a, b) in enumerate(zip(k, start, stop, strict=True)):
+        mine = (points.line == line) & points.obstacle & (points.snr >= bright_snr)
+        before = (points.column >= a - GAP_RUN) & (points.column < a)
+        after = (points.column >= b) & (points.column < b + GAP_RUN)
+        bright[i] = (np.unique(points.column[mine & before]).size == GAP_RUN
+                     and np.unique(points.column[mine & after]).size == GAP_RUN)
+    return k, start, stop, nearer[keep], farther[keep], hidden[keep], bright
+
+
+def test_line_holes_are_the_numpy_form() -> None:
+    """400 random maps of seen lines (holes of every width, at the edges too), noisy
+    bands or none, and points on them (obstacles or not, several in one line and column,
+    bright or not): the compiled LineHoles.of gives the numpy definition's holes, flanks,
+    noisy and bright flags, bitwise."""
+    from atris_node.pipeline.verdicts import LineHoles, ObstaclePoints
+
+    rng = np.random.default_rng(9)
+    for _ in range(400):
+        lines, width = int(rng.integers(1, 9)), int(rng.integers(2, 90))
+        seen = rng.random((lines, width)) < rng.uniform(0.3, 0.95)
+        noisy = None if rng.random() < 0.4 else rng.random((lines, width)) < rng.random()
+        k, c = np.nonzero(seen)
+        n = k.size
+        pick = rng.integers(0, max(n, 1), int(rng.integers(0, 2 * n + 1))) if n else (
+            np.zeros(0, np.int64))
+        line, column = k[pick].astype(np.int64), c[pick].astype(np.int64)
+        m = line.size
+        points = ObstaclePoints(rng.uniform(0.3, 10.0, m), np.zeros(m, np.int64),
+                                rng.random(m) < rng.choice([0.8, 1.0]), line, column,
+                                np.full(m, 0.01), rng.uniform(6.0, 90.0, m))
+        snr = float(rng.choice([0.0, 40.0, 60.0, np.inf]))
+        got = LineHoles.of(points, seen, noisy, snr)
+        expected = _line_holes_numpy(points, seen, noisy, snr)
+        for name, value in zip(("line", "start", "stop", "nearer_m", "farther_m", "noisy",
+                                "bright"), expected, strict=True):
+            np.testing.assert_array_equal(getattr(got, name), value, err_msg=name)
+    # bright flanks that just fit: a hole at columns 3..5 of a 9-column line, lit around
+    seen = np.array([[True] * 3 + [False] * 3 + [True] * 3])
+    edge = ObstaclePoints(np.full(6, 2.0), np.zeros(6, np.int64), np.ones(6, bool),
+                          np.zeros(6, np.int64), np.array([0, 1, 2, 6, 7, 8]),
+                          np.full(6, 0.01), np.full(6, 50.0))
+    for snr in (50.0, 51.0):
+        got = LineHoles.of(edge, seen, None, snr)
+        expected = _line_holes_numpy(edge, seen, None, snr)
+        assert got.bright.tolist() == expected[-1].tolist() == [snr == 50.0]

@@ -289,8 +289,10 @@ class LineHoles:
     obstacle points on both sides (or, where its band is too noisy to show it, any of
     its samples), of one map: ``line``, ``start``, ``stop`` (columns,
     stop exclusive), ``nearer_m`` and ``farther_m`` (the flanks' ranges, inf where not
-    flanked) and ``noisy`` (the line's band is too noisy to show it in most of the run)
-    per run, (n,) each."""
+    flanked), ``noisy`` (the line's band is too noisy to show it in most of the run) and
+    ``bright`` (the line has an obstacle point of SNR ``bright_snr`` or more in each of
+    the GAP_RUN columns before the run and from its stop on: bright flanks) per run, (n,)
+    each."""
 
     line: IntArray
     start: IntArray
@@ -298,31 +300,20 @@ class LineHoles:
     nearer_m: FloatArray
     farther_m: FloatArray
     noisy: BoolArray
+    bright: BoolArray
 
     @classmethod
-    def of(cls, points: ObstaclePoints, seen: BoolArray, noisy: BoolArray | None = None
-           ) -> LineHoles:
+    def of(cls, points: ObstaclePoints, seen: BoolArray, noisy: BoolArray | None = None,
+           bright_snr: float = np.inf) -> LineHoles:
         """The holes of every line of ``seen`` (K, W) (``noisy`` (K, W): where its band
-        is too noisy to show it; None: nowhere)."""
-        lines, width = seen.shape
-        flank = np.full((lines, width), np.nan)
-        flank[points.line[points.obstacle], points.column[points.obstacle]] = (
-            points.range_m[points.obstacle])
-        k, start, stop = _runs(~seen)
-        keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
-        k, start, stop = k[keep], start[keep], stop[keep]
-        left, right = flank[k, start - 1], flank[k, stop]
-        flanked = np.isfinite(left) & np.isfinite(right)
-        hidden = np.zeros(k.size, dtype=np.bool_)
-        if noisy is not None and k.size:
-            inside = np.cumsum(np.concatenate([np.zeros((lines, 1), np.int64),
-                                               noisy.astype(np.int64)], axis=1), axis=1)
-            hidden = 2 * (inside[k, stop] - inside[k, start]) >= stop - start
-        keep = flanked | hidden  # a noisy run needs the line seen on both sides only
-        nearer = np.where(flanked, np.minimum(left, right), np.inf)
-        farther = np.where(flanked, np.maximum(left, right), np.inf)
-        return cls(k[keep].astype(np.int64), start[keep], stop[keep], nearer[keep],
-                   farther[keep], hidden[keep])
+        is too noisy to show it; None: nowhere), bright at ``bright_snr``; one compiled
+        pass (:func:`atris_node.pipeline.verdicts_kernels.line_holes`). A flank is the
+        line's last obstacle point in the column."""
+        return cls(*verdicts_kernels.line_holes(
+            seen, _NOWHERE if noisy is None else noisy,
+            np.asarray(points.line, dtype=np.int64), np.asarray(points.column, dtype=np.int64),
+            np.asarray(points.range_m, dtype=np.float64), points.obstacle,
+            np.asarray(points.snr, dtype=np.float64), float(bright_snr), GAP_RUN))
 
 
 def _runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
@@ -332,29 +323,13 @@ def _runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     return row, start, stop
 
 
-def bright_flanks(holes: LineHoles, points: ObstaclePoints, width: int, snr: float
-                  ) -> BoolArray:
-    """(n,) per hole of ``holes``: its line has an obstacle point of SNR at least ``snr``
-    in each of the GAP_RUN columns before its start and from its stop on (its flanks),
-    columns below ``width``."""
-    lines = int(max(points.line.max(initial=-1), holes.line.max(initial=-1))) + 1
-    bright = np.zeros((lines, width + 1), dtype=np.int64)
-    mine = points.obstacle & (points.snr >= snr)
-    bright[points.line[mine], points.column[mine] + 1] = 1
-    held = np.cumsum(bright, axis=1)  # held[k, c]: columns below c with a bright point
-    k, start, stop = holes.line, holes.start, holes.stop
-    before = held[k, start] - held[k, np.maximum(start - GAP_RUN, 0)]
-    after = held[k, np.minimum(stop + GAP_RUN, width)] - held[k, stop]
-    return np.asarray((before == GAP_RUN) & (after == GAP_RUN), dtype=np.bool_)
-
-
 @dataclass(frozen=True)
 class MapView:
     """What the verdicts of one map share: the ``points`` and ``evidence``, the points of
     each sector (``sectors``), each sector's columns (``columns`` (S, W) mask and
     ``spans``, (first, last) column or None), the line holes (None without
-    ``evidence.seen``) with ``bright`` (n,) per hole (:func:`bright_flanks` at
-    SHADOW_SNR·snr_min), and ``width`` (a bound on the points' columns)."""
+    ``evidence.seen``; bright at SHADOW_SNR·snr_min), and ``width`` (a bound on the
+    points' columns)."""
 
     points: ObstaclePoints
     evidence: ColumnEvidence
@@ -362,7 +337,6 @@ class MapView:
     columns: BoolArray
     spans: list[tuple[int, int] | None]
     holes: LineHoles | None
-    bright: BoolArray
     width: int
 
     @classmethod
@@ -375,13 +349,9 @@ class MapView:
             where = np.flatnonzero(mask)
             spans.append((int(where[0]), int(where[-1])) if where.size else None)
         width = int(points.column.max()) + 1 if points.size else 1
-        holes, bright = None, np.zeros(0, dtype=np.bool_)
-        if evidence.seen is not None:
-            holes = LineHoles.of(points, evidence.seen, evidence.noisy)
-            bright = bright_flanks(holes, points, max(width, evidence.seen.shape[1]),
-                                   SHADOW_SNR * settings.snr_min)
-        return cls(points, evidence, by_sector(points, count), columns, spans, holes,
-                   bright, width)
+        holes = None if evidence.seen is None else LineHoles.of(
+            points, evidence.seen, evidence.noisy, SHADOW_SNR * settings.snr_min)
+        return cls(points, evidence, by_sector(points, count), columns, spans, holes, width)
 
 
 def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -447,7 +417,7 @@ def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     limit = distance_m + margin
     mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
             & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
-            & view.bright)
+            & holes.bright)
     count = np.zeros(view.evidence.sector.size, dtype=np.int64)
     for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
         count[start:stop] += 1

@@ -204,6 +204,61 @@ def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     return row, start, stop
 
 
+@kernel("Tuple((int64[:], int64[:], int64[:], float64[:], float64[:], boolean[:], "
+        "boolean[:]))(boolean[:, :], boolean[:, :], int64[:], int64[:], float64[:], "
+        "boolean[:], float64[:], float64, int64)")
+def line_holes(seen: BoolArray, noisy: BoolArray, line: IntArray, column: IntArray,
+               range_m: FloatArray, obstacle: BoolArray, snr: FloatArray, bright_snr: float,
+               gap: int) -> tuple[IntArray, IntArray, IntArray, FloatArray, FloatArray,
+                                  BoolArray, BoolArray]:
+    """:class:`atris_node.pipeline.verdicts.LineHoles` of ``seen`` (K, W) under ``noisy``
+    ((K, W), or (0, 0) for nowhere) from the points (``line``, ``column``, ``range_m``,
+    ``obstacle``, ``snr``; (n,) each): per hole its line, start, stop, nearer and farther
+    flank (m), noisy, and bright (its line has an obstacle point of SNR ``bright_snr`` or
+    more in each of the ``gap`` columns on either side). A flank is the last obstacle
+    point of the line in the column, as a numpy assignment leaves it."""
+    lines, width = seen.shape
+    flank = np.full((lines, width), np.nan)
+    bright_lines, bright_width = lines, width
+    for i in range(line.size):
+        if obstacle[i] and not (0 <= line[i] < lines and 0 <= column[i] < width):
+            raise IndexError("a point outside the seen lines and columns")
+        bright_lines = max(bright_lines, line[i] + 1)
+        bright_width = max(bright_width, column[i] + 1)
+    bright = np.zeros((bright_lines, bright_width), dtype=np.bool_)
+    for i in range(line.size):
+        if obstacle[i]:
+            flank[line[i], column[i]] = range_m[i]
+            if snr[i] >= bright_snr:
+                bright[line[i], column[i]] = True
+    row, start, stop = runs(~seen)
+    out = np.zeros(row.size, dtype=np.bool_)
+    nearer = np.full(row.size, np.inf)
+    farther = np.full(row.size, np.inf)
+    hidden = np.zeros(row.size, dtype=np.bool_)
+    lit = np.zeros(row.size, dtype=np.bool_)
+    for h in range(row.size):
+        k, a, b = row[h], start[h], stop[h]
+        if a == 0 or b >= width or b - a < gap:
+            continue
+        left, right = flank[k, a - 1], flank[k, b]
+        flanked = np.isfinite(left) and np.isfinite(right)
+        if noisy.shape[0]:
+            inside = 0
+            for c in range(a, b):
+                inside += noisy[k, c]
+            hidden[h] = 2 * inside >= b - a
+        out[h] = flanked or hidden[h]
+        if flanked:
+            nearer[h], farther[h] = min(left, right), max(left, right)
+        ok = a >= gap and b + gap <= bright_width
+        for j in range(gap):
+            ok = ok and bright[k, a - gap + j] and bright[k, b + j]
+        lit[h] = ok
+    return (row[out], start[out], stop[out], nearer[out], farther[out], hidden[out],
+            lit[out])
+
+
 @kernel()
 def _divide(a: float, b: float) -> float:
     """a / b as numpy divides (±inf, or nan for 0 / 0, where b is 0), not raising."""
@@ -272,6 +327,9 @@ def warm_up() -> None:
     credible(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
              np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
     runs(np.ones((1, 2), dtype=np.bool_))
+    line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
+               np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1),
+               np.ones(1, dtype=np.bool_), np.ones(1), 1.0, 3)
     one = np.zeros(1, dtype=np.int64)
     expected_on_surface(one, np.ones(1), one, one, np.ones(1), np.ones((1, 1)),
                         np.zeros((0, 0), dtype=np.bool_), np.ones(6))
