@@ -251,13 +251,24 @@ def _credible(hits: ObstaclePoints, width: int, min_points: int) -> Credible | N
     """:func:`nearest_credible` of all of ``hits`` (their columns below ``width``)."""
     if hits.size < min_points:
         return None
-    order = np.argsort(hits.range_m, kind="stable")
+    order = _stable_order(hits.range_m)
     distance, sigma, support, nearer = verdicts_kernels.credible(
         hits.range_m[order], hits.sigma_m[order], hits.line[order].astype(np.int64),
         hits.column[order].astype(np.int64), min_points, width, _PARAMS)
     if support < 0:
         return None
     return Credible(float(distance), float(sigma), int(support), int(nearer))
+
+
+def _stable_order(values: FloatArray) -> IntArray:
+    """np.argsort(values, kind="stable") of an (n,) float64 array, n > 0: numpy's default
+    sort (about half the time) where it gives the same order, that is where no two values
+    are equal and none is NaN."""
+    order = np.argsort(values)
+    ranked = values[order]
+    if ranked[-1] != ranked[-1] or (ranked[1:] == ranked[:-1]).any():
+        return np.argsort(values, kind="stable")
+    return order
 
 
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
