@@ -62,6 +62,7 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -163,23 +164,41 @@ class ObstaclePoints:
 
 @dataclass(frozen=True)
 class SectorPoints:
-    """The points of one sector: ``inside`` all of them (its obstacle points first, then
-    the others, each in the map's order) and ``hits`` its obstacle points (in the map's
-    order)."""
+    """The points of one sector: ``grouped`` holds the map's points sorted by sector
+    (:func:`by_sector`), this sector's are its ``start`` .. ``stop`` (exclusive), its
+    obstacle points first, up to ``split``."""
 
-    inside: ObstaclePoints
-    hits: ObstaclePoints
+    grouped: ObstaclePoints
+    start: int
+    split: int
+    stop: int
+
+    @property
+    def size(self) -> int:
+        """How many points the sector holds."""
+        return self.stop - self.start
+
+    @cached_property
+    def inside(self) -> ObstaclePoints:
+        """All points of the sector: its obstacle points first, then the others, each in
+        the map's order."""
+        return self.grouped.take(slice(self.start, self.stop))
+
+    @cached_property
+    def hits(self) -> ObstaclePoints:
+        """The sector's obstacle points, in the map's order."""
+        return self.grouped.take(slice(self.start, self.split))
 
 
 def by_sector(points: ObstaclePoints, count: int) -> list[SectorPoints]:
     """The :class:`SectorPoints` of sectors 0 .. ``count`` - 1: one stable sort of the
-    map's points by sector (obstacle points first within it), then slices."""
+    map's points by sector (obstacle points first within it); each sector's points are
+    taken out of it when first asked for."""
     key = 2 * points.sector + (~points.obstacle).astype(np.int64)
     order = np.argsort(key, kind="stable")
     grouped = points.take(order)
     bounds = np.searchsorted(key[order], np.arange(2 * count + 1)).tolist()
-    return [SectorPoints(grouped.take(slice(bounds[2 * s], bounds[2 * s + 2])),
-                         grouped.take(slice(bounds[2 * s], bounds[2 * s + 1])))
+    return [SectorPoints(grouped, bounds[2 * s], bounds[2 * s + 1], bounds[2 * s + 2])
             for s in range(count)]
 
 
@@ -601,13 +620,13 @@ def _median(values: FloatArray) -> float:
 def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettings, *,
              ambiguous: int, doubtful: int, doubt_m: float, top_m: float) -> SectorDistance:
     bearing = layout.bearing_of(s)
-    inside, hits = view.sectors[s].inside, view.sectors[s].hits
-    samples = inside.size
+    samples = view.sectors[s].size
     if samples < settings.min_points:
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=samples)
-    snr = _median(hits.snr if hits.size else inside.snr)
+    hits = view.sectors[s].hits
     if not hits.size:
-        conf = _confidence(samples, snr, settings)
+        inside = view.sectors[s].inside
+        conf = _confidence(samples, _median(inside.snr), settings)
         free = ambiguous == 0 and doubtful == 0 and conf >= settings.min_confidence
         return SectorDistance(s, bearing, SectorState.NO_RETURN if free else
                               SectorState.INVALID, 0.0, conf, samples)
@@ -620,7 +639,7 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
         # guess itself), or a low surface nearer may rise above the clearance unseen:
         # no distance
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=hits.size)
-    conf = _confidence(hits.size, snr, settings)
+    conf = _confidence(hits.size, _median(hits.snr), settings)
     if conf < settings.min_confidence or found.sigma_m > settings.sigma_limit_m(
             found.distance_m):
         # too little support, or a distance the points do not pin down
