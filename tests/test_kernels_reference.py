@@ -706,3 +706,165 @@ def test_blinded_is_the_numpy_form(dtype: type) -> None:
         want = _blinded_numpy(values, saturated, bands, tiles, tile_row, tile_px)
         assert found == want[0]
         np.testing.assert_array_equal(out, want[1])
+# --- sector verdicts (atris_node.pipeline.verdicts_kernels) ---------------------------
+
+
+def _runs_numpy(mask: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], ...]:
+    """The numpy form verdicts._runs had before its compiled pass."""
+    step = np.diff(mask.astype(np.int8), axis=1, prepend=0, append=0)
+    row, start = np.nonzero(step == 1)
+    stop = np.nonzero(step == -1)[1]
+    return row.astype(np.int64), start.astype(np.int64), stop.astype(np.int64)
+
+
+def test_runs_is_the_numpy_form() -> None:
+    """500 random (K, W) masks of every density: the compiled runs equal the numpy
+    definition (rows, starts, stops, in order)."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        k_count, width = int(rng.integers(1, 9)), int(rng.integers(1, 70))
+        mask = rng.random((k_count, width)) < rng.random()
+        if rng.random() < 0.3:
+            mask = np.asfortranarray(mask)
+        for got, expected in zip(verdicts_kernels.runs(mask), _runs_numpy(mask), strict=True):
+            np.testing.assert_array_equal(got, expected)
+
+
+def _expected_on_surface_numpy(column: Any, depth: Any, line: Any, prior: Any,
+                               noisy: Any) -> tuple[int, Any, Any]:
+    """The numpy form verdicts._expected_on_surface had before its compiled pass."""
+    from atris_node.pipeline.verdicts import SURFACE_ROWS_PX, SURFACE_SEEN_ROWS_PX
+
+    lines = prior.cot_alpha.size
+    rank = prior.image_rank
+    columns, group = np.unique(column, return_inverse=True)
+    z = np.bincount(group, weights=depth) / np.bincount(group)
+    held = np.zeros((columns.size, lines), dtype=np.bool_)
+    held[group, rank[line]] = True
+    top = held.argmax(axis=1)
+    low = lines - 1 - held[:, ::-1].argmax(axis=1)
+    fb = prior.focal_px * prior.baseline_m
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rows_off = fb / z[None, :] - fb / prior.ground_range_m[:, columns]
+        row = prior.cy_px + prior.focal_px * prior.cot_alpha[:, None] - fb / z[None, :]
+    reached = np.asarray(held.any(axis=0), dtype=np.bool_)[rank]
+    margin = np.where(reached, SURFACE_SEEN_ROWS_PX, SURFACE_ROWS_PX)
+    here = ((rank[:, None] > top[None, :]) & (rows_off >= margin[:, None]) & (row >= 0)
+            & (row < prior.height_px))
+    if noisy is not None:
+        here &= ~noisy[:, columns]
+    first, last = int(columns.min()), int(columns.max())
+    onto = np.zeros((lines, last - first + 2), dtype=np.bool_)
+    onto[:, columns - first] = here
+    bottom = np.full(onto.shape[1], -1, dtype=np.int64)
+    bottom[columns - first] = low
+    return first, onto, bottom
+
+
+def test_expected_on_surface_is_the_numpy_form() -> None:
+    """400 random surfaces (columns with gaps and repeats, depths near the ground rows,
+    some zero) under random priors (lines out of image order, ground ranges of inf,
+    noisy bands or none): the compiled pass gives the numpy definition's first column,
+    expected lines and lowest seen lines, bitwise."""
+    from atris_node.pipeline.identity import VisibilityPrior
+    from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints
+    from atris_node.pipeline.verdicts import _expected_on_surface as compiled
+
+    rng = np.random.default_rng(8)
+    for _ in range(400):
+        lines, width = int(rng.integers(1, 9)), int(rng.integers(4, 90))
+        cot = rng.permutation(np.linspace(-0.4, 0.4, lines)) + rng.normal(0, 0.01, lines)
+        ground = rng.uniform(0.5, 12.0, (lines, width))
+        ground[rng.random((lines, width)) < 0.2] = np.inf
+        prior = VisibilityPrior(cot, float(rng.uniform(300, 900)), float(rng.uniform(150, 500)),
+                                int(rng.integers(200, 900)), float(rng.uniform(0.05, 0.1)),
+                                10.0, ground)
+        n = int(rng.integers(1, 60))
+        column = rng.integers(0, width, n).astype(np.int64)
+        line = rng.integers(0, lines, n).astype(np.int64)
+        depth = rng.choice(ground[line, column], n) * rng.uniform(0.3, 1.2, n)
+        depth = np.where(np.isfinite(depth), depth, rng.uniform(0.3, 10.0, n))
+        depth[rng.random(n) < 0.05] = 0.0
+        noisy = None if rng.random() < 0.5 else rng.random((lines, width)) < 0.2
+        surface = ObstaclePoints(depth, np.zeros(n, np.int64), np.ones(n, bool), line, column,
+                                 np.full(n, 0.01), np.full(n, 20.0), depth)
+        zero = np.zeros(width, np.int64)
+        got = compiled(surface, ColumnEvidence(zero, zero, zero, zero, noisy=noisy), prior)
+        expected = _expected_on_surface_numpy(column, depth, line, prior, noisy)
+        assert got[0] == expected[0]
+        np.testing.assert_array_equal(got[1], expected[1])
+        np.testing.assert_array_equal(got[2], expected[2])
+
+
+def _line_holes_numpy(points: Any, seen: Any, noisy: Any, bright_snr: float
+                      ) -> tuple[Any, ...]:
+    """The numpy form verdicts.LineHoles.of (and the bright flanks that shadowed_columns
+    asked of each hole) had before their compiled pass."""
+    from atris_node.pipeline.verdicts import GAP_RUN
+
+    lines, width = seen.shape
+    flank = np.full((lines, width), np.nan)
+    flank[points.line[points.obstacle], points.column[points.obstacle]] = (
+        points.range_m[points.obstacle])
+    k, start, stop = _runs_numpy(~seen)
+    keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
+    k, start, stop = k[keep], start[keep], stop[keep]
+    left, right = flank[k, start - 1], flank[k, stop]
+    flanked = np.isfinite(left) & np.isfinite(right)
+    hidden = np.zeros(k.size, dtype=np.bool_)
+    if noisy is not None and k.size:
+        inside = np.cumsum(np.concatenate([np.zeros((lines, 1), np.int64),
+                                           noisy.astype(np.int64)], axis=1), axis=1)
+        hidden = 2 * (inside[k, stop] - inside[k, start]) >= stop - start
+    keep = flanked | hidden
+    nearer = np.where(flanked, np.minimum(left, right), np.inf)
+    farther = np.where(flanked, np.maximum(left, right), np.inf)
+    k, start, stop = k[keep], start[keep], stop[keep]
+    bright = np.zeros(k.size, dtype=np.bool_)
+    for i, (line, a, b) in enumerate(zip(k, start, stop, strict=True)):
+        mine = (points.line == line) & points.obstacle & (points.snr >= bright_snr)
+        before = (points.column >= a - GAP_RUN) & (points.column < a)
+        after = (points.column >= b) & (points.column < b + GAP_RUN)
+        bright[i] = (np.unique(points.column[mine & before]).size == GAP_RUN
+                     and np.unique(points.column[mine & after]).size == GAP_RUN)
+    return k, start, stop, nearer[keep], farther[keep], hidden[keep], bright
+
+
+def test_line_holes_are_the_numpy_form() -> None:
+    """400 random maps of seen lines (holes of every width, at the edges too), noisy
+    bands or none, and points on them (obstacles or not, several in one line and column,
+    bright or not): the compiled LineHoles.of gives the numpy definition's holes, flanks,
+    noisy and bright flags, bitwise."""
+    from atris_node.pipeline.verdicts import LineHoles, ObstaclePoints
+
+    rng = np.random.default_rng(9)
+    for _ in range(400):
+        lines, width = int(rng.integers(1, 9)), int(rng.integers(2, 90))
+        seen = rng.random((lines, width)) < rng.uniform(0.3, 0.95)
+        noisy = None if rng.random() < 0.4 else rng.random((lines, width)) < rng.random()
+        k, c = np.nonzero(seen)
+        n = k.size
+        pick = rng.integers(0, max(n, 1), int(rng.integers(0, 2 * n + 1))) if n else (
+            np.zeros(0, np.int64))
+        line, column = k[pick].astype(np.int64), c[pick].astype(np.int64)
+        m = line.size
+        points = ObstaclePoints(rng.uniform(0.3, 10.0, m), np.zeros(m, np.int64),
+                                rng.random(m) < rng.choice([0.8, 1.0]), line, column,
+                                np.full(m, 0.01), rng.uniform(6.0, 90.0, m))
+        snr = float(rng.choice([0.0, 40.0, 60.0, np.inf]))
+        got = LineHoles.of(points, seen, noisy, snr)
+        expected = _line_holes_numpy(points, seen, noisy, snr)
+        for name, value in zip(("line", "start", "stop", "nearer_m", "farther_m", "noisy",
+                                "bright"), expected, strict=True):
+            np.testing.assert_array_equal(getattr(got, name), value, err_msg=name)
+    # bright flanks that just fit: a hole at columns 3..5 of a 9-column line, lit around
+    seen = np.array([[True] * 3 + [False] * 3 + [True] * 3])
+    edge = ObstaclePoints(np.full(6, 2.0), np.zeros(6, np.int64), np.ones(6, bool),
+                          np.zeros(6, np.int64), np.array([0, 1, 2, 6, 7, 8]),
+                          np.full(6, 0.01), np.full(6, 50.0))
+    for snr in (50.0, 51.0):
+        got = LineHoles.of(edge, seen, None, snr)
+        expected = _line_holes_numpy(edge, seen, None, snr)
+        assert got.bright.tolist() == expected[-1].tolist() == [snr == 50.0]

@@ -81,6 +81,9 @@ class SectorJudge:
         self.column_sector = sectors_by_column(calibration, mounting, layout)
         self.projector_m = mounting.camera_to_vehicle(
             np.array([[0.0, -calibration.laser.baseline_m, 0.0]]))[0]
+        #: the last prior and its lines expected on the ground (the prior changes only
+        #: with the ground plane)
+        self._expected: tuple[VisibilityPrior, BoolArray] | None = None
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
@@ -165,7 +168,7 @@ class SectorJudge:
         """The column evidence of one map; ``valid`` (n,) marks the samples of
         ``extraction`` that triangulate within the operating range."""
         samples, width = extraction.samples, self.column_sector.size
-        expected = expected_on_ground(prior, self.calibration, self.z_range_m)
+        expected = self._expected_on_ground(prior)
         seen = seen_lines(samples, expected.shape[0], width)
         saturated = per_column(samples.col_px[samples.saturated], width)
         noisy = None if extraction.band_noise_dn is None else (
@@ -184,6 +187,14 @@ class SectorJudge:
             ambiguous=extraction.ambiguous_columns,
             missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen,
             noisy=noisy, expected=expected, prior=prior)
+
+    def _expected_on_ground(self, prior: VisibilityPrior) -> BoolArray:
+        """:func:`expected_on_ground` of ``prior``, kept while the prior is the same."""
+        if self._expected is None or self._expected[0] is not prior:
+            expected = expected_on_ground(prior, self.calibration, self.z_range_m)
+            expected.flags.writeable = False  # shared by the maps' evidence
+            self._expected = (prior, expected)
+        return self._expected[1]
 
     def _any_line_ranges(self, row_px: FloatArray, col_px: FloatArray) -> FloatArray:
         """(S,) per sector the nearest horizontal range (m) the given peaks stand for

@@ -62,6 +62,7 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -127,6 +128,8 @@ STRADDLE_COLUMNS = 8
 #: the constants as the kernel takes them
 _PARAMS = np.array([CLUSTER_REL, CLUSTER_ABS_M, SPREAD_SIGMAS, SLIVER_COLUMNS,
                     WINDOW_QUANTILE])
+#: no band too noisy, as the kernels take it
+_NOWHERE = np.zeros((0, 0), dtype=np.bool_)
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,58 @@ class ObstaclePoints:
     snr: FloatArray
     #: (n,) camera-frame depth z (m); None: not known, no test of the lines below a surface
     depth_m: FloatArray | None = None
+
+    @property
+    def size(self) -> int:
+        """The number of points n."""
+        return int(self.range_m.size)
+
+    def take(self, index: IntArray | slice) -> ObstaclePoints:
+        """The points at ``index`` (an index array or a slice), in that order."""
+        return ObstaclePoints(
+            self.range_m[index], self.sector[index], self.obstacle[index], self.line[index],
+            self.column[index], self.sigma_m[index], self.snr[index],
+            None if self.depth_m is None else self.depth_m[index])
+
+
+@dataclass(frozen=True)
+class SectorPoints:
+    """The points of one sector: ``grouped`` holds the map's points sorted by sector
+    (:func:`by_sector`), this sector's are its ``start`` .. ``stop`` (exclusive), its
+    obstacle points first, up to ``split``."""
+
+    grouped: ObstaclePoints
+    start: int
+    split: int
+    stop: int
+
+    @property
+    def size(self) -> int:
+        """How many points the sector holds."""
+        return self.stop - self.start
+
+    @cached_property
+    def inside(self) -> ObstaclePoints:
+        """All points of the sector: its obstacle points first, then the others, each in
+        the map's order."""
+        return self.grouped.take(slice(self.start, self.stop))
+
+    @cached_property
+    def hits(self) -> ObstaclePoints:
+        """The sector's obstacle points, in the map's order."""
+        return self.grouped.take(slice(self.start, self.split))
+
+
+def by_sector(points: ObstaclePoints, count: int) -> list[SectorPoints]:
+    """The :class:`SectorPoints` of sectors 0 .. ``count`` - 1: one stable sort of the
+    map's points by sector (obstacle points first within it); each sector's points are
+    taken out of it when first asked for."""
+    key = 2 * points.sector + (~points.obstacle).astype(np.int64)
+    order = np.argsort(key, kind="stable")
+    grouped = points.take(order)
+    bounds = np.searchsorted(key[order], np.arange(2 * count + 1)).tolist()
+    return [SectorPoints(grouped, bounds[2 * s], bounds[2 * s + 1], bounds[2 * s + 2])
+            for s in range(count)]
 
 
 @dataclass(frozen=True)
@@ -208,15 +263,31 @@ def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
     idx = np.flatnonzero(mine)
     if idx.size < min_points:
         return None
-    idx = idx[np.argsort(points.range_m[idx], kind="stable")]
-    width = int(points.column.max()) + 1
+    return _credible(points.take(idx), int(points.column.max()) + 1, min_points)
+
+
+def _credible(hits: ObstaclePoints, width: int, min_points: int) -> Credible | None:
+    """:func:`nearest_credible` of all of ``hits`` (their columns below ``width``)."""
+    if hits.size < min_points:
+        return None
+    order = _stable_order(hits.range_m)
     distance, sigma, support, nearer = verdicts_kernels.credible(
-        np.ascontiguousarray(points.range_m[idx]), np.ascontiguousarray(points.sigma_m[idx]),
-        np.ascontiguousarray(points.line[idx], dtype=np.int64),
-        np.ascontiguousarray(points.column[idx], dtype=np.int64), min_points, width, _PARAMS)
+        hits.range_m[order], hits.sigma_m[order], hits.line[order].astype(np.int64),
+        hits.column[order].astype(np.int64), min_points, width, _PARAMS)
     if support < 0:
         return None
     return Credible(float(distance), float(sigma), int(support), int(nearer))
+
+
+def _stable_order(values: FloatArray) -> IntArray:
+    """np.argsort(values, kind="stable") of an (n,) float64 array, n > 0: numpy's default
+    sort (about half the time) where it gives the same order, that is where no two values
+    are equal and none is NaN."""
+    order = np.argsort(values)
+    ranked = values[order]
+    if ranked[-1] != ranked[-1] or (ranked[1:] == ranked[:-1]).any():
+        return np.argsort(values, kind="stable")
+    return order
 
 
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
@@ -233,13 +304,12 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
                                    count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
-    holes = None if evidence.seen is None else LineHoles.of(points, evidence.seen,
-                                                            evidence.noisy)
     if top_m is None:
         top_m = np.full(count, np.inf)
-    return tuple(_verdict(s, points, layout, settings, evidence, holes,
-                          ambiguous=int(ambiguous[s]), doubtful=int(doubtful[s]),
-                          doubt_m=float(doubt_m[s]), top_m=float(top_m[s]))
+    view = MapView.of(points, evidence, count, settings)
+    return tuple(_verdict(s, view, layout, settings, ambiguous=int(ambiguous[s]),
+                          doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]),
+                          top_m=float(top_m[s]))
                  for s in range(count))
 
 
@@ -249,8 +319,10 @@ class LineHoles:
     obstacle points on both sides (or, where its band is too noisy to show it, any of
     its samples), of one map: ``line``, ``start``, ``stop`` (columns,
     stop exclusive), ``nearer_m`` and ``farther_m`` (the flanks' ranges, inf where not
-    flanked) and ``noisy`` (the line's band is too noisy to show it in most of the run)
-    per run, (n,) each."""
+    flanked), ``noisy`` (the line's band is too noisy to show it in most of the run) and
+    ``bright`` (the line has an obstacle point of SNR ``bright_snr`` or more in each of
+    the GAP_RUN columns before the run and from its stop on: bright flanks) per run, (n,)
+    each."""
 
     line: IntArray
     start: IntArray
@@ -258,44 +330,62 @@ class LineHoles:
     nearer_m: FloatArray
     farther_m: FloatArray
     noisy: BoolArray
+    bright: BoolArray
 
     @classmethod
-    def of(cls, points: ObstaclePoints, seen: BoolArray, noisy: BoolArray | None = None
-           ) -> LineHoles:
+    def of(cls, points: ObstaclePoints, seen: BoolArray, noisy: BoolArray | None = None,
+           bright_snr: float = np.inf) -> LineHoles:
         """The holes of every line of ``seen`` (K, W) (``noisy`` (K, W): where its band
-        is too noisy to show it; None: nowhere)."""
-        lines, width = seen.shape
-        flank = np.full((lines, width), np.nan)
-        flank[points.line[points.obstacle], points.column[points.obstacle]] = (
-            points.range_m[points.obstacle])
-        k, start, stop = _runs(~seen)
-        keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
-        k, start, stop = k[keep], start[keep], stop[keep]
-        left, right = flank[k, start - 1], flank[k, stop]
-        flanked = np.isfinite(left) & np.isfinite(right)
-        hidden = np.zeros(k.size, dtype=np.bool_)
-        if noisy is not None and k.size:
-            inside = np.cumsum(np.concatenate([np.zeros((lines, 1), np.int64),
-                                               noisy.astype(np.int64)], axis=1), axis=1)
-            hidden = 2 * (inside[k, stop] - inside[k, start]) >= stop - start
-        keep = flanked | hidden  # a noisy run needs the line seen on both sides only
-        nearer = np.where(flanked, np.minimum(left, right), np.inf)
-        farther = np.where(flanked, np.maximum(left, right), np.inf)
-        return cls(k[keep].astype(np.int64), start[keep], stop[keep], nearer[keep],
-                   farther[keep], hidden[keep])
+        is too noisy to show it; None: nowhere), bright at ``bright_snr``; one compiled
+        pass (:func:`atris_node.pipeline.verdicts_kernels.line_holes`). A flank is the
+        line's last obstacle point in the column."""
+        return cls(*verdicts_kernels.line_holes(
+            seen, _NOWHERE if noisy is None else noisy,
+            np.asarray(points.line, dtype=np.int64), np.asarray(points.column, dtype=np.int64),
+            np.asarray(points.range_m, dtype=np.float64), points.obstacle,
+            np.asarray(points.snr, dtype=np.float64), float(bright_snr), GAP_RUN))
 
 
 def _runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
-    (exclusive) of each, row by row."""
-    step = np.diff(mask.astype(np.int8), axis=1, prepend=0, append=0)
-    row, start = np.nonzero(step == 1)
-    stop = np.nonzero(step == -1)[1]  # row-major: the runs pair up in order
-    return row.astype(np.int64), start.astype(np.int64), stop.astype(np.int64)
+    (exclusive) of each, row by row (compiled: :func:`verdicts_kernels.runs`)."""
+    row, start, stop = verdicts_kernels.runs(mask)
+    return row, start, stop
 
 
-def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
-                   holes: LineHoles, distance_m: float, settings: SectorSettings) -> int:
+@dataclass(frozen=True)
+class MapView:
+    """What the verdicts of one map share: the ``points`` and ``evidence``, the points of
+    each sector (``sectors``), each sector's columns (``columns`` (S, W) mask and
+    ``spans``, (first, last) column or None), the line holes (None without
+    ``evidence.seen``; bright at SHADOW_SNR·snr_min), and ``width`` (a bound on the
+    points' columns)."""
+
+    points: ObstaclePoints
+    evidence: ColumnEvidence
+    sectors: list[SectorPoints]
+    columns: BoolArray
+    spans: list[tuple[int, int] | None]
+    holes: LineHoles | None
+    width: int
+
+    @classmethod
+    def of(cls, points: ObstaclePoints, evidence: ColumnEvidence, count: int,
+           settings: SectorSettings) -> MapView:
+        """The view of ``points`` and ``evidence`` for ``count`` sectors."""
+        columns = evidence.sector[None, :] == np.arange(count)[:, None]
+        spans: list[tuple[int, int] | None] = []
+        for mask in columns:
+            where = np.flatnonzero(mask)
+            spans.append((int(where[0]), int(where[-1])) if where.size else None)
+        width = int(points.column.max()) + 1 if points.size else 1
+        holes = None if evidence.seen is None else LineHoles.of(
+            points, evidence.seen, evidence.noisy, SHADOW_SNR * settings.snr_min)
+        return cls(points, evidence, by_sector(points, count), columns, spans, holes, width)
+
+
+def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                   ) -> int:
     """Columns of sector ``s`` where a nearer surface may stand unseen: inside a *hole*
     of a strong line, with no obstacle point in them at most ``distance_m`` + max(
     DOUBT_REL·d, DOUBT_ABS_M) and none of any line beyond that (within GAP_RUN columns:
@@ -311,33 +401,33 @@ def unseen_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     between surfaces no nearer than d makes no hole, unless its band is too noisy to show
     it over most of the run: then what stands there is not known (a pole before a wall,
     its stripes under a threshold that flicker left by the demodulation raised)."""
-    columns = np.flatnonzero(evidence.sector == s)
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None:
+        return 0
     margin = _doubt_margin_m(distance_m)
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
-            & (holes.start <= columns[-1])
-            & (holes.stop > columns[0])) if columns.size else np.zeros(0, np.bool_)
+            & (holes.start <= span[1]) & (holes.stop > span[0]))
     if not near.any():
         return 0
-    hits = (points.sector == s) & points.obstacle
-    width = evidence.sector.size
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    width = view.evidence.sector.size
     hole = np.zeros(width, dtype=np.bool_)
     whole = np.zeros(width, dtype=np.bool_)  # noisy runs count beyond the sector's edge
     for k, start, stop, noisy in zip(holes.line[near], holes.start[near], holes.stop[near],
                                      holes.noisy[near], strict=True):
-        mine = hits & (points.line == k)
-        if mine.any() and np.median(points.snr[mine]) >= GAP_SNR * settings.snr_min:
+        snr = hits.snr[hits.line == k]
+        if snr.size and _median(snr) >= GAP_SNR * settings.snr_min:
             hole[start:stop] = True
             whole[start:stop] |= noisy
-    hole &= (evidence.sector == s) | whole
-    hole[points.column[hits & (points.range_m <= distance_m + margin)]] = False
-    far = points.column[(points.sector == s) & (points.range_m > distance_m + margin)]
+    hole &= view.columns[s] | whole
+    hole[hits.column[hits.range_m <= distance_m + margin]] = False
+    far = inside.column[inside.range_m > distance_m + margin]
     for shift in range(-GAP_RUN, GAP_RUN + 1):
         hole[np.clip(far + shift, 0, width - 1)] = False
     return int(hole.sum())
 
 
-def shadowed_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
-                     holes: LineHoles, distance_m: float, settings: SectorSettings) -> int:
+def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     """Columns of sector ``s`` in which SHADOW_LINES or more bright lines (seen with an
     SNR of SHADOW_SNR·snr_min in every one of GAP_RUN columns each side) all have a hole
     in one surface, its flanks within
@@ -350,26 +440,25 @@ def shadowed_columns(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     any range between the unit and the surface. Narrower than :func:`unseen_columns`
     asks (GAP_RUN columns, not ``min_points``): a 2 cm plate 1 m long seen edge-on at 7 m
     hides four columns of a wall at 8.7 m."""
-    columns = np.flatnonzero(evidence.sector == s)
-    if not columns.size or not holes.line.size:
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None or not holes.line.size:
         return 0
     margin = _doubt_margin_m(distance_m)
     limit = distance_m + margin
     mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
-            & ~holes.noisy & (holes.start <= columns[-1]) & (holes.stop > columns[0]))
-    hits = (points.sector == s) & points.obstacle
-    count = np.zeros(evidence.sector.size, dtype=np.int64)
-    for k, start, stop in zip(holes.line[mine], holes.start[mine], holes.stop[mine],
-                              strict=True):
-        if _bright_flanks(points, k, start, stop, SHADOW_SNR * settings.snr_min):
-            count[start:stop] += 1
-    shadow = (count >= SHADOW_LINES) & (evidence.sector == s)
-    shadow[points.column[hits & (points.range_m <= limit)]] = False
+            & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
+            & holes.bright)
+    count = np.zeros(view.evidence.sector.size, dtype=np.int64)
+    for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
+        count[start:stop] += 1
+    shadow = (count >= SHADOW_LINES) & view.columns[s]
+    hits = view.sectors[s].hits
+    shadow[hits.column[hits.range_m <= limit]] = False
     return int(shadow.sum())
 
 
-def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
-                       distance_m: float, settings: SectorSettings) -> int:
+def missing_on_surface(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                       ) -> int:
     """Columns of sector ``s`` in which the surface found at ``distance_m`` should show a
     line that has no peak there at all: something lower stands before it, unseen.
 
@@ -391,17 +480,18 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     A dark kerb before a bright wall: the wall's lines above the kerb are
     seen, the one that would meet the wall at the kerb's height is missing. Needs
     ``evidence.prior``, ``evidence.seen`` and ``points.depth_m`` (0 without them)."""
+    evidence = view.evidence
     prior, seen = evidence.prior, evidence.seen
-    if prior is None or seen is None or points.depth_m is None:
+    if prior is None or seen is None or view.points.depth_m is None:
         return 0
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
     margin = _doubt_margin_m(distance_m)
-    on = ((points.sector == s) & points.obstacle
-          & (np.abs(points.range_m - distance_m) <= margin))
+    on = hits.take(np.flatnonzero(np.abs(hits.range_m - distance_m) <= margin))
     strong = SURFACE_SNR * settings.snr_min
-    surface = np.flatnonzero(on & (points.snr >= strong))
+    surface = on.take(np.flatnonzero(on.snr >= strong))
     if surface.size < settings.min_points:
         return 0
-    first, onto, bottom = _expected_on_surface(surface, points, evidence, prior)
+    first, onto, bottom = _expected_on_surface(surface, evidence, prior)
     shown = np.zeros_like(onto)
     shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
     lost = onto & ~shown
@@ -409,25 +499,24 @@ def missing_on_surface(s: int, points: ObstaclePoints, evidence: ColumnEvidence,
     long = stop - start >= SURFACE_RUN * settings.min_points
     if not long.any():
         return 0
-    beyond = np.flatnonzero((points.sector == s) & (points.range_m > distance_m + margin))
+    beyond = inside.take(np.flatnonzero(inside.range_m > distance_m + margin))
     rank = prior.image_rank
     hole = np.zeros(onto.shape[1], dtype=np.bool_)
     for k, a, b in zip(line[long], start[long], stop[long], strict=True):
         # a line between the surface's lowest seen one and this one, seen beyond it
         # in the run: the surface does not reach down there, the lines pass under (beside
         # the run is no sign: the wall beside a pole)
-        near = beyond[(points.column[beyond] >= first + a)
-                      & (points.column[beyond] < first + b)]
-        under = rank[points.line[near]]
+        near = (beyond.column >= first + a) & (beyond.column < first + b)
+        under = rank[beyond.line[near]]
         passes = ((under > bottom[a:b].max()) & (under <= rank[k])).any()
         if (not passes and _solid(onto, shown, int(k), int(a), int(b), settings.min_points)
-                and _abrupt(points, on, int(k), first + int(a), first + int(b), strong)):
+                and _abrupt(on, int(k), first + int(a), first + int(b), strong)):
             hole[a:b] = True
     return int(hole.sum())
 
 
-def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
-                         evidence: ColumnEvidence, prior: VisibilityPrior
+def _expected_on_surface(surface: ObstaclePoints, evidence: ColumnEvidence,
+                         prior: VisibilityPrior
                          ) -> tuple[int, BoolArray, IntArray]:
     """The first column c0 the surface (the points ``surface``) is seen in; (K, n + 1)
     True where line k would show on it in column c0 + j: below the topmost line seen on
@@ -435,36 +524,18 @@ def _expected_on_surface(surface: IntArray, points: ObstaclePoints,
     depth there (SURFACE_SEEN_ROWS_PX for a line seen on the surface in other columns),
     inside the image, its band quiet; and (n + 1,) the image position (0 = top) of the
     lowest line seen on it per column (-1 where it is not seen). n spans the surface's
-    columns; the last column is False (a run's end)."""
-    lines = prior.cot_alpha.size
-    rank = prior.image_rank
-    columns, group = np.unique(points.column[surface], return_inverse=True)
-    z = (np.bincount(group, weights=np.asarray(points.depth_m)[surface])
-         / np.bincount(group))
-    held = np.zeros((columns.size, lines), dtype=np.bool_)
-    held[group, rank[points.line[surface]]] = True  # by column and image position
-    top = held.argmax(axis=1)
-    low = lines - 1 - held[:, ::-1].argmax(axis=1)
-    fb = prior.focal_px * prior.baseline_m
-    with np.errstate(divide="ignore"):
-        rows_off = fb / z[None, :] - fb / prior.ground_range_m[:, columns]
-    row = prior.cy_px + prior.focal_px * prior.cot_alpha[:, None] - fb / z[None, :]
-    # a line seen on the surface somewhere reaches it: a smaller margin from its ground
-    # row then (the surface's depth in the column still decides)
-    reached = np.asarray(held.any(axis=0), dtype=np.bool_)[rank]
-    margin = np.where(reached, SURFACE_SEEN_ROWS_PX, SURFACE_ROWS_PX)
-    here = ((rank[:, None] > top[None, :]) & (rows_off >= margin[:, None]) & (row >= 0)
-            & (row < prior.height_px))
-    if evidence.noisy is not None:
-        here &= ~evidence.noisy[:, columns]
-    # the span from the least and greatest column, not from the order np.unique gives
-    # (a node in the vcan tier's VM stopped on an index past a span taken from its ends)
-    first, last = int(columns.min()), int(columns.max())
-    onto = np.zeros((lines, last - first + 2), dtype=np.bool_)
-    onto[:, columns - first] = here
-    bottom = np.full(onto.shape[1], -1, dtype=np.int64)
-    bottom[columns - first] = low
-    return first, onto, bottom
+    columns; the last column is False (a run's end). Compiled
+    (:func:`atris_node.pipeline.verdicts_kernels.expected_on_surface`)."""
+    noisy = _NOWHERE if evidence.noisy is None else evidence.noisy
+    geometry = np.array([prior.focal_px, prior.cy_px, prior.height_px,
+                         prior.focal_px * prior.baseline_m, SURFACE_ROWS_PX,
+                         SURFACE_SEEN_ROWS_PX])
+    first, onto, bottom = verdicts_kernels.expected_on_surface(
+        np.asarray(surface.column, dtype=np.int64),
+        np.asarray(surface.depth_m, dtype=np.float64),
+        np.asarray(surface.line, dtype=np.int64), prior.image_rank,
+        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m, noisy, geometry)
+    return int(first), onto, bottom
 
 
 def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
@@ -484,8 +555,7 @@ def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
     return bool(others.size and np.median(others) >= SURFACE_SOLID and own)
 
 
-def _abrupt(points: ObstaclePoints, on: BoolArray, line: int, start: int, stop: int,
-            snr: float) -> bool:
+def _abrupt(on: ObstaclePoints, line: int, start: int, stop: int, snr: float) -> bool:
     """True when ``line`` stops abruptly at its run [start, stop) on the surface (the
     points ``on``): one of its points there within 2·GAP_RUN columns of the run has an
     SNR of at least ``snr``, or it has fewer than two there (the other lines predict
@@ -493,47 +563,38 @@ def _abrupt(points: ObstaclePoints, on: BoolArray, line: int, start: int, stop: 
     (a glossy surface turning its lobe away from that sheet), does not count; the
     point at a blocking object's very edge may be weak, so the strongest one counts."""
     reach = 2 * GAP_RUN
-    edge = on & (points.line == line) & (
-        ((points.column >= start - reach) & (points.column < start))
-        | ((points.column >= stop) & (points.column < stop + reach)))
+    edge = (on.line == line) & (
+        ((on.column >= start - reach) & (on.column < start))
+        | ((on.column >= stop) & (on.column < stop + reach)))
     if np.count_nonzero(edge) < 2:
         return True
-    return bool(points.snr[edge].max() >= snr)
+    return bool(on.snr[edge].max() >= snr)
 
 
-def _bright_flanks(points: ObstaclePoints, line: int, start: int, stop: int,
-                   snr: float) -> bool:
-    """True when ``line`` has an obstacle point of SNR at least ``snr`` in each of the
-    GAP_RUN columns before ``start`` and from ``stop`` on (its hole's flanks)."""
-    mine = (points.line == line) & points.obstacle & (points.snr >= snr)
-    before = (points.column >= start - GAP_RUN) & (points.column < start)
-    after = (points.column >= stop) & (points.column < stop + GAP_RUN)
-    return bool(np.unique(points.column[mine & before]).size == GAP_RUN
-                and np.unique(points.column[mine & after]).size == GAP_RUN)
-
-
-def straddles(s: int, points: ObstaclePoints, count: int, distance_m: float,
-              settings: SectorSettings) -> bool:
+def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
     """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
     max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
     object that is credible across the boundary: ``min_points`` or more obstacle points
     of a neighbouring sector, from more than one line, within STRADDLE_COLUMNS columns
     and the cluster window of range of one of them. A thin pole on a sector boundary
     stands in both sectors; the one holding its edge must not read what stands behind."""
-    near = np.flatnonzero((points.sector == s) & points.obstacle
-                          & (points.range_m < distance_m - _doubt_margin_m(distance_m)))
+    hits = view.sectors[s].hits
+    near = np.flatnonzero(hits.range_m < distance_m - _doubt_margin_m(distance_m))
     if near.size == 0:
         return False
-    other = np.flatnonzero(points.obstacle & (np.abs(points.sector - s) == 1)
-                           & (points.sector >= 0) & (points.sector < count))
-    if other.size < settings.min_points:
+    beside = [view.sectors[t].hits for t in (s - 1, s + 1) if 0 <= t < len(view.sectors)]
+    other_range = np.concatenate([b.range_m for b in beside])
+    if other_range.size < settings.min_points:
         return False
+    other_column = np.concatenate([b.column for b in beside])
+    other_line = np.concatenate([b.line for b in beside])
     for i in near:
-        r = points.range_m[i]
-        window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * points.sigma_m[i])
-        mine = other[(np.abs(points.range_m[other] - r) <= window)
-                     & (np.abs(points.column[other] - points.column[i]) <= STRADDLE_COLUMNS)]
-        if mine.size >= settings.min_points and np.unique(points.line[mine]).size > 1:
+        r = hits.range_m[i]
+        window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * hits.sigma_m[i])
+        mine = ((np.abs(other_range - r) <= window)
+                & (np.abs(other_column - hits.column[i]) <= STRADDLE_COLUMNS))
+        if (np.count_nonzero(mine) >= settings.min_points
+                and np.unique(other_line[mine]).size > 1):
             return True
     return False
 
@@ -543,22 +604,33 @@ def _doubt_margin_m(distance_m: float) -> float:
     return max(DOUBT_REL * distance_m, DOUBT_ABS_M)
 
 
-def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: SectorSettings,
-             evidence: ColumnEvidence, holes: LineHoles | None, *, ambiguous: int,
-             doubtful: int, doubt_m: float, top_m: float) -> SectorDistance:
+def _median(values: FloatArray) -> float:
+    """np.median of a non-empty (n,) float64 array without NaN, as np.median computes it
+    (the middle value, or the mean of the middle two), without its overhead."""
+    n = values.size
+    if n == 1:
+        return float(values[0])
+    half = n // 2
+    part = np.partition(values, (half - 1, half))
+    if n % 2:
+        return float(part[half])
+    return float((part[half - 1] + part[half]) / 2.0)
+
+
+def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettings, *,
+             ambiguous: int, doubtful: int, doubt_m: float, top_m: float) -> SectorDistance:
     bearing = layout.bearing_of(s)
-    in_sector = points.sector == s
-    samples = int(in_sector.sum())
+    samples = view.sectors[s].size
     if samples < settings.min_points:
         return SectorDistance(s, bearing, SectorState.INVALID, point_count=samples)
-    hits = in_sector & points.obstacle
-    snr = float(np.median(points.snr[hits if hits.any() else in_sector]))
-    if not hits.any():
-        conf = _confidence(samples, snr, settings)
+    hits = view.sectors[s].hits
+    if not hits.size:
+        inside = view.sectors[s].inside
+        conf = _confidence(samples, _median(inside.snr), settings)
         free = ambiguous == 0 and doubtful == 0 and conf >= settings.min_confidence
         return SectorDistance(s, bearing, SectorState.NO_RETURN if free else
                               SectorState.INVALID, 0.0, conf, samples)
-    found = nearest_credible(points, hits, settings.min_points)
+    found = _credible(hits, view.width, settings.min_points)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
             found.distance_m + _doubt_margin_m(found.distance_m)) or top_m < (
             found.distance_m - max(TOP_REL * found.distance_m, TOP_ABS_M)):
@@ -566,23 +638,20 @@ def _verdict(s: int, points: ObstaclePoints, layout: SectorLayout, settings: Sec
         # line could not be told may stand as near (the cluster found may be one such
         # guess itself), or a low surface nearer may rise above the clearance unseen:
         # no distance
-        return SectorDistance(s, bearing, SectorState.INVALID, point_count=int(hits.sum()))
-    conf = _confidence(int(hits.sum()), snr, settings)
+        return SectorDistance(s, bearing, SectorState.INVALID, point_count=hits.size)
+    conf = _confidence(hits.size, _median(hits.snr), settings)
     if conf < settings.min_confidence or found.sigma_m > settings.sigma_limit_m(
             found.distance_m):
         # too little support, or a distance the points do not pin down
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if holes is not None and (unseen_columns(s, points, evidence, holes, found.distance_m,
-                                             settings) >= settings.min_points
-                              or shadowed_columns(s, points, evidence, holes,
-                                                  found.distance_m, settings) >= GAP_RUN):
+    if (unseen_columns(s, view, found.distance_m, settings) >= settings.min_points
+            or shadowed_columns(s, view, found.distance_m) >= GAP_RUN):
         # a nearer surface may go on, too dark for the lines, where they stop; or
         # something stands in the rays of every bright line over a few columns
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if missing_on_surface(s, points, evidence, found.distance_m,
-                          settings) >= settings.min_points:
+    if missing_on_surface(s, view, found.distance_m, settings) >= settings.min_points:
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if straddles(s, points, layout.count, found.distance_m, settings):
+    if straddles(s, view, found.distance_m, settings):
         # an object credible across the boundary stands nearer in this sector's edge
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,

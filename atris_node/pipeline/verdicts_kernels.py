@@ -1,9 +1,13 @@
-"""Compiled nearest credible cluster of one sector (numba, ``nopython``).
+"""Compiled passes of the sector verdicts (numba, ``nopython``).
 
-:func:`atris_node.pipeline.verdicts.nearest_credible` documents the method; this is its
-loop over the sector's obstacle points, sorted by range. As numpy steps (unique lines and
+:func:`credible` is the nearest credible cluster of one sector
+(:func:`atris_node.pipeline.verdicts.nearest_credible` documents the method): its loop
+over the sector's obstacle points, sorted by range. As numpy steps (unique lines and
 columns per window, a straight fit per line) it cost about 0.3 ms per sector; here one
-pass. Ranges and σ float64 m, lines and columns int64.
+pass. :func:`runs` finds the runs of True in each row of a mask and
+:func:`expected_on_surface` where a surface should show each line (both for
+:func:`atris_node.pipeline.verdicts.missing_on_surface`; as numpy steps about 60 µs per
+sector). Ranges and σ float64 m, lines and columns int64.
 """
 
 from __future__ import annotations
@@ -176,8 +180,156 @@ def credible(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
     return np.nan, np.nan, -1.0, -1.0
 
 
+@kernel("Tuple((int64[:], int64[:], int64[:]))(boolean[:, :])")
+def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
+    """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
+    (exclusive) of each, row by row, each row's from the left."""
+    lines, width = mask.shape
+    count = 0
+    for k in range(lines):
+        for c in range(width):
+            if mask[k, c] and (c == 0 or not mask[k, c - 1]):
+                count += 1
+    row = np.empty(count, dtype=np.int64)
+    start = np.empty(count, dtype=np.int64)
+    stop = np.empty(count, dtype=np.int64)
+    i = -1
+    for k in range(lines):
+        for c in range(width):
+            if mask[k, c]:
+                if c == 0 or not mask[k, c - 1]:
+                    i += 1
+                    row[i], start[i] = k, c
+                stop[i] = c + 1
+    return row, start, stop
+
+
+@kernel("Tuple((int64[:], int64[:], int64[:], float64[:], float64[:], boolean[:], "
+        "boolean[:]))(boolean[:, :], boolean[:, :], int64[:], int64[:], float64[:], "
+        "boolean[:], float64[:], float64, int64)")
+def line_holes(seen: BoolArray, noisy: BoolArray, line: IntArray, column: IntArray,
+               range_m: FloatArray, obstacle: BoolArray, snr: FloatArray, bright_snr: float,
+               gap: int) -> tuple[IntArray, IntArray, IntArray, FloatArray, FloatArray,
+                                  BoolArray, BoolArray]:
+    """:class:`atris_node.pipeline.verdicts.LineHoles` of ``seen`` (K, W) under ``noisy``
+    ((K, W), or (0, 0) for nowhere) from the points (``line``, ``column``, ``range_m``,
+    ``obstacle``, ``snr``; (n,) each): per hole its line, start, stop, nearer and farther
+    flank (m), noisy, and bright (its line has an obstacle point of SNR ``bright_snr`` or
+    more in each of the ``gap`` columns on either side). A flank is the last obstacle
+    point of the line in the column, as a numpy assignment leaves it."""
+    lines, width = seen.shape
+    flank = np.full((lines, width), np.nan)
+    bright_lines, bright_width = lines, width
+    for i in range(line.size):
+        if obstacle[i] and not (0 <= line[i] < lines and 0 <= column[i] < width):
+            raise IndexError("a point outside the seen lines and columns")
+        bright_lines = max(bright_lines, line[i] + 1)
+        bright_width = max(bright_width, column[i] + 1)
+    bright = np.zeros((bright_lines, bright_width), dtype=np.bool_)
+    for i in range(line.size):
+        if obstacle[i]:
+            flank[line[i], column[i]] = range_m[i]
+            if snr[i] >= bright_snr:
+                bright[line[i], column[i]] = True
+    row, start, stop = runs(~seen)
+    out = np.zeros(row.size, dtype=np.bool_)
+    nearer = np.full(row.size, np.inf)
+    farther = np.full(row.size, np.inf)
+    hidden = np.zeros(row.size, dtype=np.bool_)
+    lit = np.zeros(row.size, dtype=np.bool_)
+    for h in range(row.size):
+        k, a, b = row[h], start[h], stop[h]
+        if a == 0 or b >= width or b - a < gap:
+            continue
+        left, right = flank[k, a - 1], flank[k, b]
+        flanked = np.isfinite(left) and np.isfinite(right)
+        if noisy.shape[0]:
+            inside = 0
+            for c in range(a, b):
+                inside += noisy[k, c]
+            hidden[h] = 2 * inside >= b - a
+        out[h] = flanked or hidden[h]
+        if flanked:
+            nearer[h], farther[h] = min(left, right), max(left, right)
+        ok = a >= gap and b + gap <= bright_width
+        for j in range(gap):
+            ok = ok and bright[k, a - gap + j] and bright[k, b + j]
+        lit[h] = ok
+    return (row[out], start[out], stop[out], nearer[out], farther[out], hidden[out],
+            lit[out])
+
+
+@kernel()
+def _divide(a: float, b: float) -> float:
+    """a / b as numpy divides (±inf, or nan for 0 / 0, where b is 0), not raising."""
+    if b == 0.0:
+        if a == 0.0 or np.isnan(a):
+            return np.nan
+        return np.inf if (a > 0.0) == (np.copysign(1.0, b) > 0.0) else -np.inf
+    return a / b
+
+
+@kernel("Tuple((int64, boolean[:, :], int64[:]))(int64[:], float64[:], int64[:], int64[:], "
+        "float64[:], float64[:, :], boolean[:, :], float64[:])")
+def expected_on_surface(column: IntArray, depth: FloatArray, line: IntArray, rank: IntArray,
+                        cot: FloatArray, ground_range: FloatArray, noisy: BoolArray,
+                        geometry: FloatArray) -> tuple[int, BoolArray, IntArray]:
+    """:func:`atris_node.pipeline.verdicts._expected_on_surface` of the surface points
+    (``column``, camera ``depth`` m, ``line``; (n,) each, n > 0) under the lines' image
+    ``rank`` and ``cot`` (K,) and ``ground_range`` (K, W) m: (first column c0, (K, m + 2)
+    where line k is expected on the surface in column c0 + j, (m + 2,) image position of
+    the lowest line seen on it per column or -1), m the span of the columns less one.
+    ``noisy`` (K, W) or (0, 0) for nowhere; ``geometry``: (focal px, cy px, height px,
+    f·b px·m, margin rows, margin rows for a line seen on the surface). A column's mean
+    depth adds its points' depths in their order, as np.bincount does."""
+    focal, cy, height, fb = geometry[0], geometry[1], geometry[2], geometry[3]
+    lines, n = rank.size, column.size
+    first, last = column.min(), column.max()
+    span = last - first + 2
+    total = np.zeros(span)
+    count = np.zeros(span, dtype=np.int64)
+    held = np.zeros((span, lines), dtype=np.bool_)
+    for i in range(n):
+        j = column[i] - first
+        total[j] += depth[i]
+        count[j] += 1
+        held[j, rank[line[i]]] = True
+    reached = np.zeros(lines, dtype=np.bool_)
+    for j in range(span):
+        for r in range(lines):
+            reached[r] |= held[j, r]
+    onto = np.zeros((lines, span), dtype=np.bool_)
+    bottom = np.full(span, -1, dtype=np.int64)
+    for j in range(span):
+        if count[j] == 0:
+            continue
+        z = total[j] / count[j]
+        top = 0
+        while not held[j, top]:
+            top += 1
+        low = lines - 1
+        while not held[j, low]:
+            low -= 1
+        bottom[j] = low
+        c = first + j
+        for k in range(lines):
+            margin = geometry[5] if reached[rank[k]] else geometry[4]
+            rows_off = _divide(fb, z) - _divide(fb, ground_range[k, c])
+            row = cy + focal * cot[k] - _divide(fb, z)
+            onto[k, j] = (rank[k] > top and rows_off >= margin and row >= 0
+                          and row < height and not (noisy.shape[0] and noisy[k, c]))
+    return first, onto, bottom
+
+
 def warm_up() -> None:
-    """Type the kernel's arguments once."""
+    """Type the kernels' arguments once."""
     r = np.array([1.0, 1.0, 1.01, 1.02, 1.02, 1.03])
     credible(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
              np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
+    runs(np.ones((1, 2), dtype=np.bool_))
+    line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
+               np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1),
+               np.ones(1, dtype=np.bool_), np.ones(1), 1.0, 3)
+    one = np.zeros(1, dtype=np.int64)
+    expected_on_surface(one, np.ones(1), one, one, np.ones(1), np.ones((1, 1)),
+                        np.zeros((0, 0), dtype=np.bool_), np.ones(6))
