@@ -94,23 +94,6 @@ def _bridge_by_definition(rows: np.ndarray, good: np.ndarray) -> tuple[np.ndarra
     return np.where(both & agree, nearer, np.inf), sides
 
 
-def test_bridge_is_the_numpy_form() -> None:
-    """300 random (K, W) row tables and anchor masks: the compiled bridge equals the numpy
-    definition exactly (rows and side counts)."""
-    from atris_node.pipeline import rivals_kernels
-    from atris_node.pipeline.rivals import BRIDGE_PX
-
-    rng = np.random.default_rng(3)
-    for _ in range(300):
-        k_count, width = int(rng.integers(1, 6)), int(rng.integers(1, 60))
-        rows = rng.integers(-1, 40, (k_count, width)).astype(np.int64)
-        good = np.ascontiguousarray((rng.random((k_count, width)) < rng.random()) & (rows >= 0))
-        expected = _bridge_by_definition(rows, good)
-        got = rivals_kernels.bridge(rows, good, float(BRIDGE_PX))
-        np.testing.assert_array_equal(got[0], expected[0])
-        np.testing.assert_array_equal(got[1], expected[1])
-
-
 # --- line identity: the continuity reference and the bookkeeping of the rival test ---
 
 
@@ -180,6 +163,163 @@ def test_continuity_reference_of_the_rival_test_is_the_composed_form() -> None:
             anchored = np.repeat(rng.random(width // 20 + 1) < 0.4, 20)[:width]
         got = _reference(rows, anchored)
         want = _reference_by_definition(rows, anchored)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        np.testing.assert_array_equal(got, want)
+
+
+def _set_aside_numpy(peaks: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """rivals.set_aside as it was in numpy: a sort of every column."""
+    big = np.iinfo(np.int64).max
+    kept = np.sort(np.where(drop | (peaks < 0), big, peaks), axis=0)
+    return np.where(kept == big, -1, kept), drop.sum(axis=0).astype(np.int64)
+
+
+def _random_peaks(rng: np.random.Generator, m_count: int, width: int) -> np.ndarray:
+    """(M, W) distinct peak rows per column, sorted down with -1 padding last, or in any
+    order with -1 anywhere."""
+    rows = np.sort(rng.permuted(np.tile(np.arange(400), (width, 1)), axis=1)[:, :m_count],
+                   axis=1).T.astype(np.int64)
+    n = rng.integers(0, m_count + 1, width)
+    peaks = np.where(np.arange(m_count)[:, None] < n[None, :], rows, -1)
+    return rng.permuted(peaks, axis=0) if rng.random() < 0.3 else peaks
+
+
+def test_set_aside_is_the_numpy_sort() -> None:
+    """300 random peak tables (sorted columns and columns in any order) and drop masks
+    (also on the padding): the compiled set_aside equals the numpy sort, bitwise."""
+    from atris_node.pipeline.rivals import set_aside
+
+    rng = np.random.default_rng(22)
+    for _ in range(300):
+        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
+        drop = rng.random(peaks.shape) < rng.random()
+        got, want = set_aside(peaks, drop), _set_aside_numpy(peaks, drop)
+        for g, w in zip(got, want, strict=True):
+            assert g.dtype == w.dtype and g.shape == w.shape
+            np.testing.assert_array_equal(g, w)
+
+
+def _doubts_numpy(peaks: np.ndarray, first: np.ndarray, rows: np.ndarray,
+                  nearest: np.ndarray, unsure: np.ndarray, bands: Any) -> tuple[np.ndarray, ...]:
+    """rivals._unique's bookkeeping as it was in numpy: the unsure counts, the removed
+    samples with their nearest rival, the unplaced peaks with their lowest band."""
+    from atris_node.pipeline.bands import in_image_order
+
+    before = (first >= 0).sum(axis=0)
+    k, c = np.nonzero(nearest >= 0)
+    rivalled = (first[k, c], c.astype(np.int64), nearest[k, c])
+    placed = ((peaks[None, :, :] == rows[:, None, :]) & (rows[:, None, :] >= 0)).any(axis=0)
+    unplaced = (peaks >= 0) & ~placed & (unsure > 0)[None, :]
+    marked = np.zeros(peaks.shape, dtype=np.bool_)
+    m, n = np.nonzero(peaks[:, rivalled[1]] == rivalled[0][None, :])
+    marked[m, rivalled[1][n]] = True
+    unplaced &= ~marked
+    i, j = np.nonzero(unplaced)
+    lo, hi, order = in_image_order(bands)
+    row = peaks[i, j]
+    inside = (row[:, None] >= lo[None, :]) & (row[:, None] < hi[None, :])
+    last = inside.shape[1] - 1 - inside[:, ::-1].argmax(axis=1)
+    lowest = np.where(inside.any(axis=1), order[last], -1).astype(np.int64)
+    known = lowest >= 0
+    return (unsure + np.maximum(before - (rows >= 0).sum(axis=0), 0),
+            np.concatenate([rivalled[0], row[known]]),
+            np.concatenate([rivalled[1], j[known].astype(np.int64)]),
+            np.concatenate([rivalled[2], lowest[known]]))
+
+
+def _random_identity(rng: np.random.Generator, peaks: np.ndarray, k_count: int
+                     ) -> np.ndarray:
+    """(K, W) rows by line taken from ``peaks`` (some lines without one)."""
+    m_count, width = peaks.shape
+    pick = peaks[rng.integers(0, m_count, (k_count, width)), np.arange(width)[None, :]]
+    return np.where(rng.random((k_count, width)) < 0.7, pick, -1).astype(np.int64)
+
+
+def test_doubts_of_the_rival_test_are_the_numpy_form() -> None:
+    """300 random identities before and after a rival test, with nearest rival lines and
+    unsure counts: rivals_kernels.doubts equals the numpy bookkeeping it replaced (values
+    and order of the doubts), bitwise."""
+    from atris_node.pipeline import rivals_kernels
+    from atris_node.pipeline.bands import Band, in_image_order
+
+    rng = np.random.default_rng(23)
+    for _ in range(300):
+        k_count = int(rng.integers(1, 9))
+        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
+        width = peaks.shape[1]
+        edges = np.sort(rng.integers(0, 400, (k_count, 2)), axis=1)
+        bands = tuple(Band(int(k), int(a), int(b)) for k, (a, b) in
+                      zip(rng.permutation(k_count), edges, strict=True))
+        first = _random_identity(rng, peaks, k_count)
+        removed = (first >= 0) & (rng.random(first.shape) < 0.2)
+        rows = np.where(removed | (rng.random(first.shape) < 0.05), -1, first)
+        nearest = np.where(removed, rng.integers(0, k_count, first.shape), -1).astype(np.int64)
+        unsure = (rng.integers(0, 3, width) * (rng.random(width) < 0.5)).astype(np.int64)
+        lo, hi, order = in_image_order(bands)
+        got = rivals_kernels.doubts(peaks, first, rows, nearest, unsure, lo, hi, order)
+        want = _doubts_numpy(peaks, first, rows, nearest, unsure, bands)
+        for g, w in zip(got, want, strict=True):
+            assert g.dtype == w.dtype and g.shape == w.shape
+            np.testing.assert_array_equal(g, w)
+
+
+def _stable_numpy(rows: np.ndarray, alone: np.ndarray, held: np.ndarray,
+                  position: np.ndarray) -> tuple[np.ndarray, ...]:
+    """rivals.robust_identity's comparison of the two identities as it was in numpy."""
+    unstable = ((rows != alone) & ((alone >= 0) | held)).any(axis=0)
+    dropped = unstable[None, :] & (rows != alone) & (rows >= 0)
+    kept = np.where(dropped, -1, rows)
+    lost = (rows >= 0).sum(axis=0) - (kept >= 0).sum(axis=0)
+    k, c = np.nonzero(dropped)
+    match = alone[:, c] == rows[k, c][None, :]
+    other = np.where(match.any(axis=0), match.argmax(axis=0), -1).astype(np.int64)
+    nearer = np.where((other >= 0) & (position[np.maximum(other, 0)] > position[k]), other, k)
+    return kept, lost, rows[k, c], c.astype(np.int64), nearer.astype(np.int64)
+
+
+def test_stable_identity_is_the_numpy_form() -> None:
+    """300 random pairs of identities (with and without the weak peaks) and weak masks:
+    rivals_kernels.stable equals the numpy comparison it replaced, bitwise."""
+    from atris_node.pipeline import rivals_kernels
+
+    rng = np.random.default_rng(24)
+    for _ in range(300):
+        k_count = int(rng.integers(1, 9))
+        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
+        rows = _random_identity(rng, peaks, k_count)
+        alone = np.where(rng.random(rows.shape) < 0.1, _random_identity(rng, peaks, k_count),
+                         rows)
+        held = np.ascontiguousarray((rows >= 0) & (rng.random(rows.shape) < 0.8))
+        position = rng.permutation(k_count).astype(np.int64)
+        got = rivals_kernels.stable(rows, alone, held, position)
+        want = _stable_numpy(rows, alone, held, position)
+        for g, w in zip(got, want, strict=True):
+            assert g.dtype == w.dtype and g.shape == w.shape
+            np.testing.assert_array_equal(g, w)
+
+
+def test_continuity_reference_of_some_columns_is_that_of_all_columns_there() -> None:
+    """The rounds of the rival test take the continuity reference only in the columns they
+    test: on 200 random tables and column subsets it equals the whole reference there
+    (and is inf elsewhere), bitwise."""
+    from atris_node.pipeline import rivals_kernels
+    from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
+    from atris_node.pipeline.rivals import BRIDGE_PX, CONTINUITY_REACH, MEDIAN_PX, _reference
+
+    rng = np.random.default_rng(25)
+    for _ in range(200):
+        k_count, width = int(rng.integers(1, 9)), int(rng.integers(1, 200))
+        rows = _random_rows(rng, k_count, width)
+        anchored = rng.random(width) < rng.random()
+        columns = np.flatnonzero(rng.random(width) < rng.random()).astype(np.int64)
+        got = rivals_kernels.continuity(rows, anchored, columns, CONTINUITY_REACH,
+                                        CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES,
+                                        BRIDGE_PX, MEDIAN_PX)
+        want = np.full(rows.shape, np.inf)
+        want[:, columns] = _reference(rows, anchored)[:, columns]
+        np.testing.assert_array_equal(got, want)
+
+
 # --------------------------------------------------------------------------- pixel passes
 # (the per-pixel passes over the rows read: chunks tested in one vectorised step first)
 
@@ -476,157 +616,6 @@ def test_subsample_tiles_are_the_padded_numpy_tiles(dtype: type) -> None:
         np.testing.assert_array_equal(got, want)
 
 
-def _set_aside_numpy(peaks: np.ndarray, drop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """rivals.set_aside as it was in numpy: a sort of every column."""
-    big = np.iinfo(np.int64).max
-    kept = np.sort(np.where(drop | (peaks < 0), big, peaks), axis=0)
-    return np.where(kept == big, -1, kept), drop.sum(axis=0).astype(np.int64)
-
-
-def _random_peaks(rng: np.random.Generator, m_count: int, width: int) -> np.ndarray:
-    """(M, W) distinct peak rows per column, sorted down with -1 padding last, or in any
-    order with -1 anywhere."""
-    rows = np.sort(rng.permuted(np.tile(np.arange(400), (width, 1)), axis=1)[:, :m_count],
-                   axis=1).T.astype(np.int64)
-    n = rng.integers(0, m_count + 1, width)
-    peaks = np.where(np.arange(m_count)[:, None] < n[None, :], rows, -1)
-    return rng.permuted(peaks, axis=0) if rng.random() < 0.3 else peaks
-
-
-def test_set_aside_is_the_numpy_sort() -> None:
-    """300 random peak tables (sorted columns and columns in any order) and drop masks
-    (also on the padding): the compiled set_aside equals the numpy sort, bitwise."""
-    from atris_node.pipeline.rivals import set_aside
-
-    rng = np.random.default_rng(22)
-    for _ in range(300):
-        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
-        drop = rng.random(peaks.shape) < rng.random()
-        got, want = set_aside(peaks, drop), _set_aside_numpy(peaks, drop)
-        for g, w in zip(got, want, strict=True):
-            assert g.dtype == w.dtype and g.shape == w.shape
-            np.testing.assert_array_equal(g, w)
-
-
-def _doubts_numpy(peaks: np.ndarray, first: np.ndarray, rows: np.ndarray,
-                  nearest: np.ndarray, unsure: np.ndarray, bands: Any) -> tuple[np.ndarray, ...]:
-    """rivals._unique's bookkeeping as it was in numpy: the unsure counts, the removed
-    samples with their nearest rival, the unplaced peaks with their lowest band."""
-    from atris_node.pipeline.bands import in_image_order
-
-    before = (first >= 0).sum(axis=0)
-    k, c = np.nonzero(nearest >= 0)
-    rivalled = (first[k, c], c.astype(np.int64), nearest[k, c])
-    placed = ((peaks[None, :, :] == rows[:, None, :]) & (rows[:, None, :] >= 0)).any(axis=0)
-    unplaced = (peaks >= 0) & ~placed & (unsure > 0)[None, :]
-    marked = np.zeros(peaks.shape, dtype=np.bool_)
-    m, n = np.nonzero(peaks[:, rivalled[1]] == rivalled[0][None, :])
-    marked[m, rivalled[1][n]] = True
-    unplaced &= ~marked
-    i, j = np.nonzero(unplaced)
-    lo, hi, order = in_image_order(bands)
-    row = peaks[i, j]
-    inside = (row[:, None] >= lo[None, :]) & (row[:, None] < hi[None, :])
-    last = inside.shape[1] - 1 - inside[:, ::-1].argmax(axis=1)
-    lowest = np.where(inside.any(axis=1), order[last], -1).astype(np.int64)
-    known = lowest >= 0
-    return (unsure + np.maximum(before - (rows >= 0).sum(axis=0), 0),
-            np.concatenate([rivalled[0], row[known]]),
-            np.concatenate([rivalled[1], j[known].astype(np.int64)]),
-            np.concatenate([rivalled[2], lowest[known]]))
-
-
-def _random_identity(rng: np.random.Generator, peaks: np.ndarray, k_count: int
-                     ) -> np.ndarray:
-    """(K, W) rows by line taken from ``peaks`` (some lines without one)."""
-    m_count, width = peaks.shape
-    pick = peaks[rng.integers(0, m_count, (k_count, width)), np.arange(width)[None, :]]
-    return np.where(rng.random((k_count, width)) < 0.7, pick, -1).astype(np.int64)
-
-
-def test_doubts_of_the_rival_test_are_the_numpy_form() -> None:
-    """300 random identities before and after a rival test, with nearest rival lines and
-    unsure counts: rivals_kernels.doubts equals the numpy bookkeeping it replaced (values
-    and order of the doubts), bitwise."""
-    from atris_node.pipeline import rivals_kernels
-    from atris_node.pipeline.bands import Band, in_image_order
-
-    rng = np.random.default_rng(23)
-    for _ in range(300):
-        k_count = int(rng.integers(1, 9))
-        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
-        width = peaks.shape[1]
-        edges = np.sort(rng.integers(0, 400, (k_count, 2)), axis=1)
-        bands = tuple(Band(int(k), int(a), int(b)) for k, (a, b) in
-                      zip(rng.permutation(k_count), edges, strict=True))
-        first = _random_identity(rng, peaks, k_count)
-        removed = (first >= 0) & (rng.random(first.shape) < 0.2)
-        rows = np.where(removed | (rng.random(first.shape) < 0.05), -1, first)
-        nearest = np.where(removed, rng.integers(0, k_count, first.shape), -1).astype(np.int64)
-        unsure = (rng.integers(0, 3, width) * (rng.random(width) < 0.5)).astype(np.int64)
-        lo, hi, order = in_image_order(bands)
-        got = rivals_kernels.doubts(peaks, first, rows, nearest, unsure, lo, hi, order)
-        want = _doubts_numpy(peaks, first, rows, nearest, unsure, bands)
-        for g, w in zip(got, want, strict=True):
-            assert g.dtype == w.dtype and g.shape == w.shape
-            np.testing.assert_array_equal(g, w)
-
-
-def _stable_numpy(rows: np.ndarray, alone: np.ndarray, held: np.ndarray,
-                  position: np.ndarray) -> tuple[np.ndarray, ...]:
-    """rivals.robust_identity's comparison of the two identities as it was in numpy."""
-    unstable = ((rows != alone) & ((alone >= 0) | held)).any(axis=0)
-    dropped = unstable[None, :] & (rows != alone) & (rows >= 0)
-    kept = np.where(dropped, -1, rows)
-    lost = (rows >= 0).sum(axis=0) - (kept >= 0).sum(axis=0)
-    k, c = np.nonzero(dropped)
-    match = alone[:, c] == rows[k, c][None, :]
-    other = np.where(match.any(axis=0), match.argmax(axis=0), -1).astype(np.int64)
-    nearer = np.where((other >= 0) & (position[np.maximum(other, 0)] > position[k]), other, k)
-    return kept, lost, rows[k, c], c.astype(np.int64), nearer.astype(np.int64)
-
-
-def test_stable_identity_is_the_numpy_form() -> None:
-    """300 random pairs of identities (with and without the weak peaks) and weak masks:
-    rivals_kernels.stable equals the numpy comparison it replaced, bitwise."""
-    from atris_node.pipeline import rivals_kernels
-
-    rng = np.random.default_rng(24)
-    for _ in range(300):
-        k_count = int(rng.integers(1, 9))
-        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
-        rows = _random_identity(rng, peaks, k_count)
-        alone = np.where(rng.random(rows.shape) < 0.1, _random_identity(rng, peaks, k_count),
-                         rows)
-        held = np.ascontiguousarray((rows >= 0) & (rng.random(rows.shape) < 0.8))
-        position = rng.permutation(k_count).astype(np.int64)
-        got = rivals_kernels.stable(rows, alone, held, position)
-        want = _stable_numpy(rows, alone, held, position)
-        for g, w in zip(got, want, strict=True):
-            assert g.dtype == w.dtype and g.shape == w.shape
-            np.testing.assert_array_equal(g, w)
-
-
-def test_continuity_reference_of_some_columns_is_that_of_all_columns_there() -> None:
-    """The rounds of the rival test take the continuity reference only in the columns they
-    test: on 200 random tables and column subsets it equals the whole reference there
-    (and is inf elsewhere), bitwise."""
-    from atris_node.pipeline import rivals_kernels
-    from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
-    from atris_node.pipeline.rivals import BRIDGE_PX, CONTINUITY_REACH, MEDIAN_PX, _reference
-
-    rng = np.random.default_rng(25)
-    for _ in range(200):
-        k_count, width = int(rng.integers(1, 9)), int(rng.integers(1, 200))
-        rows = _random_rows(rng, k_count, width)
-        anchored = rng.random(width) < rng.random()
-        columns = np.flatnonzero(rng.random(width) < rng.random()).astype(np.int64)
-        got = rivals_kernels.continuity(rows, anchored, columns, CONTINUITY_REACH,
-                                        CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES,
-                                        BRIDGE_PX, MEDIAN_PX)
-        want = np.full(rows.shape, np.inf)
-        want[:, columns] = _reference(rows, anchored)[:, columns]
-        np.testing.assert_array_equal(got, want)
 def _above_elsewhere_numpy(values: npt.NDArray[Any], local: NoiseMap, snr_min: float,
                            elsewhere: tuple[tuple[int, int], ...]) -> bool:
     """peaks._above_elsewhere in the numpy form it had before its compiled pass."""
@@ -706,6 +695,8 @@ def test_blinded_is_the_numpy_form(dtype: type) -> None:
         want = _blinded_numpy(values, saturated, bands, tiles, tile_row, tile_px)
         assert found == want[0]
         np.testing.assert_array_equal(out, want[1])
+
+
 # --- sector verdicts (atris_node.pipeline.verdicts_kernels) ---------------------------
 
 

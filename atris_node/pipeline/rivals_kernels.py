@@ -680,34 +680,6 @@ def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
     return out, count
 
 
-@kernel("Tuple((float64[:, :], int64[:, :]))(int64[:, :], boolean[:, :], float64)")
-def bridge(rows: IntArray, good: BoolArray, bridge_px: float) -> tuple[FloatArray, IntArray]:
-    """(K, W) per line the row of the nearest ``good`` column on the left and on the
-    right: their nearer one (the left one on a tie) when both exist and agree within
-    ``bridge_px``, inf otherwise; and (K, W) how many of the two sides have one."""
-    k_count, width = rows.shape
-    out = np.full((k_count, width), np.inf)
-    sides = np.zeros((k_count, width), dtype=np.int64)
-    left = np.empty(width, dtype=np.int64)
-    for k in range(k_count):
-        at = -1
-        for c in range(width):
-            if good[k, c]:
-                at = c
-            left[c] = at
-        at = width
-        for c in range(width - 1, -1, -1):
-            if good[k, c]:
-                at = c
-            lc = left[c]
-            sides[k, c] = (lc >= 0) + (at < width)
-            if lc >= 0 and at < width:
-                row_l, row_r = np.float64(rows[k, lc]), np.float64(rows[k, at])
-                if abs(row_l - row_r) <= bridge_px:
-                    out[k, c] = row_l if c - lc <= at - c else row_r
-    return out, sides
-
-
 def warm_up() -> None:
     """Call every kernel once on a tiny input (argument typing before the first map)."""
     i64 = np.int64
@@ -727,4 +699,3 @@ def warm_up() -> None:
     set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
     isolated(peaks, 2, 2)
     continuity(rows, np.ones(1, dtype=np.bool_), one, 4, 2, 1, 1, 4.0, 6.0)
-    bridge(rows, np.ones((1, 1), dtype=np.bool_), 4.0)
