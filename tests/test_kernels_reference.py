@@ -701,7 +701,7 @@ def test_blinded_is_the_numpy_form(dtype: type) -> None:
 
 
 def _runs_numpy(mask: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], ...]:
-    """The numpy form verdicts._runs had before its compiled pass."""
+    """The numpy form of the runs of a mask before its compiled pass."""
     step = np.diff(mask.astype(np.int8), axis=1, prepend=0, append=0)
     row, start = np.nonzero(step == 1)
     stop = np.nonzero(step == -1)[1]

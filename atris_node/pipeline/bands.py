@@ -83,6 +83,14 @@ def in_image_order(bands: tuple[Band, ...]) -> tuple[IntArray, IntArray, IntArra
             np.array([b.line for b in ordered], dtype=np.int64))
 
 
+
+def image_positions(order: IntArray) -> IntArray:
+    """(K,) each line's position from the top of the image (0 = top), from the (K,) lines
+    in image ``order`` (the third array of :func:`in_image_order`)."""
+    position = np.empty(order.size, dtype=np.int64)
+    position[order] = np.arange(order.size)
+    return position
+
 def count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
     """(W,) entries of (M, W) ``peaks`` (rows, -1 = none) inside at least one band, looked
     up in a table of the rows some band covers (its last entry, for -1 and for rows

@@ -34,7 +34,7 @@ import numpy.typing as npt
 
 from atris_node.pipeline import alignment_kernels
 from atris_node.pipeline import identity_kernels as kernels
-from atris_node.pipeline.bands import Band, in_image_order
+from atris_node.pipeline.bands import Band, image_positions, in_image_order
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -221,9 +221,7 @@ class VisibilityPrior:
     @cached_property
     def image_rank(self) -> IntArray:
         """(K,) each line's position from the top of the image (0 = top)."""
-        rank = np.empty(self.cot_alpha.size, dtype=np.int64)
-        rank[self.image_order] = np.arange(self.cot_alpha.size)
-        return rank
+        return image_positions(self.image_order)
 
 
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,

@@ -39,7 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.pipeline import rivals_kernels
-from atris_node.pipeline.bands import Band, in_image_order
+from atris_node.pipeline.bands import Band, image_positions, in_image_order
 from atris_node.pipeline.identity import (
     _COSTS,
     CONTINUITY_BLOCK,
@@ -159,7 +159,8 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
                           (first, passed, np.asarray(~weak_peaks.any(axis=0))))
     rows = full.rows
     kept, lost, row, col, line = rivals_kernels.stable(
-        rows, alone.rows, np.ascontiguousarray((rows >= 0) & ~weak(rows)), _positions(edges[2]))
+        rows, alone.rows, np.ascontiguousarray((rows >= 0) & ~weak(rows)),
+        image_positions(edges[2]))
     doubts = [np.concatenate(parts) for parts in zip(
         (full.doubt_row, full.doubt_col, full.doubt_line), (row, col, line),
         (alone.doubt_row, alone.doubt_col, alone.doubt_line), strict=True)]
@@ -176,14 +177,6 @@ def _to_infinity(hi: IntArray, order: IntArray, prior: VisibilityPrior | None) -
     infinity = prior.cy_px + prior.focal_px * np.asarray(prior.cot_alpha)[order]
     reach = np.floor(infinity + INFINITY_PX).astype(np.int64) + 1
     return np.minimum(np.maximum(hi, reach), prior.height_px).astype(np.int64)
-
-
-def _positions(order: IntArray) -> IntArray:
-    """(K,) each line's position from the top of the image (0 = top), from the (K,) lines
-    in image ``order``."""
-    position = np.empty(order.size, dtype=np.int64)
-    position[order] = np.arange(order.size)
-    return position
 
 
 def _unique(peaks: IntArray, bands: tuple[Band, ...],

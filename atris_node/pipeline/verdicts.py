@@ -346,13 +346,6 @@ class LineHoles:
             np.asarray(points.snr, dtype=np.float64), float(bright_snr), GAP_RUN))
 
 
-def _runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
-    """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
-    (exclusive) of each, row by row (compiled: :func:`verdicts_kernels.runs`)."""
-    row, start, stop = verdicts_kernels.runs(mask)
-    return row, start, stop
-
-
 @dataclass(frozen=True)
 class MapView:
     """What the verdicts of one map share: the ``points`` and ``evidence``, the points of
@@ -495,7 +488,7 @@ def missing_on_surface(s: int, view: MapView, distance_m: float, settings: Secto
     shown = np.zeros_like(onto)
     shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
     lost = onto & ~shown
-    line, start, stop = _runs(lost)
+    line, start, stop = verdicts_kernels.runs(lost)  # the runs of True, line by line
     long = stop - start >= SURFACE_RUN * settings.min_points
     if not long.any():
         return 0
