@@ -25,7 +25,14 @@ line's row in the nearest anchored column within CONTINUITY_REACH columns as its
 continuity reference (a stripe on one surface moves little from column to column); a
 column resolved in one round anchors the next. The continuity never changes an identity,
 it only settles a tie: replacing the chosen assignment by a cheaper one let a comb that
-a noise maximum had anchored one line off spread along its row. A peak that still has a
+a noise maximum had anchored one line off spread along its row. Nor does it overrule the
+physics: a column where, without continuity, a rival costs less than the chosen identity
+by RIVAL_MARGIN_PX or more (*outranked*: the prior prefers another identity by at least
+one unexplained line) is not tested again, and stays ambiguous. A reference is rows only,
+and rows cannot tell a comb from the same comb shifted by one line at another range: a
+far box's two stripes taken one line low (0.67 m for a box at 4.1 m) lay within
+MEDIAN_PX of a near pole's comb 120 columns away, and its line medians anchored the
+shift against a prior that preferred the truth by two lines. A peak that still has a
 rival is dropped and counted ambiguous, with its nearest hypothesis: a sector cannot be
 NO_RETURN with it, nor VALID at a distance it may stand as near as.
 """
@@ -95,12 +102,12 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
 
 def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
                  rows: IntArray, prior: VisibilityPrior | None,
-                 earlier: tuple[IntArray, BoolArray] | None
-                 ) -> tuple[IntArray, IntArray, IntArray]:
-    """:func:`unique_identity` (bands as ``edges``, :func:`in_image_order`), and (K, W)
-    the rival test's result without continuity (pass 1) in every column. ``earlier``:
-    that pass-1 result of an earlier identity and (W,) the columns where its peaks and
-    ``rows`` were these, which take it over."""
+                 earlier: tuple[FirstPass, BoolArray] | None
+                 ) -> tuple[IntArray, IntArray, FirstPass]:
+    """:func:`unique_identity` (bands as ``edges``, :func:`in_image_order`), and the rival
+    test's result without continuity (pass 1) in every column. ``earlier``: that pass-1
+    result of an earlier identity and (W,) the columns where its peaks and ``rows`` were
+    these, which take it over."""
     lo, hi, order = edges
     # a stripe from past its line's z_max (the ground or a wall beyond the range) is as
     # good an explanation as the next line at a near range, and the rival test must see
@@ -110,13 +117,26 @@ def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
     rows = np.array(rows, dtype=np.int64, order="C")
     ambiguous = np.full(rows.shape, -1, dtype=np.int64)
     if earlier is None:
-        passed, reuse = np.empty_like(ambiguous), np.zeros(rows.shape[1], dtype=np.bool_)
+        passed, outranked = np.empty_like(ambiguous), np.zeros(rows.shape[1], dtype=np.bool_)
+        reuse = np.zeros(rows.shape[1], dtype=np.bool_)
     else:
-        passed, reuse = earlier[0].copy(), np.ascontiguousarray(earlier[1], dtype=np.bool_)
+        passed, outranked = earlier[0].ambiguous.copy(), earlier[0].outranked.copy()
+        reuse = np.ascontiguousarray(earlier[1], dtype=np.bool_)
     rivals_kernels.unique(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, order, rows,
-                          ambiguous, passed, reuse, _MARGINS, _SPANS, _COSTS,
+                          ambiguous, passed, outranked, reuse, _MARGINS, _SPANS, _COSTS,
                           *prior_arrays(prior, rows.shape))
-    return rows, ambiguous, passed
+    return rows, ambiguous, FirstPass(passed, outranked)
+
+
+@dataclass(frozen=True)
+class FirstPass:
+    """The rival test without continuity (pass 1): ``ambiguous`` (K, W) by line, the
+    nearest rival line of each peak that has one (-1 elsewhere), and ``outranked`` (W,)
+    the columns where a rival costs less than the chosen identity by the margin or more:
+    the physics prefers another identity there, and no continuity may settle it."""
+
+    ambiguous: IntArray
+    outranked: BoolArray
 
 
 @dataclass(frozen=True)
@@ -182,8 +202,8 @@ def _to_infinity(hi: IntArray, order: IntArray, prior: VisibilityPrior | None) -
 def _unique(peaks: IntArray, bands: tuple[Band, ...],
             edges: tuple[IntArray, IntArray, IntArray], sep: int,
             prior: VisibilityPrior | None, aligned: bool,
-            earlier: tuple[IntArray, IntArray, BoolArray] | None
-            ) -> tuple[Identity, IntArray, IntArray]:
+            earlier: tuple[IntArray, FirstPass, BoolArray] | None
+            ) -> tuple[Identity, IntArray, FirstPass]:
     """:func:`identify_lines` then :func:`unique_identity`. Peaks the rival test removed
     keep their nearest rival as doubt; peaks the greedy matchings could not place, the
     lowest band that holds them. Also returns the (K, W) identity before the rival test

@@ -175,12 +175,12 @@ def _peak_index(column: IntArray, m: int, row: int) -> int:
 
 @kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
         "int64[:], float64[:, :], float64[:], float64, float64[:], boolean, "
-        "float64[:], float64[:], float64[:, :], int64[:], int64[:])")
+        "float64[:], float64[:], float64[:, :], int64[:], int64[:], boolean[:])")
 def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
            ambiguous: IntArray, columns: IntArray, ref: FloatArray, beyond: FloatArray,
            margin: float, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
            geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
-           counted: IntArray) -> None:
+           counted: IntArray, outranked: BoolArray) -> None:
     """:func:`atris_node.pipeline.rivals.unique_identity` on the given ``columns``.
 
     ``rows`` (K, W) by line is the chosen identity (never changed: a cheaper assignment is a
@@ -253,6 +253,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 if j == owner[i] or not lo[j] <= column[i] < hi[j]:
                     continue
                 through = f[j, i] + match[j, i] + g[j + 1, i + 1]
+                exact = not has_prior
                 if through >= bound + margin:
                     continue  # no assignment giving peak i to line j comes close
                 if not priced:
@@ -279,9 +280,23 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                                 seen[n_seen], seen_count[n_seen] = other, missing
                                 n_seen += 1
                         through += costs[3] * missing
+                        exact = True
                 if through < best + margin:
-                    ambiguous[order[owner[i]], c] = order[max(j, owner[i])]
-                    break
+                    if ambiguous[order[owner[i]], c] < 0:
+                        ambiguous[order[owner[i]], c] = order[max(j, owner[i])]
+                    if outranked.size == 0 or outranked[c]:
+                        break
+                    if has_prior and not exact:
+                        other[:] = -1
+                        _read_forward(j, i, column, f_step, other)
+                        other[j] = column[i]
+                        _read_backward(j + 1, i + 1, column, g_step, other)
+                        through += costs[3] * _unexplained_column(
+                            _by_line(other, order, line_rows), c, cot_alpha, geometry,
+                            ground_range_m, image_order, z)
+                    if through < best - margin:
+                        outranked[c] = True
+                        break
 
 
 @kernel("boolean[:, :](int64[:, :], int64, int64)")
@@ -463,10 +478,11 @@ def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: in
 
 
 @kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
-        "int64[:, :], boolean[:], float64[:], int64[:], float64[:], boolean, float64[:], "
-        "float64[:], float64[:, :], int64[:])")
+        "int64[:, :], boolean[:], boolean[:], float64[:], int64[:], float64[:], boolean, "
+        "float64[:], float64[:], float64[:, :], int64[:])")
 def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
-           ambiguous: IntArray, passed: IntArray, reuse: BoolArray, margins: FloatArray,
+           ambiguous: IntArray, passed: IntArray, outranked: BoolArray, reuse: BoolArray,
+           margins: FloatArray,
            spans: IntArray, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
            geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
     """The rounds of :func:`atris_node.pipeline.rivals.unique_identity`, in place on
@@ -495,6 +511,7 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         if reuse[c]:
             ambiguous[:, c] = passed[:, c]
             continue
+        outranked[c] = False
         for k in range(k_count):
             if rows[k, c] >= 0:
                 columns[n] = c
@@ -503,8 +520,9 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     ref = np.full((k_count, width), np.inf)  # the reference of each column's last test
     counted = np.full(width, -1, dtype=np.int64)  # the rows do not change: nor their count
     rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
-           has_prior, cot_alpha, geometry, ground_range_m, image_order, counted)
+           has_prior, cot_alpha, geometry, ground_range_m, image_order, counted, outranked)
     passed[:, :] = ambiguous
+    no_rank = np.zeros(0, dtype=np.bool_)
     anchored = np.empty(width, dtype=np.bool_)
     again = np.empty(width, dtype=np.int64)
     left = -1
@@ -517,7 +535,7 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                              bridge_px, median_px)
         n_again = 0
         for c in columns[:n]:  # each was tested in the last round (or pass 1)
-            if _same_reference(ref, by_line, order, c):
+            if outranked[c] or _same_reference(ref, by_line, order, c):
                 continue  # the same test again: the same result
             for k in range(k_count):
                 ref[k, c] = by_line[order[k], c]
@@ -525,7 +543,8 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
             again[n_again] = c
             n_again += 1
         rivals(peaks, lo, hi, order, rows, ambiguous, again[:n_again], ref, beyond, margin,
-               costs, has_prior, cot_alpha, geometry, ground_range_m, image_order, counted)
+               costs, has_prior, cot_alpha, geometry, ground_range_m, image_order, counted,
+               no_rank)
     for k in range(k_count):
         for c in range(width):
             if ambiguous[k, c] >= 0:
@@ -690,9 +709,10 @@ def warm_up() -> None:
     costs, prior = np.array([10.0, 40.0, 10.0, 10.0]), (False, np.zeros(1), np.zeros(5),
                                                          np.zeros((1, 1)), one)
     rivals(peaks, one, hi, one, rows.copy(), none.copy(), one, np.full((1, 1), np.inf),
-           np.array([np.inf]), 10.0, costs, *prior, np.full(1, -1, dtype=i64))
+           np.array([np.inf]), 10.0, costs, *prior, np.full(1, -1, dtype=i64),
+           np.zeros(1, dtype=np.bool_))
     unique(peaks, one, hi, one, rows.copy(), none.copy(), none.copy(),
-           np.zeros(1, dtype=np.bool_), np.array([10.0, 4.0, 6.0]),
+           np.zeros(1, dtype=np.bool_), np.zeros(1, dtype=np.bool_), np.array([10.0, 4.0, 6.0]),
            np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior)
     doubts(peaks, rows, rows, none, one, one, hi, one)
     stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
