@@ -102,6 +102,15 @@ KNOWN_WRONG: dict[str, str] = {
                      "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
                      "up, no line seen above) is INVALID since pipeline.tops (far on seed "
                      "11 still: 3 sector-frames of 32, was 4)",
+    "retro_pole_stray_stripe": "near phantom: a stripe of SNR 130 in the retro-reflective "
+                               "pole's columns taken as the third sheet at 0.71 m (the pole "
+                               "at 0.96 m), sector 6 VALID in map 0",
+    "edge_on_glossy_plate_dark_wall": "near phantom: the upper sheets on a dark wall at 7.6 m "
+                                      "found at rows that read 0.31-0.94 m, sector 4 VALID "
+                                      "at 0.31 m in map 3",
+    "flicker_step_at_box_foot": "near phantom: a faint ground stripe on a flicker step at a "
+                                "pale box's foot peaks 1.2 px high, 13 cm over the ground: "
+                                "sector 5 VALID at 4.09 m where no sheet reaches the box",
 }
 #: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
 #: not a pipeline fault (the unit cannot know its calibration is off), strict expected
