@@ -219,6 +219,11 @@ class Publisher:
                 if woken or now >= self._next_due_s:  # else an inline cycle moved the due
                     self._cycle(now, immediate=woken, timeout_s=self.period_s)
 
+    def _late(self, now: float) -> bool:
+        """True when a cycle at ``now`` comes later than period + tolerance after the last."""
+        return self._last_cycle_s is not None and (
+            now - self._last_cycle_s > self.period_s + self.tolerance_s)
+
     def _next_due(self, due: float, now: float, immediate: bool) -> float:
         """Fixed-rate schedule; an immediate send or a late cycle restarts it from now."""
         if immediate or due + self.period_s <= now:
@@ -229,9 +234,7 @@ class Publisher:
         """One cycle at ``now`` (the send lock held); True when every frame was queued.
         A non-blocking cycle (``timeout_s`` 0, inline) that cannot queue a frame counts
         nothing: the scheduler thread then sends the whole cycle, with new counters."""
-        late = self._last_cycle_s is not None and (
-            now - self._last_cycle_s > self.period_s + self.tolerance_s)
-        sent = False
+        sent, stamp = False, now
         if now < self._retry_at_s:
             self.stats.skipped_cycles += 1
         else:
@@ -240,10 +243,15 @@ class Publisher:
                                                    self._progress_s)
             status = payloads.alive_status(self.status_at_send(status), progress_s, now,
                                            self.max_age_s)
-            sent = self._send_all(self.frames(measurement, status, now, late), timeout_s)
+            # lateness as near the send as the sender sees it: waiting for the locks and
+            # composing the status took time the bus would see as lateness
+            stamp = self.clock()
+            sent = self._send_all(self.frames(measurement, status, now, self._late(stamp)),
+                                  timeout_s)
             if not sent and timeout_s == 0.0:
                 return False
-        self._last_cycle_s = now
+        late = self._late(stamp)
+        self._last_cycle_s = stamp
         self.stats.cycles += 1
         self.stats.deadline_misses += int(late)
         self.stats.bus_off_count = self.health.bus_off_count
