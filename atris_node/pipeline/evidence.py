@@ -29,7 +29,12 @@ from atris_node.pipeline.tops import (
     rows_off_ground,
     unseen_tops,
 )
-from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
+from atris_node.pipeline.verdicts import (
+    ColumnEvidence,
+    ObstaclePoints,
+    SectorColumns,
+    sector_verdicts,
+)
 from atris_node.types import SectorDistance
 
 #: a line is not seen for lack of a surface only where its band's noise σ is at most
@@ -79,6 +84,8 @@ class SectorJudge:
         self.z_range_m = z_range_m
         self.clearance_m = clearance_m
         self.column_sector = sectors_by_column(calibration, mounting, layout)
+        self.column_sector.flags.writeable = False  # the sectors' columns are kept
+        self._columns = SectorColumns.of(self.column_sector, layout.count)
         self.projector_m = mounting.camera_to_vehicle(
             np.array([[0.0, -calibration.laser.baseline_m, 0.0]]))[0]
         #: the last prior and its lines expected on the ground (the prior changes only
@@ -121,7 +128,8 @@ class SectorJudge:
                 samples.row_px[clean][under], samples.col_px[clean][under]))
             inside = tops & (sector >= 0)
             np.minimum.at(top_m, sector[inside], range_m[inside])
-        return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m)
+        return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
+                               self._columns)
 
     def _credible_obstacle(self, obstacle: BoolArray, line: IntArray, column: IntArray,
                            sheet: Sheet) -> BoolArray:

@@ -193,11 +193,12 @@ class SectorPoints:
 def by_sector(points: ObstaclePoints, count: int) -> list[SectorPoints]:
     """The :class:`SectorPoints` of sectors 0 .. ``count`` - 1: one stable sort of the
     map's points by sector (obstacle points first within it); each sector's points are
-    taken out of it when first asked for."""
+    taken out of it when first asked for (the sort counts the keys, one compiled pass:
+    :func:`atris_node.pipeline.verdicts_kernels.grouped`)."""
     key = 2 * points.sector + (~points.obstacle).astype(np.int64)
-    order = np.argsort(key, kind="stable")
+    order, below = verdicts_kernels.grouped(key, 2 * count)
     grouped = points.take(order)
-    bounds = np.searchsorted(key[order], np.arange(2 * count + 1)).tolist()
+    bounds = below.tolist()
     return [SectorPoints(grouped, bounds[2 * s], bounds[2 * s + 1], bounds[2 * s + 2])
             for s in range(count)]
 
@@ -258,8 +259,8 @@ def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
     module docstring), None when there is none.
 
     The window and the front are those of the module docstring; the front is never
-    nearer than the window's first point. The loop is compiled
-    (:func:`atris_node.pipeline.verdicts_kernels.credible`)."""
+    nearer than the window's first point. The sort by range and the loop are compiled
+    (:func:`atris_node.pipeline.verdicts_kernels.credible_of`)."""
     idx = np.flatnonzero(mine)
     if idx.size < min_points:
         return None
@@ -270,34 +271,25 @@ def _credible(hits: ObstaclePoints, width: int, min_points: int) -> Credible | N
     """:func:`nearest_credible` of all of ``hits`` (their columns below ``width``)."""
     if hits.size < min_points:
         return None
-    order = _stable_order(hits.range_m)
-    distance, sigma, support, nearer = verdicts_kernels.credible(
-        hits.range_m[order], hits.sigma_m[order], hits.line[order].astype(np.int64),
-        hits.column[order].astype(np.int64), min_points, width, _PARAMS)
+    distance, sigma, support, nearer = verdicts_kernels.credible_of(
+        np.asarray(hits.range_m, dtype=np.float64), np.asarray(hits.sigma_m, dtype=np.float64),
+        np.asarray(hits.line, dtype=np.int64), np.asarray(hits.column, dtype=np.int64),
+        min_points, width, _PARAMS)
     if support < 0:
         return None
     return Credible(float(distance), float(sigma), int(support), int(nearer))
 
 
-def _stable_order(values: FloatArray) -> IntArray:
-    """np.argsort(values, kind="stable") of an (n,) float64 array, n > 0: numpy's default
-    sort (about half the time) where it gives the same order, that is where no two values
-    are equal and none is NaN."""
-    order = np.argsort(values)
-    ranked = values[order]
-    if ranked[-1] != ranked[-1] or (ranked[1:] == ranked[:-1]).any():
-        return np.argsort(values, kind="stable")
-    return order
-
-
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
                     settings: SectorSettings, doubt_m: FloatArray | None = None,
-                    top_m: FloatArray | None = None) -> tuple[SectorDistance, ...]:
+                    top_m: FloatArray | None = None, columns: SectorColumns | None = None
+                    ) -> tuple[SectorDistance, ...]:
     """One :class:`SectorDistance` per sector of ``layout`` (index 0 at the right edge).
     ``doubt_m`` (S,) is the nearest range (m) an ambiguous peak may stand for in each
     sector (inf: none; None: every ambiguous peak may stand for anything); ``top_m`` (S,)
     the nearest range of a low surface whose top no line saw (inf or None: none; the
-    samples are in ``evidence.doubtful`` too)."""
+    samples are in ``evidence.doubtful`` too); ``columns`` the :class:`SectorColumns` of
+    ``evidence.sector`` (None: made here)."""
     count = layout.count
     ambiguous = evidence.per_sector(evidence.ambiguous, count)
     doubtful = evidence.per_sector(evidence.doubtful + evidence.missing + evidence.unclean,
@@ -306,7 +298,7 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
     if top_m is None:
         top_m = np.full(count, np.inf)
-    view = MapView.of(points, evidence, count, settings)
+    view = MapView.of(points, evidence, count, settings, columns)
     return tuple(_verdict(s, view, layout, settings, ambiguous=int(ambiguous[s]),
                           doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]),
                           top_m=float(top_m[s]))
@@ -347,6 +339,28 @@ class LineHoles:
 
 
 @dataclass(frozen=True)
+class SectorColumns:
+    """The image columns of each of ``count`` sectors: ``mask`` (S, W) True where column
+    c looks into sector s, read-only; ``spans`` per sector its (first, last) column, None
+    where it has none. They depend on the calibration and mounting only."""
+
+    mask: BoolArray
+    spans: list[tuple[int, int] | None]
+
+    @classmethod
+    def of(cls, sector: IntArray, count: int) -> SectorColumns:
+        """The columns of sectors 0 .. ``count`` - 1 under the per-column ``sector`` (W,)
+        (-1 outside)."""
+        mask = sector[None, :] == np.arange(count)[:, None]
+        mask.flags.writeable = False
+        spans: list[tuple[int, int] | None] = []
+        for row in mask:
+            where = np.flatnonzero(row)
+            spans.append((int(where[0]), int(where[-1])) if where.size else None)
+        return cls(mask, spans)
+
+
+@dataclass(frozen=True)
 class MapView:
     """What the verdicts of one map share: the ``points`` and ``evidence``, the points of
     each sector (``sectors``), each sector's columns (``columns`` (S, W) mask and
@@ -364,17 +378,16 @@ class MapView:
 
     @classmethod
     def of(cls, points: ObstaclePoints, evidence: ColumnEvidence, count: int,
-           settings: SectorSettings) -> MapView:
-        """The view of ``points`` and ``evidence`` for ``count`` sectors."""
-        columns = evidence.sector[None, :] == np.arange(count)[:, None]
-        spans: list[tuple[int, int] | None] = []
-        for mask in columns:
-            where = np.flatnonzero(mask)
-            spans.append((int(where[0]), int(where[-1])) if where.size else None)
+           settings: SectorSettings, columns: SectorColumns | None = None) -> MapView:
+        """The view of ``points`` and ``evidence`` for ``count`` sectors (``columns``:
+        those of ``evidence.sector``, None: made here)."""
+        if columns is None:
+            columns = SectorColumns.of(evidence.sector, count)
         width = int(points.column.max()) + 1 if points.size else 1
         holes = None if evidence.seen is None else LineHoles.of(
             points, evidence.seen, evidence.noisy, SHADOW_SNR * settings.snr_min)
-        return cls(points, evidence, by_sector(points, count), columns, spans, holes, width)
+        return cls(points, evidence, by_sector(points, count), columns.mask, columns.spans,
+                   holes, width)
 
 
 def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -477,14 +490,14 @@ def missing_on_surface(s: int, view: MapView, distance_m: float, settings: Secto
     prior, seen = evidence.prior, evidence.seen
     if prior is None or seen is None or view.points.depth_m is None:
         return 0
-    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    hits = view.sectors[s].hits
     margin = _doubt_margin_m(distance_m)
-    on = hits.take(np.flatnonzero(np.abs(hits.range_m - distance_m) <= margin))
+    at = np.abs(hits.range_m - distance_m) <= margin  # on the surface
     strong = SURFACE_SNR * settings.snr_min
-    surface = on.take(np.flatnonzero(on.snr >= strong))
-    if surface.size < settings.min_points:
+    bright = np.flatnonzero(at & (hits.snr >= strong))
+    if bright.size < settings.min_points:
         return 0
-    first, onto, bottom = _expected_on_surface(surface, evidence, prior)
+    first, onto, bottom = _expected_on_surface(hits.take(bright), evidence, prior)
     shown = np.zeros_like(onto)
     shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
     lost = onto & ~shown
@@ -492,6 +505,7 @@ def missing_on_surface(s: int, view: MapView, distance_m: float, settings: Secto
     long = stop - start >= SURFACE_RUN * settings.min_points
     if not long.any():
         return 0
+    inside, on = view.sectors[s].inside, hits.take(np.flatnonzero(at))
     beyond = inside.take(np.flatnonzero(inside.range_m > distance_m + margin))
     rank = prior.image_rank
     hole = np.zeros(onto.shape[1], dtype=np.bool_)

@@ -180,6 +180,43 @@ def credible(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
     return np.nan, np.nan, -1.0, -1.0
 
 
+@kernel("UniTuple(float64, 4)(float64[:], float64[:], int64[:], int64[:], int64, int64, "
+        "float64[:])")
+def credible_of(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
+                min_points: int, width_px: int, params: FloatArray
+                ) -> tuple[float, float, float, float]:
+    """:func:`credible` of points in any order: sorted by range ``r`` first, ties in their
+    given order (``np.argsort(kind="stable")``: a merge sort, NaN last)."""
+    order = np.argsort(r, kind="mergesort")
+    return credible(r[order], sigma[order], line[order], column[order], min_points,
+                    width_px, params)
+
+
+@kernel("Tuple((int64[:], int64[:]))(int64[:], int64)")
+def grouped(key: IntArray, groups: int) -> tuple[IntArray, IntArray]:
+    """(n,) the order that sorts ``key`` (n,) stably (``np.argsort(kind="stable")``) and
+    (groups + 1,) how many keys lie below 0, 1, ..., ``groups`` (``np.searchsorted`` of
+    the sorted keys): one counting pass over the values' range."""
+    n = key.size
+    below = np.zeros(groups + 1, dtype=np.int64)
+    order = np.empty(n, dtype=np.int64)
+    if n == 0:
+        return order, below
+    low, high = key.min(), key.max()
+    start = np.zeros(high - low + 2, dtype=np.int64)
+    for i in range(n):
+        start[key[i] - low + 1] += 1
+    for v in range(1, start.size):
+        start[v] += start[v - 1]
+    for j in range(groups + 1):
+        below[j] = start[min(max(j - low, 0), start.size - 1)]
+    for i in range(n):
+        v = key[i] - low
+        order[start[v]] = i
+        start[v] += 1
+    return order, below
+
+
 @kernel("Tuple((int64[:], int64[:], int64[:]))(boolean[:, :])")
 def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
@@ -326,6 +363,9 @@ def warm_up() -> None:
     r = np.array([1.0, 1.0, 1.01, 1.02, 1.02, 1.03])
     credible(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
              np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
+    credible_of(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
+                np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
+    grouped(np.array([1, 0, 1], dtype=np.int64), 2)
     runs(np.ones((1, 2), dtype=np.bool_))
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
                np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1),
