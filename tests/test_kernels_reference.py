@@ -903,3 +903,52 @@ def test_grouped_is_the_stable_argsort_and_searchsorted() -> None:
         np.testing.assert_array_equal(order, expected)
         np.testing.assert_array_equal(below, np.searchsorted(key[expected],
                                                              np.arange(groups + 1)))
+
+
+def _follow_numpy(r: npt.NDArray[np.float64], cols: npt.NDArray[np.float64],
+                  keep: npt.NDArray[np.bool_], first: int, noise: float, spread: float
+                  ) -> npt.NDArray[np.bool_]:
+    """verdicts_kernels._follow as whole-array steps (its form before the loop)."""
+    from atris_node.pipeline import verdicts_kernels
+
+    for _ in range(verdicts_kernels.FOLLOW_PASSES):
+        if keep.sum() < 3:
+            break
+        c_mean, r_mean, slope, scatter, sxx = verdicts_kernels._fit(cols[keep], r[keep])
+        if not verdicts_kernels._sloped(slope, scatter, sxx):
+            break
+        along = np.abs(r - r_mean - slope * (cols - c_mean)) <= spread * noise
+        along[:first] = False
+        if along.sum() < 3 or (along == keep).all():
+            break
+        keep = along
+    return keep
+
+
+def test_follow_and_by_line_are_the_array_forms() -> None:
+    """500 random slanted surfaces with outliers (NaN too): the followed points are those
+    of the whole-array form, and the points grouped by line are np.unique's lines with
+    each line's kept points in order."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(23)
+    for _ in range(500):
+        n = int(rng.integers(1, 90))
+        cols = np.sort(rng.integers(0, 200, n)).astype(np.float64)
+        r = 3.0 + rng.normal(0.0, 0.02) * cols + rng.normal(0.0, 0.01, n)
+        r[rng.random(n) < 0.1] += rng.uniform(-1.0, 1.0)
+        if rng.random() < 0.1:
+            r[rng.random(n) < 0.1] = np.nan
+        keep = rng.random(n) < rng.uniform(0.3, 1.0)
+        first = int(rng.integers(0, max(n // 3, 1)))
+        noise, spread = float(rng.uniform(0.001, 0.05)), float(rng.choice([2.0, 3.0]))
+        np.testing.assert_array_equal(
+            verdicts_kernels._follow(r, cols, keep.copy(), first, noise, spread),
+            _follow_numpy(r, cols, keep.copy(), first, noise, spread))
+        line = rng.integers(-2, 9, n).astype(np.int64)
+        grouped, lines, bounds = verdicts_kernels._by_line(line, keep)
+        np.testing.assert_array_equal(lines, np.unique(line[keep]))
+        for j, k in enumerate(lines):
+            np.testing.assert_array_equal(grouped[bounds[j]:bounds[j + 1]],
+                                          np.flatnonzero(keep & (line == k)))
+        assert bounds[-1] == keep.sum()

@@ -106,18 +106,58 @@ def _follow(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise:
     ``spread``·``noise`` of the straight fit of the kept ones, fitted again, FOLLOW_PASSES
     times. A window in range cuts a slanted surface short and flattens its fit; the
     surface's own points do not. ``keep`` itself when the fit has no slope."""
+    limit = spread * noise
     for _ in range(FOLLOW_PASSES):
         if keep.sum() < 3:
             break
         c_mean, r_mean, slope, scatter, sxx = _fit(cols[keep], r[keep])
         if not _sloped(slope, scatter, sxx):
             break
-        along = np.abs(r - r_mean - slope * (cols - c_mean)) <= spread * noise
-        along[:first] = False
-        if along.sum() < 3 or (along == keep).all():
+        along = np.zeros(r.size, dtype=np.bool_)
+        count, same = 0, True
+        for i in range(r.size):
+            # |r - r̄ - slope·(c - c̄)| <= limit, as the array expression computes it
+            along[i] = i >= first and abs(r[i] - r_mean - slope * (cols[i] - c_mean)) <= limit
+            count += along[i]
+            same = same and along[i] == keep[i]
+        if count < 3 or same:
             break
         keep = along
     return keep
+
+
+@kernel()
+def _by_line(line: IntArray, keep: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
+    """The kept points grouped by line: (m,) their indices, line by line in increasing
+    line order, each line's in increasing order; (L,) the lines (increasing, as
+    ``np.unique`` gives them) and (L + 1,) where each line's indices start."""
+    idx = np.flatnonzero(keep)
+    low, high = 0, -1
+    if idx.size:
+        low, high = line[idx[0]], line[idx[0]]
+        for i in idx:
+            low, high = min(low, line[i]), max(high, line[i])
+    start = np.zeros(high - low + 2, dtype=np.int64)
+    for i in idx:
+        start[line[i] - low + 1] += 1
+    lines = 0
+    for v in range(1, start.size):
+        lines += start[v] > 0
+        start[v] += start[v - 1]
+    grouped = np.empty(idx.size, dtype=np.int64)
+    fill = start[:-1].copy()
+    for i in idx:
+        grouped[fill[line[i] - low]] = i
+        fill[line[i] - low] += 1
+    values = np.empty(lines, dtype=np.int64)
+    bounds = np.empty(lines + 1, dtype=np.int64)
+    j = 0
+    for v in range(start.size - 1):
+        if start[v + 1] > start[v]:
+            values[j], bounds[j] = low + v, start[v]
+            j += 1
+    bounds[lines] = idx.size
+    return grouped, values, bounds
 
 
 @kernel()
@@ -136,9 +176,10 @@ def _front(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
     count = keep.sum()
     if not np.isfinite(best):
         return np.quantile(r[keep], params[4]), QUANTILE_SE * noise / np.sqrt(count), count
-    for k in np.unique(line[keep]):
-        mine = keep & (line == k)
-        if mine.sum() < min_points:
+    grouped, lines, bounds = _by_line(line, keep)
+    for j in range(lines.size):  # the lines in increasing order, as np.unique(line[keep])
+        mine = grouped[bounds[j]:bounds[j + 1]]
+        if mine.size < min_points:
             continue
         front, se = _fit_front(cols[mine], r[mine], np.median(sigma[mine]))
         if front < best - NEARER_SIGMAS * np.sqrt(se * se + error * error):
