@@ -952,3 +952,40 @@ def test_follow_and_by_line_are_the_array_forms() -> None:
             np.testing.assert_array_equal(grouped[bounds[j]:bounds[j + 1]],
                                           np.flatnonzero(keep & (line == k)))
         assert bounds[-1] == keep.sum()
+
+
+def test_least_per_sector_is_numpys_minimum_at() -> None:
+    """1000 random point sets (outside points, NaN ranges, empty sectors): the compiled
+    least range per sector equals np.minimum.at over the points inside."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(24)
+    for _ in range(1000):
+        n, count = int(rng.integers(0, 60)), int(rng.integers(1, 12))
+        sector = rng.integers(-1, count, n).astype(np.int64)
+        values = rng.uniform(0.0, 12.0, n)
+        values[rng.random(n) < 0.05] = np.nan
+        start = np.where(rng.random(count) < 0.2, rng.uniform(0.0, 12.0, count), np.inf)
+        got, want = start.copy(), start.copy()
+        verdicts_kernels.least_per_sector(got, sector, values)
+        inside = sector >= 0
+        with np.errstate(invalid="ignore"):
+            np.minimum.at(want, sector[inside], values[inside])
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(IndexError):
+        verdicts_kernels.least_per_sector(np.zeros(2), np.array([2], dtype=np.int64),
+                                          np.zeros(1))
+
+
+def test_lines_per_column_is_the_sum_over_lines() -> None:
+    """Random (K, W) masks, views and K beyond a byte's range: the count per column is
+    mask.sum(axis=0)."""
+    from atris_node.pipeline.verdicts import lines_per_column
+
+    rng = np.random.default_rng(25)
+    for k_count in (1, 3, 8, 255, 256, 300):
+        mask = rng.random((k_count, 97)) < rng.random()
+        for view in (mask, mask[:, ::2], np.asfortranarray(mask)):
+            got = lines_per_column(view)
+            assert got.dtype == np.int64
+            np.testing.assert_array_equal(got, view.sum(axis=0))

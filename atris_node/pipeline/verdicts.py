@@ -232,13 +232,21 @@ class ColumnEvidence:
         whose band is too noisy to show that nothing stands in their way."""
         if self.noisy is None or self.seen is None or self.expected is None:
             return np.zeros(self.sector.size, dtype=np.int64)
-        return (self.noisy & ~self.seen & ~self.expected).sum(axis=0).astype(np.int64)
+        return lines_per_column(self.noisy & ~self.seen & ~self.expected)
 
     def per_sector(self, counts: IntArray, sectors: int) -> IntArray:
         """(S,) sums of a (W,) per-column count over each sector's columns."""
         inside = self.sector >= 0
         return np.bincount(self.sector[inside], weights=counts[inside],
                            minlength=sectors).astype(np.int64)
+
+
+def lines_per_column(mask: BoolArray) -> IntArray:
+    """(W,) int64 how many rows of a (K, W) bool ``mask`` are True in each column, as
+    ``mask.sum(axis=0)``: added as bytes while K fits one (several times faster)."""
+    if mask.shape[0] > np.iinfo(np.uint8).max:
+        return mask.sum(axis=0).astype(np.int64)
+    return np.add.reduce(mask.view(np.uint8), axis=0, dtype=np.uint8).astype(np.int64)
 
 
 @dataclass(frozen=True)

@@ -258,6 +258,21 @@ def grouped(key: IntArray, groups: int) -> tuple[IntArray, IntArray]:
     return order, below
 
 
+@kernel("void(float64[:], int64[:], float64[:])")
+def least_per_sector(out: FloatArray, sector: IntArray, values: FloatArray) -> None:
+    """``out[s]`` (S,) lowered to the least of the ``values`` (n,) whose ``sector`` (n,) is
+    s, as ``np.minimum.at`` does (NaN kept); sectors below 0 (outside) left out."""
+    for i in range(sector.size):
+        s = sector[i]
+        if s < 0:
+            continue
+        if s >= out.size:
+            raise IndexError("a sector beyond the sectors given")
+        v = values[i]
+        if np.isnan(v) or v < out[s]:
+            out[s] = v
+
+
 @kernel("Tuple((int64[:], int64[:], int64[:]))(boolean[:, :])")
 def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
@@ -407,6 +422,7 @@ def warm_up() -> None:
     credible_of(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
                 np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
     grouped(np.array([1, 0, 1], dtype=np.int64), 2)
+    least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
     runs(np.ones((1, 2), dtype=np.bool_))
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
                np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1),
