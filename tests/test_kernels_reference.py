@@ -989,3 +989,76 @@ def test_lines_per_column_is_the_sum_over_lines() -> None:
             got = lines_per_column(view)
             assert got.dtype == np.int64
             np.testing.assert_array_equal(got, view.sum(axis=0))
+
+
+def _shadowed_columns_numpy(s: int, view: Any, distance_m: float) -> int:
+    """verdicts.shadowed_columns as numpy steps (its form before the compiled pass)."""
+    from atris_node.pipeline.verdicts import SHADOW_LINES, _doubt_margin_m
+
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None or not holes.line.size:
+        return 0
+    margin = _doubt_margin_m(distance_m)
+    limit = distance_m + margin
+    mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
+            & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
+            & holes.bright)
+    count = np.zeros(view.evidence.sector.size, dtype=np.int64)
+    for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
+        count[start:stop] += 1
+    shadow = (count >= SHADOW_LINES) & view.columns[s]
+    hits = view.sectors[s].hits
+    shadow[hits.column[hits.range_m <= limit]] = False
+    return int(shadow.sum())
+
+
+def test_unseen_and_shadowed_columns_are_the_numpy_forms() -> None:
+    """300 random maps (lines with holes, noisy bands, bright and weak lines, points of
+    every range, NaN SNR now and then) and distances: the compiled unseen and shadowed
+    columns equal the numpy forms in every sector."""
+    from atris_node.pipeline.obstacles import SectorSettings
+    from atris_node.pipeline.verdicts import (
+        ColumnEvidence,
+        MapView,
+        ObstaclePoints,
+        _unseen_columns,
+        shadowed_columns,
+        unseen_columns,
+    )
+
+    rng = np.random.default_rng(26)
+    settings = SectorSettings(min_points=5, snr_min=6.0)
+    for _ in range(300):
+        lines, width, count = int(rng.integers(1, 9)), int(rng.integers(12, 120)), 4
+        seen = rng.random((lines, width)) < rng.uniform(0.3, 0.95)
+        noisy = None if rng.random() < 0.5 else rng.random((lines, width)) < rng.random()
+        if rng.random() < 0.5:  # a shadow: every line stops over a few columns
+            start = int(rng.integers(3, width - 8))
+            stop = start + int(rng.integers(3, 6))
+            seen[:, start - 3:stop + 3] = True
+            seen[:, start:stop] = False
+        k, c = np.nonzero(seen)
+        n = k.size
+        pick = np.concatenate([np.arange(n), rng.integers(0, max(n, 1), int(rng.integers(0, n + 1)))
+                               if n else np.zeros(0, np.int64)])
+        line, column = k[pick].astype(np.int64), c[pick].astype(np.int64)
+        m = line.size
+        sector_of = np.sort(rng.integers(-1, count, width)).astype(np.int64)
+        snr = rng.uniform(6.0, 200.0, m) if rng.random() < 0.5 else rng.uniform(50.0, 90.0, m)
+        if rng.random() < 0.1 and m:
+            snr[rng.integers(0, m)] = np.nan
+        wall = float(rng.uniform(2.0, 8.0))
+        ranges = (rng.uniform(0.3, 10.0, m) if rng.random() < 0.4
+                  else wall + rng.normal(0.0, 0.02, m))  # a wall: flanks alike
+        ranges[rng.random(m) < 0.1] = rng.uniform(0.3, 10.0)  # a nearer or farther surface
+        points = ObstaclePoints(ranges, sector_of[column], rng.random(m) < 0.9, line, column,
+                                np.full(m, 0.01), snr)
+        zero = np.zeros(width, np.int64)
+        evidence = ColumnEvidence(sector_of, zero, zero, zero, seen=seen, noisy=noisy)
+        view = MapView.of(points, evidence, count, settings)
+        for s in range(count):
+            for distance in (*rng.uniform(0.3, 10.0, 2), wall, wall + 0.5):
+                assert unseen_columns(s, view, distance, settings) == _unseen_columns(
+                    s, view, distance, settings)
+                assert shadowed_columns(s, view, distance) == _shadowed_columns_numpy(
+                    s, view, distance)

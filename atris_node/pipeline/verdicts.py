@@ -419,6 +419,25 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
     if holes is None or span is None:
         return 0
     margin = _doubt_margin_m(distance_m)
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    count = verdicts_kernels.unseen(
+        holes.nearer_m, holes.noisy, holes.line, holes.start, holes.stop, span[0], span[1],
+        distance_m - margin, distance_m + margin, GAP_SNR * settings.snr_min, view.columns[s],
+        _ints(hits.line), _ints(hits.column), _floats(hits.range_m), _floats(hits.snr),
+        _ints(inside.column), _floats(inside.range_m), GAP_RUN)
+    if count < 0:  # NaN in an SNR: numpy's median decides
+        return _unseen_columns(s, view, distance_m, settings)
+    return int(count)
+
+
+def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                    ) -> int:
+    """:func:`unseen_columns` in numpy steps (the compiled pass leaves an SNR with NaN to
+    numpy's median)."""
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None:
+        return 0
+    margin = _doubt_margin_m(distance_m)
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
             & (holes.start <= span[1]) & (holes.stop > span[0]))
     if not near.any():
@@ -441,6 +460,16 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
     return int(hole.sum())
 
 
+def _ints(values: npt.NDArray[np.generic]) -> IntArray:
+    """``values`` as the kernels take them: int64 (no copy when they are)."""
+    return np.asarray(values, dtype=np.int64)
+
+
+def _floats(values: npt.NDArray[np.generic]) -> FloatArray:
+    """``values`` as the kernels take them: float64 (no copy when they are)."""
+    return np.asarray(values, dtype=np.float64)
+
+
 def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     """Columns of sector ``s`` in which SHADOW_LINES or more bright lines (seen with an
     SNR of SHADOW_SNR·snr_min in every one of GAP_RUN columns each side) all have a hole
@@ -458,17 +487,11 @@ def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     if holes is None or span is None or not holes.line.size:
         return 0
     margin = _doubt_margin_m(distance_m)
-    limit = distance_m + margin
-    mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
-            & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
-            & holes.bright)
-    count = np.zeros(view.evidence.sector.size, dtype=np.int64)
-    for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
-        count[start:stop] += 1
-    shadow = (count >= SHADOW_LINES) & view.columns[s]
     hits = view.sectors[s].hits
-    shadow[hits.column[hits.range_m <= limit]] = False
-    return int(shadow.sum())
+    return int(verdicts_kernels.shadowed(
+        holes.nearer_m, holes.farther_m, holes.noisy, holes.bright, holes.start, holes.stop,
+        span[0], span[1], distance_m + margin, margin, SHADOW_LINES, view.columns[s],
+        _ints(hits.column), _floats(hits.range_m)))
 
 
 def missing_on_surface(s: int, view: MapView, distance_m: float, settings: SectorSettings

@@ -12,8 +12,11 @@ sector). Ranges and σ float64 m, lines and columns int64.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
+from numba import types
 
 from atris_node.jit import kernel
 
@@ -273,6 +276,101 @@ def least_per_sector(out: FloatArray, sector: IntArray, values: FloatArray) -> N
             out[s] = v
 
 
+def _with_mask(before: tuple[Any, ...], after: tuple[Any, ...]) -> list[Any]:
+    """int64 kernel signatures with the arguments ``before``, a (W,) bool mask (writable
+    or read-only: the sectors' column masks are read-only), then ``after``."""
+    return [types.int64(*before, types.Array(types.boolean, 1, "A", readonly=readonly),
+                        *after) for readonly in (False, True)]
+
+
+_F, _I, _B = (types.Array(dtype, 1, "A") for dtype in (types.float64, types.int64,
+                                                       types.boolean))
+
+
+@kernel(_with_mask((_F, _F, _B, _B, _I, _I, types.int64, types.int64, types.float64,
+                    types.float64, types.int64), (_I, _F)))
+def shadowed(nearer: FloatArray, farther: FloatArray, noisy: BoolArray, bright: BoolArray,
+             start: IntArray, stop: IntArray, first: int, last: int, limit: float,
+             margin: float, lines: int, inside: BoolArray, hit_column: IntArray,
+             hit_range: FloatArray) -> int:
+    """:func:`atris_node.pipeline.verdicts.shadowed_columns`: how many of the sector's
+    columns (``inside`` (W,), spanning ``first`` .. ``last``) lie in holes (``nearer``,
+    ``farther`` m, ``noisy``, ``bright``, ``start``, ``stop``; (h,) each) of ``lines`` or
+    more lines whose flanks lie within ``margin`` of each other and not beyond
+    ``limit`` (m), quiet and bright, with no obstacle point (``hit_column``,
+    ``hit_range`` (n,)) at most ``limit`` away in them."""
+    width = inside.size
+    count = np.zeros(width, dtype=np.int64)
+    for h in range(nearer.size):
+        if (nearer[h] <= limit and farther[h] <= nearer[h] + margin and not noisy[h]
+                and start[h] <= last and stop[h] > first and bright[h]):
+            for c in range(start[h], stop[h]):
+                count[c] += 1
+    shadow = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        shadow[c] = count[c] >= lines and inside[c]
+    for i in range(hit_column.size):
+        if hit_range[i] <= limit:
+            shadow[hit_column[i]] = False
+    return shadow.sum()
+
+
+@kernel(_with_mask((_F, _B, _I, _I, _I, types.int64, types.int64, types.float64,
+                    types.float64, types.float64), (_I, _I, _F, _F, _I, _F, types.int64)))
+def unseen(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray,
+           stop: IntArray, first: int, last: int, nearer_than: float, farther_than: float,
+           strong_snr: float, inside: BoolArray, hit_line: IntArray, hit_column: IntArray,
+           hit_range: FloatArray, hit_snr: FloatArray, all_column: IntArray,
+           all_range: FloatArray, gap: int) -> int:
+    """:func:`atris_node.pipeline.verdicts.unseen_columns`: how many columns of the sector
+    (``inside`` (W,), spanning ``first`` .. ``last``) lie in a hole (``nearer`` m,
+    ``noisy``, ``line``, ``start``, ``stop``; (h,) each) flanked nearer than
+    ``nearer_than`` (m) or noisy, of a line whose obstacle points in the sector
+    (``hit_*`` (n,)) have a median SNR of ``strong_snr`` or more (a noisy hole counts
+    beyond the sector's columns too), with no obstacle point of the sector at most
+    ``farther_than`` away in the column and no point of the sector (``all_*``) farther
+    within ``gap`` columns. -1 when a line's SNR holds NaN (the median is numpy's to
+    take then)."""
+    width = inside.size
+    hole = np.zeros(width, dtype=np.bool_)
+    whole = np.zeros(width, dtype=np.bool_)
+    found = False
+    for h in range(nearer.size):
+        if not ((nearer[h] < nearer_than or noisy[h]) and start[h] <= last
+                and stop[h] > first):
+            continue
+        n = 0
+        for i in range(hit_line.size):
+            n += hit_line[i] == line[h]
+        if n == 0:
+            continue
+        snr = np.empty(n)
+        j = 0
+        for i in range(hit_line.size):
+            if hit_line[i] == line[h]:
+                if np.isnan(hit_snr[i]):
+                    return -1
+                snr[j] = hit_snr[i]
+                j += 1
+        if np.median(snr) >= strong_snr:
+            found = True
+            for c in range(start[h], stop[h]):
+                hole[c] = True
+                whole[c] |= noisy[h]
+    if not found:
+        return 0
+    for c in range(width):
+        hole[c] &= inside[c] or whole[c]
+    for i in range(hit_column.size):
+        if hit_range[i] <= farther_than:
+            hole[hit_column[i]] = False
+    for i in range(all_column.size):
+        if all_range[i] > farther_than:
+            for shift in range(-gap, gap + 1):  # clipped to the image, as np.clip does
+                hole[min(max(all_column[i] + shift, 0), width - 1)] = False
+    return hole.sum()
+
+
 @kernel("Tuple((int64[:], int64[:], int64[:]))(boolean[:, :])")
 def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
@@ -423,6 +521,11 @@ def warm_up() -> None:
                 np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
     grouped(np.array([1, 0, 1], dtype=np.int64), 2)
     least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
+    two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
+    pair = np.array([0, 1], dtype=np.int64)
+    shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
+    unseen(two, flag, pair, pair, pair + 1, 0, 1, 1.0, 1.0, 1.0, flag, pair, pair, two, two,
+           pair, two, 3)
     runs(np.ones((1, 2), dtype=np.bool_))
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
                np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1),
