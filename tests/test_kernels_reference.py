@@ -1062,3 +1062,54 @@ def test_unseen_and_shadowed_columns_are_the_numpy_forms() -> None:
                     s, view, distance, settings)
                 assert shadowed_columns(s, view, distance) == _shadowed_columns_numpy(
                     s, view, distance)
+
+
+def test_lost_on_surface_is_the_numpy_form() -> None:
+    """400 random sectors (points near and off a surface, bright and weak, under random
+    priors with lines out of image order, noisy bands or none, random seen lines): the
+    compiled first steps of missing_on_surface give the numpy steps' surface, expected
+    and seen lines and long runs."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.identity import VisibilityPrior
+    from atris_node.pipeline.verdicts import _geometry
+
+    rng = np.random.default_rng(27)
+    for _ in range(400):
+        lines, width = int(rng.integers(1, 9)), int(rng.integers(4, 90))
+        cot = rng.permutation(np.linspace(-0.4, 0.4, lines)) + rng.normal(0, 0.01, lines)
+        ground = rng.uniform(0.5, 12.0, (lines, width))
+        ground[rng.random((lines, width)) < 0.2] = np.inf
+        prior = VisibilityPrior(cot, float(rng.uniform(300, 900)), float(rng.uniform(150, 500)),
+                                int(rng.integers(200, 900)), float(rng.uniform(0.05, 0.1)),
+                                10.0, ground)
+        n = int(rng.integers(0, 200))
+        column = rng.integers(0, width, n).astype(np.int64)
+        line = rng.integers(0, lines, n).astype(np.int64)
+        distance = float(rng.uniform(1.0, 8.0))
+        range_m = np.where(rng.random(n) < 0.7, distance + rng.normal(0, 0.1, n),
+                           rng.uniform(0.3, 10.0, n))
+        snr = rng.uniform(6.0, 30.0, n)
+        depth = range_m * rng.uniform(0.9, 1.1, n)
+        noisy = None if rng.random() < 0.5 else rng.random((lines, width)) < 0.2
+        seen = rng.random((lines, width)) < rng.uniform(0.0, 1.0)
+        margin, strong = max(0.1 * distance, 0.2), 12.0
+        min_points = int(rng.choice([2, 5]))
+        got = verdicts_kernels.lost_on_surface(
+            range_m, snr, column, depth, line, distance, margin, strong, min_points,
+            2 * min_points, prior.image_rank, np.asarray(prior.cot_alpha, np.float64),
+            prior.ground_range_m, np.zeros((0, 0), np.bool_) if noisy is None else noisy,
+            _geometry(prior), seen)
+        bright = np.flatnonzero((np.abs(range_m - distance) <= margin) & (snr >= strong))
+        if bright.size < min_points:
+            assert got[0] == -1 and not got[4].size
+            continue
+        first, onto, bottom = _expected_on_surface_numpy(column[bright], depth[bright],
+                                                         line[bright], prior, noisy)
+        shown = np.zeros_like(onto)
+        shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
+        row, start, stop = _runs_numpy(onto & ~shown)
+        long = stop - start >= 2 * min_points
+        assert got[0] == first
+        for value, want in zip(got[1:], (onto, bottom, shown, row[long], start[long],
+                                         stop[long]), strict=True):
+            np.testing.assert_array_equal(value, want)

@@ -522,25 +522,25 @@ def missing_on_surface(s: int, view: MapView, distance_m: float, settings: Secto
     if prior is None or seen is None or view.points.depth_m is None:
         return 0
     hits = view.sectors[s].hits
+    if hits.depth_m is None:
+        return 0
     margin = _doubt_margin_m(distance_m)
-    at = np.abs(hits.range_m - distance_m) <= margin  # on the surface
     strong = SURFACE_SNR * settings.snr_min
-    bright = np.flatnonzero(at & (hits.snr >= strong))
-    if bright.size < settings.min_points:
+    # the surface's lines expected and not seen, and their long runs: one compiled pass
+    first, onto, bottom, shown, line, start, stop = verdicts_kernels.lost_on_surface(
+        _floats(hits.range_m), _floats(hits.snr), _ints(hits.column), _floats(hits.depth_m),
+        _ints(hits.line), distance_m, margin, strong, settings.min_points,
+        SURFACE_RUN * settings.min_points, prior.image_rank,
+        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m,
+        _NOWHERE if evidence.noisy is None else evidence.noisy, _geometry(prior), seen)
+    if not line.size:
         return 0
-    first, onto, bottom = _expected_on_surface(hits.take(bright), evidence, prior)
-    shown = np.zeros_like(onto)
-    shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
-    lost = onto & ~shown
-    line, start, stop = verdicts_kernels.runs(lost)  # the runs of True, line by line
-    long = stop - start >= SURFACE_RUN * settings.min_points
-    if not long.any():
-        return 0
-    inside, on = view.sectors[s].inside, hits.take(np.flatnonzero(at))
+    inside = view.sectors[s].inside
+    on = hits.take(np.flatnonzero(np.abs(hits.range_m - distance_m) <= margin))
     beyond = inside.take(np.flatnonzero(inside.range_m > distance_m + margin))
     rank = prior.image_rank
     hole = np.zeros(onto.shape[1], dtype=np.bool_)
-    for k, a, b in zip(line[long], start[long], stop[long], strict=True):
+    for k, a, b in zip(line, start, stop, strict=True):
         # a line between the surface's lowest seen one and this one, seen beyond it
         # in the run: the surface does not reach down there, the lines pass under (beside
         # the run is no sign: the wall beside a pole)
@@ -565,15 +565,22 @@ def _expected_on_surface(surface: ObstaclePoints, evidence: ColumnEvidence,
     columns; the last column is False (a run's end). Compiled
     (:func:`atris_node.pipeline.verdicts_kernels.expected_on_surface`)."""
     noisy = _NOWHERE if evidence.noisy is None else evidence.noisy
-    geometry = np.array([prior.focal_px, prior.cy_px, prior.height_px,
-                         prior.focal_px * prior.baseline_m, SURFACE_ROWS_PX,
-                         SURFACE_SEEN_ROWS_PX])
     first, onto, bottom = verdicts_kernels.expected_on_surface(
         np.asarray(surface.column, dtype=np.int64),
         np.asarray(surface.depth_m, dtype=np.float64),
         np.asarray(surface.line, dtype=np.int64), prior.image_rank,
-        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m, noisy, geometry)
+        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m, noisy,
+        _geometry(prior))
     return int(first), onto, bottom
+
+
+def _geometry(prior: VisibilityPrior) -> FloatArray:
+    """(6,) what :func:`atris_node.pipeline.verdicts_kernels.expected_on_surface` takes of
+    the prior: focal length px, cy px, image height px, f·b px·m and the margins in rows
+    (SURFACE_ROWS_PX, SURFACE_SEEN_ROWS_PX)."""
+    return np.array([prior.focal_px, prior.cy_px, prior.height_px,
+                     prior.focal_px * prior.baseline_m, SURFACE_ROWS_PX,
+                     SURFACE_SEEN_ROWS_PX])
 
 
 def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,

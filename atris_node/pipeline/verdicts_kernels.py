@@ -512,6 +512,55 @@ def expected_on_surface(column: IntArray, depth: FloatArray, line: IntArray, ran
     return first, onto, bottom
 
 
+@kernel("Tuple((int64, boolean[:, :], int64[:], boolean[:, :], int64[:], int64[:], int64[:]))"
+        "(float64[:], float64[:], int64[:], float64[:], int64[:], float64, float64, float64, "
+        "int64, int64, int64[:], float64[:], float64[:, :], boolean[:, :], float64[:], "
+        "boolean[:, :])")
+def lost_on_surface(range_m: FloatArray, snr: FloatArray, column: IntArray, depth: FloatArray,
+                    line: IntArray, distance: float, margin: float, strong: float,
+                    min_points: int, min_run: int, rank: IntArray, cot: FloatArray,
+                    ground_range: FloatArray, noisy: BoolArray, geometry: FloatArray,
+                    seen: BoolArray) -> tuple[int, BoolArray, IntArray, BoolArray, IntArray,
+                                              IntArray, IntArray]:
+    """The first steps of :func:`atris_node.pipeline.verdicts.missing_on_surface` over a
+    sector's obstacle points (``range_m``, ``snr``, ``column``, camera ``depth``, ``line``;
+    (n,) each): the surface is the points within ``margin`` of ``distance`` (m) with an
+    SNR of ``strong`` or more; with ``min_points`` of them, (first column c0, (K, m + 2)
+    lines expected on it, (m + 2,) lowest line seen on it, as :func:`expected_on_surface`
+    gives them under ``rank``, ``cot``, ``ground_range``, ``noisy`` and ``geometry``;
+    (K, m + 2) ``seen`` (K, W) from c0 on, the last column False; and the runs of
+    ``min_run`` or more columns where an expected line is not seen: (r,) line, start,
+    stop). With fewer points: first -1 and nothing else."""
+    bright = 0
+    for i in range(range_m.size):
+        bright += abs(range_m[i] - distance) <= margin and snr[i] >= strong
+    none = np.zeros(0, dtype=np.int64)
+    if bright < min_points:
+        flat = np.zeros((0, 0), dtype=np.bool_)
+        return -1, flat, none, flat, none, none, none
+    col = np.empty(bright, dtype=np.int64)
+    dep = np.empty(bright)
+    lin = np.empty(bright, dtype=np.int64)
+    j = 0
+    for i in range(range_m.size):
+        if abs(range_m[i] - distance) <= margin and snr[i] >= strong:
+            col[j], dep[j], lin[j] = column[i], depth[i], line[i]
+            j += 1
+    first, onto, bottom = expected_on_surface(col, dep, lin, rank, cot, ground_range, noisy,
+                                              geometry)
+    lines, span = onto.shape
+    shown = np.zeros((lines, span), dtype=np.bool_)
+    lost = np.zeros((lines, span), dtype=np.bool_)
+    for k in range(lines):
+        for c in range(span - 1):
+            shown[k, c] = seen[k, first + c]
+        for c in range(span):
+            lost[k, c] = onto[k, c] and not shown[k, c]
+    row, start, stop = runs(lost)
+    long = stop - start >= min_run
+    return first, onto, bottom, shown, row[long], start[long], stop[long]
+
+
 def warm_up() -> None:
     """Type the kernels' arguments once."""
     r = np.array([1.0, 1.0, 1.01, 1.02, 1.02, 1.03])
@@ -533,3 +582,6 @@ def warm_up() -> None:
     one = np.zeros(1, dtype=np.int64)
     expected_on_surface(one, np.ones(1), one, one, np.ones(1), np.ones((1, 1)),
                         np.zeros((0, 0), dtype=np.bool_), np.ones(6))
+    lost_on_surface(np.ones(1), np.ones(1), one, np.ones(1), one, 1.0, 0.2, 1.0, 1, 2, one,
+                    np.ones(1), np.ones((1, 1)), np.zeros((0, 0), dtype=np.bool_), np.ones(6),
+                    np.ones((1, 1), dtype=np.bool_))
