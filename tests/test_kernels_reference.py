@@ -1113,3 +1113,29 @@ def test_lost_on_surface_is_the_numpy_form() -> None:
         for value, want in zip(got[1:], (onto, bottom, shown, row[long], start[long],
                                          stop[long]), strict=True):
             np.testing.assert_array_equal(value, want)
+
+
+def test_credible_per_sector_is_credible_of_each_sector() -> None:
+    """200 random maps of points grouped by sector (empty sectors, sectors below
+    min_points): one call gives each sector's credible_of."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.verdicts import _PARAMS
+
+    rng = np.random.default_rng(28)
+    for _ in range(200):
+        count = int(rng.integers(1, 9))
+        sizes = rng.integers(0, 40, count)
+        bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        n = int(bounds[-1])
+        r = np.round(rng.uniform(0.3, 10.0, n), int(rng.integers(1, 4)))
+        sigma = rng.uniform(0.001, 0.1, n)
+        line = rng.integers(0, 4, n).astype(np.int64)
+        column = rng.integers(0, 40, n).astype(np.int64)
+        got = verdicts_kernels.credible_per_sector(r, sigma, line, column, bounds[:-1],
+                                                   bounds[1:], 5, 40, _PARAMS)
+        for s in range(count):
+            lo, hi = bounds[s], bounds[s + 1]
+            want = ((np.nan, np.nan, -1.0, -1.0) if hi - lo < 5 else
+                    verdicts_kernels.credible_of(r[lo:hi], sigma[lo:hi], line[lo:hi],
+                                                 column[lo:hi], 5, 40, _PARAMS))
+            np.testing.assert_array_equal(got[s], want)

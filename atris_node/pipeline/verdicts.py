@@ -373,8 +373,9 @@ class MapView:
     """What the verdicts of one map share: the ``points`` and ``evidence``, the points of
     each sector (``sectors``), each sector's columns (``columns`` (S, W) mask and
     ``spans``, (first, last) column or None), the line holes (None without
-    ``evidence.seen``; bright at SHADOW_SNR·snr_min), and ``width`` (a bound on the
-    points' columns)."""
+    ``evidence.seen``; bright at SHADOW_SNR·snr_min), ``width`` (a bound on the
+    points' columns) and ``found`` (S, 4): each sector's nearest credible cluster
+    (:meth:`credible`)."""
 
     points: ObstaclePoints
     evidence: ColumnEvidence
@@ -383,6 +384,16 @@ class MapView:
     spans: list[tuple[int, int] | None]
     holes: LineHoles | None
     width: int
+    found: FloatArray
+
+    def credible(self, s: int) -> Credible | None:
+        """:func:`nearest_credible` of sector ``s``'s obstacle points (found for every
+        sector in one compiled call,
+        :func:`atris_node.pipeline.verdicts_kernels.credible_per_sector`)."""
+        distance, sigma, support, nearer = self.found[s].tolist()
+        if support < 0:
+            return None
+        return Credible(distance, sigma, int(support), int(nearer))
 
     @classmethod
     def of(cls, points: ObstaclePoints, evidence: ColumnEvidence, count: int,
@@ -394,8 +405,17 @@ class MapView:
         width = int(points.column.max()) + 1 if points.size else 1
         holes = None if evidence.seen is None else LineHoles.of(
             points, evidence.seen, evidence.noisy, SHADOW_SNR * settings.snr_min)
-        return cls(points, evidence, by_sector(points, count), columns.mask, columns.spans,
-                   holes, width)
+        sectors = by_sector(points, count)
+        found = np.full((0, 4), np.nan)
+        if sectors:
+            grouped = sectors[0].grouped
+            found = verdicts_kernels.credible_per_sector(
+                _floats(grouped.range_m), _floats(grouped.sigma_m), _ints(grouped.line),
+                _ints(grouped.column), np.array([p.start for p in sectors], dtype=np.int64),
+                np.array([p.split for p in sectors], dtype=np.int64), settings.min_points,
+                width, _PARAMS)
+        return cls(points, evidence, sectors, columns.mask, columns.spans, holes, width,
+                   found)
 
 
 def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -675,7 +695,7 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
         free = ambiguous == 0 and doubtful == 0 and conf >= settings.min_confidence
         return SectorDistance(s, bearing, SectorState.NO_RETURN if free else
                               SectorState.INVALID, 0.0, conf, samples)
-    found = _credible(hits, view.width, settings.min_points)
+    found = view.credible(s)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
             found.distance_m + _doubt_margin_m(found.distance_m)) or top_m < (
             found.distance_m - max(TOP_REL * found.distance_m, TOP_ABS_M)):

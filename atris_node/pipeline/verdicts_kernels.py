@@ -236,6 +236,25 @@ def credible_of(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArr
                     width_px, params)
 
 
+@kernel("float64[:, :](float64[:], float64[:], int64[:], int64[:], int64[:], int64[:], int64, "
+        "int64, float64[:])")
+def credible_per_sector(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
+                        start: IntArray, stop: IntArray, min_points: int, width_px: int,
+                        params: FloatArray) -> FloatArray:
+    """(S, 4) :func:`credible_of` of each sector's points ``start[s]`` .. ``stop[s]``
+    (exclusive) of the given (n,) arrays, one call for every sector; (nan, nan, -1, -1)
+    where a sector has fewer than ``min_points``."""
+    out = np.empty((start.size, 4))
+    for s in range(start.size):
+        lo, hi = start[s], stop[s]
+        if hi - lo < min_points:
+            out[s, 0], out[s, 1], out[s, 2], out[s, 3] = np.nan, np.nan, -1.0, -1.0
+            continue
+        out[s, 0], out[s, 1], out[s, 2], out[s, 3] = credible_of(
+            r[lo:hi], sigma[lo:hi], line[lo:hi], column[lo:hi], min_points, width_px, params)
+    return out
+
+
 @kernel("Tuple((int64[:], int64[:]))(int64[:], int64)")
 def grouped(key: IntArray, groups: int) -> tuple[IntArray, IntArray]:
     """(n,) the order that sorts ``key`` (n,) stably (``np.argsort(kind="stable")``) and
@@ -568,6 +587,10 @@ def warm_up() -> None:
              np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
     credible_of(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
                 np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
+    credible_per_sector(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
+                        np.arange(6, dtype=np.int64), np.array([0, 6], dtype=np.int64),
+                        np.array([6, 6], dtype=np.int64), 5, 8,
+                        np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
     grouped(np.array([1, 0, 1], dtype=np.int64), 2)
     least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
     two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
