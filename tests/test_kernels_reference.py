@@ -1139,3 +1139,28 @@ def test_credible_per_sector_is_credible_of_each_sector() -> None:
                     verdicts_kernels.credible_of(r[lo:hi], sigma[lo:hi], line[lo:hi],
                                                  column[lo:hi], 5, 40, _PARAMS))
             np.testing.assert_array_equal(got[s], want)
+
+
+def test_sector_index_is_the_numpy_form() -> None:
+    """Random bearings (on the sector edges, beyond the field of view, inf and NaN) under
+    random layouts: the compiled index equals the numpy steps, and index_of keeps them
+    for points of any shape."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.sectors import SectorLayout
+
+    rng = np.random.default_rng(29)
+    for _ in range(300):
+        layout = SectorLayout(int(rng.integers(1, 65)), float(rng.uniform(0.1, 2.0 * np.pi)))
+        half, width = layout.fov_rad / 2.0, layout.width_rad
+        edges = -half + width * np.arange(layout.count + 1)
+        bearing = np.concatenate([rng.uniform(-np.pi, np.pi, 50), edges,
+                                  np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf),
+                                  [np.inf, -np.inf, np.nan, 1e300, -1e300]])
+        with np.errstate(invalid="ignore"):
+            idx = np.floor((bearing + half) / width).astype(np.int64)
+        want = np.where((idx >= 0) & (idx < layout.count), idx, -1)
+        np.testing.assert_array_equal(
+            verdicts_kernels.sector_index(bearing, half, width, layout.count), want)
+        x, y = np.cos(bearing[:50]), np.sin(bearing[:50])
+        np.testing.assert_array_equal(layout.index_of(x, y), [
+            int(layout.index_of(float(a), float(b))) for a, b in zip(x, y, strict=True)])

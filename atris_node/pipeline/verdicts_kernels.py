@@ -280,6 +280,18 @@ def grouped(key: IntArray, groups: int) -> tuple[IntArray, IntArray]:
     return order, below
 
 
+@kernel("int64[:](float64[:], float64, float64, int64)")
+def sector_index(bearing: FloatArray, half_fov: float, width: float, count: int) -> IntArray:
+    """(n,) the sector of each ``bearing`` (n,) rad: floor((bearing + ``half_fov``) /
+    ``width``) where it lies in 0 .. ``count`` - 1, else -1 (NaN too), as the numpy steps
+    of :meth:`atris_node.pipeline.sectors.SectorLayout.index_of` compute it."""
+    out = np.empty(bearing.size, dtype=np.int64)
+    for i in range(bearing.size):
+        f = np.floor((bearing[i] + half_fov) / width)
+        out[i] = int(f) if 0.0 <= f < count else -1
+    return out
+
+
 @kernel("void(float64[:], int64[:], float64[:])")
 def least_per_sector(out: FloatArray, sector: IntArray, values: FloatArray) -> None:
     """``out[s]`` (S,) lowered to the least of the ``values`` (n,) whose ``sector`` (n,) is
@@ -593,6 +605,7 @@ def warm_up() -> None:
                         np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
     grouped(np.array([1, 0, 1], dtype=np.int64), 2)
     least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
+    sector_index(np.zeros(1), 0.6, 0.15, 8)
     two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
     pair = np.array([0, 1], dtype=np.int64)
     shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
