@@ -1164,3 +1164,23 @@ def test_sector_index_is_the_numpy_form() -> None:
         x, y = np.cos(bearing[:50]), np.sin(bearing[:50])
         np.testing.assert_array_equal(layout.index_of(x, y), [
             int(layout.index_of(float(a), float(b))) for a, b in zip(x, y, strict=True)])
+
+
+def test_count_in_bands_is_the_sum_of_the_covered_rows() -> None:
+    """Random peaks (-1 padding, rows below every band) and bands (empty ones too): the
+    count per column added as bytes is the bool sum over the slots."""
+    from atris_node.pipeline.bands import Band, count_in_bands
+
+    rng = np.random.default_rng(30)
+    for _ in range(300):
+        bands = tuple(Band(k, int(lo), int(lo + rng.integers(-2, 30)))
+                      for k, lo in enumerate(rng.integers(0, 100, int(rng.integers(0, 6)))))
+        peaks = rng.integers(-1, 140, (int(rng.integers(1, 14)), int(rng.integers(1, 50))))
+        top = max((b.row_hi for b in bands), default=0)
+        covered = np.zeros(top + 1, dtype=np.bool_)
+        for b in bands:
+            covered[b.row_lo:max(b.row_hi, b.row_lo)] = True
+        want = covered[np.minimum(peaks, top)].sum(axis=0)
+        got = count_in_bands(peaks.astype(np.int64), bands)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, want)
