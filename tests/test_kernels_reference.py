@@ -1184,3 +1184,19 @@ def test_count_in_bands_is_the_sum_of_the_covered_rows() -> None:
         got = count_in_bands(peaks.astype(np.int64), bands)
         assert got.dtype == np.int64
         np.testing.assert_array_equal(got, want)
+
+
+def test_widened_is_the_shifted_or() -> None:
+    """Random column masks and margins (zero, beyond the width): the compiled dilation is
+    the numpy form's OR of the shifted masks."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(32)
+    for _ in range(500):
+        columns = rng.random(int(rng.integers(1, 80))) < rng.random() * 0.3
+        margin = int(rng.integers(0, 10))
+        want = columns.copy()
+        for d in range(1, margin + 1):
+            want[d:] |= columns[:-d]
+            want[:-d] |= columns[d:]
+        np.testing.assert_array_equal(verdicts_kernels.widened(columns, margin), want)

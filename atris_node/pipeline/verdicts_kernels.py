@@ -280,6 +280,19 @@ def grouped(key: IntArray, groups: int) -> tuple[IntArray, IntArray]:
     return order, below
 
 
+@kernel("boolean[:](boolean[:], int64)")
+def widened(columns: BoolArray, margin: int) -> BoolArray:
+    """(W,) ``columns`` (W,) dilated by ``margin`` columns each side: True within
+    ``margin`` columns of a True one."""
+    width = columns.size
+    out = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        if columns[c]:
+            for d in range(max(c - margin, 0), min(c + margin + 1, width)):
+                out[d] = True
+    return out
+
+
 @kernel("int64[:](float64[:], float64, float64, int64)")
 def sector_index(bearing: FloatArray, half_fov: float, width: float, count: int) -> IntArray:
     """(n,) the sector of each ``bearing`` (n,) rad: floor((bearing + ``half_fov``) /
@@ -606,6 +619,7 @@ def warm_up() -> None:
     grouped(np.array([1, 0, 1], dtype=np.int64), 2)
     least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
     sector_index(np.zeros(1), 0.6, 0.15, 8)
+    widened(np.ones(3, dtype=np.bool_), 1)
     two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
     pair = np.array([0, 1], dtype=np.int64)
     shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
