@@ -859,3 +859,344 @@ def test_line_holes_are_the_numpy_form() -> None:
         got = LineHoles.of(edge, seen, None, snr)
         expected = _line_holes_numpy(edge, seen, None, snr)
         assert got.bright.tolist() == expected[-1].tolist() == [snr == 50.0]
+
+
+# --- sector stage: sorts and per-sector steps (perf-sect) -------------------------------
+
+
+def test_credible_of_sorts_as_numpys_stable_argsort() -> None:
+    """300 random point sets (ties, NaN ranges, every line and column mix): the credible
+    cluster of points in any order is that of the points sorted by
+    ``np.argsort(kind="stable")`` (the order the search took before its compiled sort)."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.verdicts import _PARAMS
+
+    rng = np.random.default_rng(21)
+    for _ in range(300):
+        n = int(rng.integers(1, 80))
+        r = rng.uniform(0.3, 10.0, n)
+        if rng.random() < 0.5:
+            r = np.round(r, int(rng.integers(0, 3)))  # ties
+        if rng.random() < 0.2:
+            r[rng.random(n) < 0.2] = np.nan
+        sigma = rng.uniform(0.001, 0.1, n)
+        line = rng.integers(0, 4, n).astype(np.int64)
+        column = rng.integers(0, 40, n).astype(np.int64)
+        order = np.argsort(r, kind="stable")
+        np.testing.assert_array_equal(
+            verdicts_kernels.credible_of(r, sigma, line, column, 5, 40, _PARAMS),
+            verdicts_kernels.credible(r[order], sigma[order], line[order], column[order], 5,
+                                      40, _PARAMS))
+
+
+def test_grouped_is_the_stable_argsort_and_searchsorted() -> None:
+    """2000 random keys (below 0, inside and beyond the groups, empty): the compiled
+    counting sort gives np.argsort(kind="stable") and the searchsorted bounds."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(22)
+    for _ in range(2000):
+        n, groups = int(rng.integers(0, 80)), int(rng.integers(1, 20))
+        key = rng.integers(-3, groups + 3, n).astype(np.int64)
+        order, below = verdicts_kernels.grouped(key, groups)
+        expected = np.argsort(key, kind="stable")
+        np.testing.assert_array_equal(order, expected)
+        np.testing.assert_array_equal(below, np.searchsorted(key[expected],
+                                                             np.arange(groups + 1)))
+
+
+def _follow_numpy(r: npt.NDArray[np.float64], cols: npt.NDArray[np.float64],
+                  keep: npt.NDArray[np.bool_], first: int, noise: float, spread: float
+                  ) -> npt.NDArray[np.bool_]:
+    """verdicts_kernels._follow as whole-array steps (its form before the loop)."""
+    from atris_node.pipeline import verdicts_kernels
+
+    for _ in range(verdicts_kernels.FOLLOW_PASSES):
+        if keep.sum() < 3:
+            break
+        c_mean, r_mean, slope, scatter, sxx = verdicts_kernels._fit(cols[keep], r[keep])
+        if not verdicts_kernels._sloped(slope, scatter, sxx):
+            break
+        along = np.abs(r - r_mean - slope * (cols - c_mean)) <= spread * noise
+        along[:first] = False
+        if along.sum() < 3 or (along == keep).all():
+            break
+        keep = along
+    return keep
+
+
+def test_follow_and_by_line_are_the_array_forms() -> None:
+    """500 random slanted surfaces with outliers (NaN too): the followed points are those
+    of the whole-array form, and the points grouped by line are np.unique's lines with
+    each line's kept points in order."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(23)
+    for _ in range(500):
+        n = int(rng.integers(1, 90))
+        cols = np.sort(rng.integers(0, 200, n)).astype(np.float64)
+        r = 3.0 + rng.normal(0.0, 0.02) * cols + rng.normal(0.0, 0.01, n)
+        r[rng.random(n) < 0.1] += rng.uniform(-1.0, 1.0)
+        if rng.random() < 0.1:
+            r[rng.random(n) < 0.1] = np.nan
+        keep = rng.random(n) < rng.uniform(0.3, 1.0)
+        first = int(rng.integers(0, max(n // 3, 1)))
+        noise, spread = float(rng.uniform(0.001, 0.05)), float(rng.choice([2.0, 3.0]))
+        np.testing.assert_array_equal(
+            verdicts_kernels._follow(r, cols, keep.copy(), first, noise, spread),
+            _follow_numpy(r, cols, keep.copy(), first, noise, spread))
+        line = rng.integers(-2, 9, n).astype(np.int64)
+        grouped, lines, bounds = verdicts_kernels._by_line(line, keep)
+        np.testing.assert_array_equal(lines, np.unique(line[keep]))
+        for j, k in enumerate(lines):
+            np.testing.assert_array_equal(grouped[bounds[j]:bounds[j + 1]],
+                                          np.flatnonzero(keep & (line == k)))
+        assert bounds[-1] == keep.sum()
+
+
+def test_least_per_sector_is_numpys_minimum_at() -> None:
+    """1000 random point sets (outside points, NaN ranges, empty sectors): the compiled
+    least range per sector equals np.minimum.at over the points inside."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(24)
+    for _ in range(1000):
+        n, count = int(rng.integers(0, 60)), int(rng.integers(1, 12))
+        sector = rng.integers(-1, count, n).astype(np.int64)
+        values = rng.uniform(0.0, 12.0, n)
+        values[rng.random(n) < 0.05] = np.nan
+        start = np.where(rng.random(count) < 0.2, rng.uniform(0.0, 12.0, count), np.inf)
+        got, want = start.copy(), start.copy()
+        verdicts_kernels.least_per_sector(got, sector, values)
+        inside = sector >= 0
+        with np.errstate(invalid="ignore"):
+            np.minimum.at(want, sector[inside], values[inside])
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(IndexError):
+        verdicts_kernels.least_per_sector(np.zeros(2), np.array([2], dtype=np.int64),
+                                          np.zeros(1))
+
+
+def test_lines_per_column_is_the_sum_over_lines() -> None:
+    """Random (K, W) masks, views and K beyond a byte's range: the count per column is
+    mask.sum(axis=0)."""
+    from atris_node.pipeline.verdicts import lines_per_column
+
+    rng = np.random.default_rng(25)
+    for k_count in (1, 3, 8, 255, 256, 300):
+        mask = rng.random((k_count, 97)) < rng.random()
+        for view in (mask, mask[:, ::2], np.asfortranarray(mask)):
+            got = lines_per_column(view)
+            assert got.dtype == np.int64
+            np.testing.assert_array_equal(got, view.sum(axis=0))
+
+
+def _shadowed_columns_numpy(s: int, view: Any, distance_m: float) -> int:
+    """verdicts.shadowed_columns as numpy steps (its form before the compiled pass)."""
+    from atris_node.pipeline.verdicts import SHADOW_LINES, _doubt_margin_m
+
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None or not holes.line.size:
+        return 0
+    margin = _doubt_margin_m(distance_m)
+    limit = distance_m + margin
+    mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
+            & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
+            & holes.bright)
+    count = np.zeros(view.evidence.sector.size, dtype=np.int64)
+    for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
+        count[start:stop] += 1
+    shadow = (count >= SHADOW_LINES) & view.columns[s]
+    hits = view.sectors[s].hits
+    shadow[hits.column[hits.range_m <= limit]] = False
+    return int(shadow.sum())
+
+
+def test_unseen_and_shadowed_columns_are_the_numpy_forms() -> None:
+    """300 random maps (lines with holes, noisy bands, bright and weak lines, points of
+    every range, NaN SNR now and then) and distances: the compiled unseen and shadowed
+    columns equal the numpy forms in every sector."""
+    from atris_node.pipeline.obstacles import SectorSettings
+    from atris_node.pipeline.verdicts import (
+        ColumnEvidence,
+        MapView,
+        ObstaclePoints,
+        _unseen_columns,
+        shadowed_columns,
+        unseen_columns,
+    )
+
+    rng = np.random.default_rng(26)
+    settings = SectorSettings(min_points=5, snr_min=6.0)
+    for _ in range(300):
+        lines, width, count = int(rng.integers(1, 9)), int(rng.integers(12, 120)), 4
+        seen = rng.random((lines, width)) < rng.uniform(0.3, 0.95)
+        noisy = None if rng.random() < 0.5 else rng.random((lines, width)) < rng.random()
+        if rng.random() < 0.5:  # a shadow: every line stops over a few columns
+            start = int(rng.integers(3, width - 8))
+            stop = start + int(rng.integers(3, 6))
+            seen[:, start - 3:stop + 3] = True
+            seen[:, start:stop] = False
+        k, c = np.nonzero(seen)
+        n = k.size
+        pick = np.concatenate([np.arange(n), rng.integers(0, max(n, 1), int(rng.integers(0, n + 1)))
+                               if n else np.zeros(0, np.int64)])
+        line, column = k[pick].astype(np.int64), c[pick].astype(np.int64)
+        m = line.size
+        sector_of = np.sort(rng.integers(-1, count, width)).astype(np.int64)
+        snr = rng.uniform(6.0, 200.0, m) if rng.random() < 0.5 else rng.uniform(50.0, 90.0, m)
+        if rng.random() < 0.1 and m:
+            snr[rng.integers(0, m)] = np.nan
+        wall = float(rng.uniform(2.0, 8.0))
+        ranges = (rng.uniform(0.3, 10.0, m) if rng.random() < 0.4
+                  else wall + rng.normal(0.0, 0.02, m))  # a wall: flanks alike
+        ranges[rng.random(m) < 0.1] = rng.uniform(0.3, 10.0)  # a nearer or farther surface
+        points = ObstaclePoints(ranges, sector_of[column], rng.random(m) < 0.9, line, column,
+                                np.full(m, 0.01), snr)
+        zero = np.zeros(width, np.int64)
+        evidence = ColumnEvidence(sector_of, zero, zero, zero, seen=seen, noisy=noisy)
+        view = MapView.of(points, evidence, count, settings)
+        for s in range(count):
+            for distance in (*rng.uniform(0.3, 10.0, 2), wall, wall + 0.5):
+                assert unseen_columns(s, view, distance, settings) == _unseen_columns(
+                    s, view, distance, settings)
+                assert shadowed_columns(s, view, distance) == _shadowed_columns_numpy(
+                    s, view, distance)
+
+
+def test_lost_on_surface_is_the_numpy_form() -> None:
+    """400 random sectors (points near and off a surface, bright and weak, under random
+    priors with lines out of image order, noisy bands or none, random seen lines): the
+    compiled first steps of missing_on_surface give the numpy steps' surface, expected
+    and seen lines and long runs."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.identity import VisibilityPrior
+    from atris_node.pipeline.verdicts import _geometry
+
+    rng = np.random.default_rng(27)
+    for _ in range(400):
+        lines, width = int(rng.integers(1, 9)), int(rng.integers(4, 90))
+        cot = rng.permutation(np.linspace(-0.4, 0.4, lines)) + rng.normal(0, 0.01, lines)
+        ground = rng.uniform(0.5, 12.0, (lines, width))
+        ground[rng.random((lines, width)) < 0.2] = np.inf
+        prior = VisibilityPrior(cot, float(rng.uniform(300, 900)), float(rng.uniform(150, 500)),
+                                int(rng.integers(200, 900)), float(rng.uniform(0.05, 0.1)),
+                                10.0, ground)
+        n = int(rng.integers(0, 200))
+        column = rng.integers(0, width, n).astype(np.int64)
+        line = rng.integers(0, lines, n).astype(np.int64)
+        distance = float(rng.uniform(1.0, 8.0))
+        range_m = np.where(rng.random(n) < 0.7, distance + rng.normal(0, 0.1, n),
+                           rng.uniform(0.3, 10.0, n))
+        snr = rng.uniform(6.0, 30.0, n)
+        depth = range_m * rng.uniform(0.9, 1.1, n)
+        noisy = None if rng.random() < 0.5 else rng.random((lines, width)) < 0.2
+        seen = rng.random((lines, width)) < rng.uniform(0.0, 1.0)
+        margin, strong = max(0.1 * distance, 0.2), 12.0
+        min_points = int(rng.choice([2, 5]))
+        got = verdicts_kernels.lost_on_surface(
+            range_m, snr, column, depth, line, distance, margin, strong, min_points,
+            2 * min_points, prior.image_rank, np.asarray(prior.cot_alpha, np.float64),
+            prior.ground_range_m, np.zeros((0, 0), np.bool_) if noisy is None else noisy,
+            _geometry(prior), seen)
+        bright = np.flatnonzero((np.abs(range_m - distance) <= margin) & (snr >= strong))
+        if bright.size < min_points:
+            assert got[0] == -1 and not got[4].size
+            continue
+        first, onto, bottom = _expected_on_surface_numpy(column[bright], depth[bright],
+                                                         line[bright], prior, noisy)
+        shown = np.zeros_like(onto)
+        shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
+        row, start, stop = _runs_numpy(onto & ~shown)
+        long = stop - start >= 2 * min_points
+        assert got[0] == first
+        for value, want in zip(got[1:], (onto, bottom, shown, row[long], start[long],
+                                         stop[long]), strict=True):
+            np.testing.assert_array_equal(value, want)
+
+
+def test_credible_per_sector_is_credible_of_each_sector() -> None:
+    """200 random maps of points grouped by sector (empty sectors, sectors below
+    min_points): one call gives each sector's credible_of."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.verdicts import _PARAMS
+
+    rng = np.random.default_rng(28)
+    for _ in range(200):
+        count = int(rng.integers(1, 9))
+        sizes = rng.integers(0, 40, count)
+        bounds = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        n = int(bounds[-1])
+        r = np.round(rng.uniform(0.3, 10.0, n), int(rng.integers(1, 4)))
+        sigma = rng.uniform(0.001, 0.1, n)
+        line = rng.integers(0, 4, n).astype(np.int64)
+        column = rng.integers(0, 40, n).astype(np.int64)
+        got = verdicts_kernels.credible_per_sector(r, sigma, line, column, bounds[:-1],
+                                                   bounds[1:], 5, 40, _PARAMS)
+        for s in range(count):
+            lo, hi = bounds[s], bounds[s + 1]
+            want = ((np.nan, np.nan, -1.0, -1.0) if hi - lo < 5 else
+                    verdicts_kernels.credible_of(r[lo:hi], sigma[lo:hi], line[lo:hi],
+                                                 column[lo:hi], 5, 40, _PARAMS))
+            np.testing.assert_array_equal(got[s], want)
+
+
+def test_sector_index_is_the_numpy_form() -> None:
+    """Random bearings (on the sector edges, beyond the field of view, inf and NaN) under
+    random layouts: the compiled index equals the numpy steps, and index_of keeps them
+    for points of any shape."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.sectors import SectorLayout
+
+    rng = np.random.default_rng(29)
+    for _ in range(300):
+        layout = SectorLayout(int(rng.integers(1, 65)), float(rng.uniform(0.1, 2.0 * np.pi)))
+        half, width = layout.fov_rad / 2.0, layout.width_rad
+        edges = -half + width * np.arange(layout.count + 1)
+        bearing = np.concatenate([rng.uniform(-np.pi, np.pi, 50), edges,
+                                  np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf),
+                                  [np.inf, -np.inf, np.nan, 1e300, -1e300]])
+        with np.errstate(invalid="ignore"):
+            idx = np.floor((bearing + half) / width).astype(np.int64)
+        want = np.where((idx >= 0) & (idx < layout.count), idx, -1)
+        np.testing.assert_array_equal(
+            verdicts_kernels.sector_index(bearing, half, width, layout.count), want)
+        x, y = np.cos(bearing[:50]), np.sin(bearing[:50])
+        np.testing.assert_array_equal(layout.index_of(x, y), [
+            int(layout.index_of(float(a), float(b))) for a, b in zip(x, y, strict=True)])
+
+
+def test_count_in_bands_is_the_sum_of_the_covered_rows() -> None:
+    """Random peaks (-1 padding, rows below every band) and bands (empty ones too): the
+    count per column added as bytes is the bool sum over the slots."""
+    from atris_node.pipeline.bands import Band, count_in_bands
+
+    rng = np.random.default_rng(30)
+    for _ in range(300):
+        bands = tuple(Band(k, int(lo), int(lo + rng.integers(-2, 30)))
+                      for k, lo in enumerate(rng.integers(0, 100, int(rng.integers(0, 6)))))
+        peaks = rng.integers(-1, 140, (int(rng.integers(1, 14)), int(rng.integers(1, 50))))
+        top = max((b.row_hi for b in bands), default=0)
+        covered = np.zeros(top + 1, dtype=np.bool_)
+        for b in bands:
+            covered[b.row_lo:max(b.row_hi, b.row_lo)] = True
+        want = covered[np.minimum(peaks, top)].sum(axis=0)
+        got = count_in_bands(peaks.astype(np.int64), bands)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, want)
+
+
+def test_widened_is_the_shifted_or() -> None:
+    """Random column masks and margins (zero, beyond the width): the compiled dilation is
+    the numpy form's OR of the shifted masks."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(32)
+    for _ in range(500):
+        columns = rng.random(int(rng.integers(1, 80))) < rng.random() * 0.3
+        margin = int(rng.integers(0, 10))
+        want = columns.copy()
+        for d in range(1, margin + 1):
+            want[d:] |= columns[:-d]
+            want[:-d] |= columns[d:]
+        np.testing.assert_array_equal(verdicts_kernels.widened(columns, margin), want)

@@ -13,7 +13,7 @@ import pytest
 
 from atris_node.codes import bipolar, walsh_chips
 from atris_node.pipeline.noise import noise_map
-from atris_node.pipeline.temporal import local_weights, not_own_light
+from atris_node.pipeline.temporal import local_weights, not_own_light, quantile
 from atris_node.types import WindowFrames
 
 HEIGHT, WIDTH = 40, 64
@@ -192,3 +192,19 @@ def test_feature_light_set_aside_still_counts_as_foreign_light() -> None:
     assert found.foreign_columns.all() and found.unassigned == WIDTH
     blind = extract_lines(values, saturated, bands, ExtractorSettings())
     assert set(blind.samples.line.tolist()) == {0, 1}  # without the window: taken for line 1
+
+
+def test_quantile_is_numpys_linear_quantile() -> None:
+    """3000 random arrays (one value, ties, spreads of every size, NaN) and quantiles: the
+    partition form gives np.quantile's number, bitwise."""
+    rng = np.random.default_rng(31)
+    for _ in range(3000):
+        n = int(rng.integers(1, 300))
+        values = rng.gamma(rng.uniform(0.2, 3.0), rng.uniform(0.01, 100.0), n)
+        if rng.random() < 0.3:
+            values = np.round(values, int(rng.integers(0, 3)))  # ties
+        if rng.random() < 0.05:
+            values[rng.integers(0, n)] = np.nan
+        q = float(rng.choice([0.0, 0.25, 0.5, 0.75, 1.0, rng.random()]))
+        got, want = quantile(values, q), float(np.quantile(values, q))
+        assert got == want or (np.isnan(got) and np.isnan(want)), (n, q, got, want)

@@ -415,20 +415,3 @@ def test_feature_lines_passing_under_a_surface_are_not_missing_from_it() -> None
     points, evidence = _wall_over_a_low_box(8.0, range(0), range(4, 28), 6.0, under=1,
                                             beyond_column=30)
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
-
-
-def test_stable_order_is_numpys_stable_argsort() -> None:
-    """The range order of the credible-cluster search is np.argsort(kind="stable")'s, ties
-    and NaN included (the faster default sort is taken only where it gives the same)."""
-    from atris_node.pipeline.verdicts import _stable_order
-
-    rng = np.random.default_rng(4)
-    for _ in range(300):
-        n = int(rng.integers(1, 80))
-        values = rng.uniform(0.3, 10.0, n)
-        if rng.random() < 0.5:
-            values = np.round(values, int(rng.integers(0, 3)))  # ties
-        if rng.random() < 0.2:
-            values[rng.random(n) < 0.2] = np.nan
-        np.testing.assert_array_equal(_stable_order(values),
-                                      np.argsort(values, kind="stable"))

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.calibration import CameraModel, LaserCalibration
+from atris_node.pipeline import peaks_kernels
 from atris_node.pipeline.geometry import distort_pixels, line_row_at_range
 
 IntArray = npt.NDArray[np.int64]
@@ -94,9 +95,11 @@ def image_positions(order: IntArray) -> IntArray:
 def count_in_bands(peaks: IntArray, bands: tuple[Band, ...]) -> IntArray:
     """(W,) entries of (M, W) ``peaks`` (rows, -1 = none) inside at least one band, looked
     up in a table of the rows some band covers (its last entry, for -1 and for rows
-    below every band, False)."""
+    below every band, False); counted in one compiled pass
+    (:func:`atris_node.pipeline.peaks_kernels.covered_per_column`)."""
     top = max((b.row_hi for b in bands), default=0)
     covered = np.zeros(top + 1, dtype=np.bool_)
     for b in bands:
         covered[b.row_lo:max(b.row_hi, b.row_lo)] = True
-    return np.asarray(covered[np.minimum(peaks, top)].sum(axis=0), dtype=np.int64)
+    return peaks_kernels.covered_per_column(np.ascontiguousarray(peaks, dtype=np.int64),
+                                            covered)

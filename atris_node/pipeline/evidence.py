@@ -16,6 +16,7 @@ import numpy.typing as npt
 
 from atris_node.calibration import Calibration
 from atris_node.mounting import Mounting
+from atris_node.pipeline import verdicts_kernels
 from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
@@ -29,7 +30,13 @@ from atris_node.pipeline.tops import (
     rows_off_ground,
     unseen_tops,
 )
-from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
+from atris_node.pipeline.verdicts import (
+    ColumnEvidence,
+    ObstaclePoints,
+    SectorColumns,
+    lines_per_column,
+    sector_verdicts,
+)
 from atris_node.types import SectorDistance
 
 #: a line is not seen for lack of a surface only where its band's noise σ is at most
@@ -79,6 +86,8 @@ class SectorJudge:
         self.z_range_m = z_range_m
         self.clearance_m = clearance_m
         self.column_sector = sectors_by_column(calibration, mounting, layout)
+        self.column_sector.flags.writeable = False  # the sectors' columns are kept
+        self._columns = SectorColumns.of(self.column_sector, layout.count)
         self.projector_m = mounting.camera_to_vehicle(
             np.array([[0.0, -calibration.laser.baseline_m, 0.0]]))[0]
         #: the last prior and its lines expected on the ground (the prior changes only
@@ -119,9 +128,9 @@ class SectorJudge:
                 found.column[tops | under].astype(np.float64), self.column_sector.size))
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
                 samples.row_px[clean][under], samples.col_px[clean][under]))
-            inside = tops & (sector >= 0)
-            np.minimum.at(top_m, sector[inside], range_m[inside])
-        return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m)
+            verdicts_kernels.least_per_sector(top_m, np.where(tops, sector, -1), range_m)
+        return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
+                               self._columns)
 
     def _credible_obstacle(self, obstacle: BoolArray, line: IntArray, column: IntArray,
                            sheet: Sheet) -> BoolArray:
@@ -185,7 +194,7 @@ class SectorJudge:
             doubtful=(extraction.doubtful_columns + saturated + foreign.astype(np.int64)
                       + unprobed.astype(np.int64)),
             ambiguous=extraction.ambiguous_columns,
-            missing=(expected & ~seen).sum(axis=0).astype(np.int64), seen=seen,
+            missing=lines_per_column(expected & ~seen), seen=seen,
             noisy=noisy, expected=expected, prior=prior)
 
     def _expected_on_ground(self, prior: VisibilityPrior) -> BoolArray:
@@ -227,9 +236,8 @@ class SectorJudge:
         xyz = points.xyz_m.reshape(-1, 3)
         vehicle = self.mounting.camera_to_vehicle(xyz)[points.valid & (xyz[:, 2] >= z_min_m)]
         x, y = vehicle[:, 0], vehicle[:, 1]
-        sector = self.layout.index_of(x, y)
-        inside = sector >= 0
-        np.minimum.at(out, sector[inside], self.layout.horizontal_range(x, y)[inside])
+        verdicts_kernels.least_per_sector(out, self.layout.index_of(x, y),
+                                          self.layout.horizontal_range(x, y))
         return out
 
 

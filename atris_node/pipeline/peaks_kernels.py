@@ -893,6 +893,20 @@ def peak_pixels(peaks: IntArray, tile_row: IntArray, sigma_tiles: npt.NDArray[np
     return slot, col, flat, sigma
 
 
+@kernel("int64[:](int64[:, :], boolean[:])")
+def covered_per_column(peaks: IntArray, covered: npt.NDArray[np.bool_]) -> IntArray:
+    """(W,) how many entries of (M, W) ``peaks`` (rows, -1 = none) fall on a row that
+    ``covered`` (T + 1,) marks, rows beyond T (and -1) looked up at T, as
+    ``covered[np.minimum(peaks, T)].sum(axis=0)`` counts them."""
+    top = covered.size - 1
+    out = np.zeros(peaks.shape[1], dtype=np.int64)
+    for m in range(peaks.shape[0]):
+        for c in range(peaks.shape[1]):
+            r = peaks[m, c]
+            out[c] += covered[top if r > top else r]
+    return out
+
+
 @kernel("Tuple((float64[:], float64[:]))(float64[:, :], int64[:])")
 def ambient_level(series: FloatArray, rows: IntArray) -> tuple[FloatArray, FloatArray]:
     """Per column p of ``series`` (n, P) float64 (DN) over its ``rows`` (k,) (the OFF
@@ -1004,4 +1018,5 @@ def warm_up() -> None:
     peak_pixels(np.array([[2]], dtype=i64), np.zeros(4, dtype=i64),
                 np.ones((1, 1), dtype=np.float32), 32)
     ambient_level(np.zeros((2, 1)), np.array([0, 1], dtype=i64))
+    covered_per_column(np.array([[2, -1]], dtype=i64), np.ones(3, dtype=np.bool_))
     subsample_tiles(np.zeros((4, 3), dtype=np.int16))

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.errors import ConfigError
+from atris_node.pipeline import verdicts_kernels
 
 
 @dataclass(frozen=True)
@@ -39,8 +40,13 @@ class SectorLayout:
         return -self.fov_rad / 2.0 + (index + 0.5) * self.width_rad
 
     def index_of(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> npt.NDArray[np.int64]:
-        """Sector index of vehicle-frame points; -1 outside the field of view."""
+        """Sector index of vehicle-frame points; -1 outside the field of view: the floor of
+        (bearing + fov/2) / width (one compiled pass after the bearings for (n,) points,
+        :func:`atris_node.pipeline.verdicts_kernels.sector_index`)."""
         bearing = np.arctan2(np.asarray(y_m, dtype=np.float64), np.asarray(x_m, np.float64))
+        if bearing.ndim == 1:
+            return verdicts_kernels.sector_index(bearing, self.fov_rad / 2.0, self.width_rad,
+                                                 self.count)
         idx = np.floor((bearing + self.fov_rad / 2.0) / self.width_rad).astype(np.int64)
         return np.where((idx >= 0) & (idx < self.count), idx, -1)
 

@@ -143,7 +143,29 @@ def _pixel_sigma(series: FloatArray, window: WindowFrames,
     (:func:`atris_node.pipeline.peaks_kernels.ambient_level`)."""
     offs = np.flatnonzero(np.asarray(window.signs) < 0) + (window.before is not None)
     level, ratio = peaks_kernels.ambient_level(series, offs.astype(np.int64))
-    gain = float(np.quantile(ratio, SHOT_QUANTILE))
+    gain = quantile(ratio, SHOT_QUANTILE)
     tile = sigma_tiles.astype(np.float64) / math.sqrt(len(window.signs))
-    return np.sqrt(np.maximum.reduce([np.square(tile), np.full(level.size, QUANTIZATION_DN ** 2),
-                                      gain * level]))
+    # the largest of the three, as np.maximum.reduce over them (maximum is exact)
+    return np.sqrt(np.maximum(np.maximum(np.square(tile), QUANTIZATION_DN ** 2),
+                              gain * level))
+
+
+def quantile(values: FloatArray, q: float) -> float:
+    """``float(np.quantile(values, q))`` of a non-empty (n,) float64 array (numpy's
+    default, linear interpolation between the order statistics at (n - 1)·q, computed
+    as numpy computes it) without np.quantile's overhead: one partition at the two
+    order statistics. NaN in ``values`` is left to np.quantile."""
+    n = values.size
+    position = (n - 1) * q
+    if position >= n - 1:
+        low = high = n - 1
+    else:
+        low = math.floor(position)
+        high = low + 1
+    if np.isnan(values).any():
+        return float(np.quantile(values, q))
+    ordered = np.partition(values, (low, high))
+    a, b = float(ordered[low]), float(ordered[high])
+    gamma = position - low
+    diff = b - a
+    return b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma

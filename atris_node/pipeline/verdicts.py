@@ -193,11 +193,12 @@ class SectorPoints:
 def by_sector(points: ObstaclePoints, count: int) -> list[SectorPoints]:
     """The :class:`SectorPoints` of sectors 0 .. ``count`` - 1: one stable sort of the
     map's points by sector (obstacle points first within it); each sector's points are
-    taken out of it when first asked for."""
+    taken out of it when first asked for (the sort counts the keys, one compiled pass:
+    :func:`atris_node.pipeline.verdicts_kernels.grouped`)."""
     key = 2 * points.sector + (~points.obstacle).astype(np.int64)
-    order = np.argsort(key, kind="stable")
+    order, below = verdicts_kernels.grouped(key, 2 * count)
     grouped = points.take(order)
-    bounds = np.searchsorted(key[order], np.arange(2 * count + 1)).tolist()
+    bounds = below.tolist()
     return [SectorPoints(grouped, bounds[2 * s], bounds[2 * s + 1], bounds[2 * s + 2])
             for s in range(count)]
 
@@ -231,13 +232,21 @@ class ColumnEvidence:
         whose band is too noisy to show that nothing stands in their way."""
         if self.noisy is None or self.seen is None or self.expected is None:
             return np.zeros(self.sector.size, dtype=np.int64)
-        return (self.noisy & ~self.seen & ~self.expected).sum(axis=0).astype(np.int64)
+        return lines_per_column(self.noisy & ~self.seen & ~self.expected)
 
     def per_sector(self, counts: IntArray, sectors: int) -> IntArray:
         """(S,) sums of a (W,) per-column count over each sector's columns."""
         inside = self.sector >= 0
         return np.bincount(self.sector[inside], weights=counts[inside],
                            minlength=sectors).astype(np.int64)
+
+
+def lines_per_column(mask: BoolArray) -> IntArray:
+    """(W,) int64 how many rows of a (K, W) bool ``mask`` are True in each column, as
+    ``mask.sum(axis=0)``: added as bytes while K fits one (several times faster)."""
+    if mask.shape[0] > np.iinfo(np.uint8).max:
+        return mask.sum(axis=0).astype(np.int64)
+    return np.add.reduce(mask.view(np.uint8), axis=0, dtype=np.uint8).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -258,8 +267,8 @@ def nearest_credible(points: ObstaclePoints, mine: BoolArray, min_points: int
     module docstring), None when there is none.
 
     The window and the front are those of the module docstring; the front is never
-    nearer than the window's first point. The loop is compiled
-    (:func:`atris_node.pipeline.verdicts_kernels.credible`)."""
+    nearer than the window's first point. The sort by range and the loop are compiled
+    (:func:`atris_node.pipeline.verdicts_kernels.credible_of`)."""
     idx = np.flatnonzero(mine)
     if idx.size < min_points:
         return None
@@ -270,34 +279,25 @@ def _credible(hits: ObstaclePoints, width: int, min_points: int) -> Credible | N
     """:func:`nearest_credible` of all of ``hits`` (their columns below ``width``)."""
     if hits.size < min_points:
         return None
-    order = _stable_order(hits.range_m)
-    distance, sigma, support, nearer = verdicts_kernels.credible(
-        hits.range_m[order], hits.sigma_m[order], hits.line[order].astype(np.int64),
-        hits.column[order].astype(np.int64), min_points, width, _PARAMS)
+    distance, sigma, support, nearer = verdicts_kernels.credible_of(
+        np.asarray(hits.range_m, dtype=np.float64), np.asarray(hits.sigma_m, dtype=np.float64),
+        np.asarray(hits.line, dtype=np.int64), np.asarray(hits.column, dtype=np.int64),
+        min_points, width, _PARAMS)
     if support < 0:
         return None
     return Credible(float(distance), float(sigma), int(support), int(nearer))
 
 
-def _stable_order(values: FloatArray) -> IntArray:
-    """np.argsort(values, kind="stable") of an (n,) float64 array, n > 0: numpy's default
-    sort (about half the time) where it gives the same order, that is where no two values
-    are equal and none is NaN."""
-    order = np.argsort(values)
-    ranked = values[order]
-    if ranked[-1] != ranked[-1] or (ranked[1:] == ranked[:-1]).any():
-        return np.argsort(values, kind="stable")
-    return order
-
-
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
                     settings: SectorSettings, doubt_m: FloatArray | None = None,
-                    top_m: FloatArray | None = None) -> tuple[SectorDistance, ...]:
+                    top_m: FloatArray | None = None, columns: SectorColumns | None = None
+                    ) -> tuple[SectorDistance, ...]:
     """One :class:`SectorDistance` per sector of ``layout`` (index 0 at the right edge).
     ``doubt_m`` (S,) is the nearest range (m) an ambiguous peak may stand for in each
     sector (inf: none; None: every ambiguous peak may stand for anything); ``top_m`` (S,)
     the nearest range of a low surface whose top no line saw (inf or None: none; the
-    samples are in ``evidence.doubtful`` too)."""
+    samples are in ``evidence.doubtful`` too); ``columns`` the :class:`SectorColumns` of
+    ``evidence.sector`` (None: made here)."""
     count = layout.count
     ambiguous = evidence.per_sector(evidence.ambiguous, count)
     doubtful = evidence.per_sector(evidence.doubtful + evidence.missing + evidence.unclean,
@@ -306,7 +306,7 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
     if top_m is None:
         top_m = np.full(count, np.inf)
-    view = MapView.of(points, evidence, count, settings)
+    view = MapView.of(points, evidence, count, settings, columns)
     return tuple(_verdict(s, view, layout, settings, ambiguous=int(ambiguous[s]),
                           doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]),
                           top_m=float(top_m[s]))
@@ -347,12 +347,35 @@ class LineHoles:
 
 
 @dataclass(frozen=True)
+class SectorColumns:
+    """The image columns of each of ``count`` sectors: ``mask`` (S, W) True where column
+    c looks into sector s, read-only; ``spans`` per sector its (first, last) column, None
+    where it has none. They depend on the calibration and mounting only."""
+
+    mask: BoolArray
+    spans: list[tuple[int, int] | None]
+
+    @classmethod
+    def of(cls, sector: IntArray, count: int) -> SectorColumns:
+        """The columns of sectors 0 .. ``count`` - 1 under the per-column ``sector`` (W,)
+        (-1 outside)."""
+        mask = sector[None, :] == np.arange(count)[:, None]
+        mask.flags.writeable = False
+        spans: list[tuple[int, int] | None] = []
+        for row in mask:
+            where = np.flatnonzero(row)
+            spans.append((int(where[0]), int(where[-1])) if where.size else None)
+        return cls(mask, spans)
+
+
+@dataclass(frozen=True)
 class MapView:
     """What the verdicts of one map share: the ``points`` and ``evidence``, the points of
     each sector (``sectors``), each sector's columns (``columns`` (S, W) mask and
     ``spans``, (first, last) column or None), the line holes (None without
-    ``evidence.seen``; bright at SHADOW_SNR·snr_min), and ``width`` (a bound on the
-    points' columns)."""
+    ``evidence.seen``; bright at SHADOW_SNR·snr_min), ``width`` (a bound on the
+    points' columns) and ``found`` (S, 4): each sector's nearest credible cluster
+    (:meth:`credible`)."""
 
     points: ObstaclePoints
     evidence: ColumnEvidence
@@ -361,20 +384,38 @@ class MapView:
     spans: list[tuple[int, int] | None]
     holes: LineHoles | None
     width: int
+    found: FloatArray
+
+    def credible(self, s: int) -> Credible | None:
+        """:func:`nearest_credible` of sector ``s``'s obstacle points (found for every
+        sector in one compiled call,
+        :func:`atris_node.pipeline.verdicts_kernels.credible_per_sector`)."""
+        distance, sigma, support, nearer = self.found[s].tolist()
+        if support < 0:
+            return None
+        return Credible(distance, sigma, int(support), int(nearer))
 
     @classmethod
     def of(cls, points: ObstaclePoints, evidence: ColumnEvidence, count: int,
-           settings: SectorSettings) -> MapView:
-        """The view of ``points`` and ``evidence`` for ``count`` sectors."""
-        columns = evidence.sector[None, :] == np.arange(count)[:, None]
-        spans: list[tuple[int, int] | None] = []
-        for mask in columns:
-            where = np.flatnonzero(mask)
-            spans.append((int(where[0]), int(where[-1])) if where.size else None)
+           settings: SectorSettings, columns: SectorColumns | None = None) -> MapView:
+        """The view of ``points`` and ``evidence`` for ``count`` sectors (``columns``:
+        those of ``evidence.sector``, None: made here)."""
+        if columns is None:
+            columns = SectorColumns.of(evidence.sector, count)
         width = int(points.column.max()) + 1 if points.size else 1
         holes = None if evidence.seen is None else LineHoles.of(
             points, evidence.seen, evidence.noisy, SHADOW_SNR * settings.snr_min)
-        return cls(points, evidence, by_sector(points, count), columns, spans, holes, width)
+        sectors = by_sector(points, count)
+        found = np.full((0, 4), np.nan)
+        if sectors:
+            grouped = sectors[0].grouped
+            found = verdicts_kernels.credible_per_sector(
+                _floats(grouped.range_m), _floats(grouped.sigma_m), _ints(grouped.line),
+                _ints(grouped.column), np.array([p.start for p in sectors], dtype=np.int64),
+                np.array([p.split for p in sectors], dtype=np.int64), settings.min_points,
+                width, _PARAMS)
+        return cls(points, evidence, sectors, columns.mask, columns.spans, holes, width,
+                   found)
 
 
 def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -394,6 +435,25 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
     between surfaces no nearer than d makes no hole, unless its band is too noisy to show
     it over most of the run: then what stands there is not known (a pole before a wall,
     its stripes under a threshold that flicker left by the demodulation raised)."""
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None:
+        return 0
+    margin = _doubt_margin_m(distance_m)
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    count = verdicts_kernels.unseen(
+        holes.nearer_m, holes.noisy, holes.line, holes.start, holes.stop, span[0], span[1],
+        distance_m - margin, distance_m + margin, GAP_SNR * settings.snr_min, view.columns[s],
+        _ints(hits.line), _ints(hits.column), _floats(hits.range_m), _floats(hits.snr),
+        _ints(inside.column), _floats(inside.range_m), GAP_RUN)
+    if count < 0:  # NaN in an SNR: numpy's median decides
+        return _unseen_columns(s, view, distance_m, settings)
+    return int(count)
+
+
+def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                    ) -> int:
+    """:func:`unseen_columns` in numpy steps (the compiled pass leaves an SNR with NaN to
+    numpy's median)."""
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None:
         return 0
@@ -420,6 +480,16 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
     return int(hole.sum())
 
 
+def _ints(values: npt.NDArray[np.generic]) -> IntArray:
+    """``values`` as the kernels take them: int64 (no copy when they are)."""
+    return np.asarray(values, dtype=np.int64)
+
+
+def _floats(values: npt.NDArray[np.generic]) -> FloatArray:
+    """``values`` as the kernels take them: float64 (no copy when they are)."""
+    return np.asarray(values, dtype=np.float64)
+
+
 def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     """Columns of sector ``s`` in which SHADOW_LINES or more bright lines (seen with an
     SNR of SHADOW_SNR·snr_min in every one of GAP_RUN columns each side) all have a hole
@@ -437,17 +507,11 @@ def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     if holes is None or span is None or not holes.line.size:
         return 0
     margin = _doubt_margin_m(distance_m)
-    limit = distance_m + margin
-    mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
-            & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
-            & holes.bright)
-    count = np.zeros(view.evidence.sector.size, dtype=np.int64)
-    for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
-        count[start:stop] += 1
-    shadow = (count >= SHADOW_LINES) & view.columns[s]
     hits = view.sectors[s].hits
-    shadow[hits.column[hits.range_m <= limit]] = False
-    return int(shadow.sum())
+    return int(verdicts_kernels.shadowed(
+        holes.nearer_m, holes.farther_m, holes.noisy, holes.bright, holes.start, holes.stop,
+        span[0], span[1], distance_m + margin, margin, SHADOW_LINES, view.columns[s],
+        _ints(hits.column), _floats(hits.range_m)))
 
 
 def missing_on_surface(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -477,25 +541,26 @@ def missing_on_surface(s: int, view: MapView, distance_m: float, settings: Secto
     prior, seen = evidence.prior, evidence.seen
     if prior is None or seen is None or view.points.depth_m is None:
         return 0
-    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    hits = view.sectors[s].hits
+    if hits.depth_m is None:
+        return 0
     margin = _doubt_margin_m(distance_m)
-    on = hits.take(np.flatnonzero(np.abs(hits.range_m - distance_m) <= margin))
     strong = SURFACE_SNR * settings.snr_min
-    surface = on.take(np.flatnonzero(on.snr >= strong))
-    if surface.size < settings.min_points:
+    # the surface's lines expected and not seen, and their long runs: one compiled pass
+    first, onto, bottom, shown, line, start, stop = verdicts_kernels.lost_on_surface(
+        _floats(hits.range_m), _floats(hits.snr), _ints(hits.column), _floats(hits.depth_m),
+        _ints(hits.line), distance_m, margin, strong, settings.min_points,
+        SURFACE_RUN * settings.min_points, prior.image_rank,
+        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m,
+        _NOWHERE if evidence.noisy is None else evidence.noisy, _geometry(prior), seen)
+    if not line.size:
         return 0
-    first, onto, bottom = _expected_on_surface(surface, evidence, prior)
-    shown = np.zeros_like(onto)
-    shown[:, :-1] = seen[:, first:first + onto.shape[1] - 1]
-    lost = onto & ~shown
-    line, start, stop = verdicts_kernels.runs(lost)  # the runs of True, line by line
-    long = stop - start >= SURFACE_RUN * settings.min_points
-    if not long.any():
-        return 0
+    inside = view.sectors[s].inside
+    on = hits.take(np.flatnonzero(np.abs(hits.range_m - distance_m) <= margin))
     beyond = inside.take(np.flatnonzero(inside.range_m > distance_m + margin))
     rank = prior.image_rank
     hole = np.zeros(onto.shape[1], dtype=np.bool_)
-    for k, a, b in zip(line[long], start[long], stop[long], strict=True):
+    for k, a, b in zip(line, start, stop, strict=True):
         # a line between the surface's lowest seen one and this one, seen beyond it
         # in the run: the surface does not reach down there, the lines pass under (beside
         # the run is no sign: the wall beside a pole)
@@ -520,15 +585,22 @@ def _expected_on_surface(surface: ObstaclePoints, evidence: ColumnEvidence,
     columns; the last column is False (a run's end). Compiled
     (:func:`atris_node.pipeline.verdicts_kernels.expected_on_surface`)."""
     noisy = _NOWHERE if evidence.noisy is None else evidence.noisy
-    geometry = np.array([prior.focal_px, prior.cy_px, prior.height_px,
-                         prior.focal_px * prior.baseline_m, SURFACE_ROWS_PX,
-                         SURFACE_SEEN_ROWS_PX])
     first, onto, bottom = verdicts_kernels.expected_on_surface(
         np.asarray(surface.column, dtype=np.int64),
         np.asarray(surface.depth_m, dtype=np.float64),
         np.asarray(surface.line, dtype=np.int64), prior.image_rank,
-        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m, noisy, geometry)
+        np.asarray(prior.cot_alpha, dtype=np.float64), prior.ground_range_m, noisy,
+        _geometry(prior))
     return int(first), onto, bottom
+
+
+def _geometry(prior: VisibilityPrior) -> FloatArray:
+    """(6,) what :func:`atris_node.pipeline.verdicts_kernels.expected_on_surface` takes of
+    the prior: focal length px, cy px, image height px, f·b px·m and the margins in rows
+    (SURFACE_ROWS_PX, SURFACE_SEEN_ROWS_PX)."""
+    return np.array([prior.focal_px, prior.cy_px, prior.height_px,
+                     prior.focal_px * prior.baseline_m, SURFACE_ROWS_PX,
+                     SURFACE_SEEN_ROWS_PX])
 
 
 def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
@@ -623,7 +695,7 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
         free = ambiguous == 0 and doubtful == 0 and conf >= settings.min_confidence
         return SectorDistance(s, bearing, SectorState.NO_RETURN if free else
                               SectorState.INVALID, 0.0, conf, samples)
-    found = _credible(hits, view.width, settings.min_points)
+    found = view.credible(s)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
             found.distance_m + _doubt_margin_m(found.distance_m)) or top_m < (
             found.distance_m - max(TOP_REL * found.distance_m, TOP_ABS_M)):

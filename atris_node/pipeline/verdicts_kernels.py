@@ -12,8 +12,11 @@ sector). Ranges and σ float64 m, lines and columns int64.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
+from numba import types
 
 from atris_node.jit import kernel
 
@@ -106,18 +109,58 @@ def _follow(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise:
     ``spread``·``noise`` of the straight fit of the kept ones, fitted again, FOLLOW_PASSES
     times. A window in range cuts a slanted surface short and flattens its fit; the
     surface's own points do not. ``keep`` itself when the fit has no slope."""
+    limit = spread * noise
     for _ in range(FOLLOW_PASSES):
         if keep.sum() < 3:
             break
         c_mean, r_mean, slope, scatter, sxx = _fit(cols[keep], r[keep])
         if not _sloped(slope, scatter, sxx):
             break
-        along = np.abs(r - r_mean - slope * (cols - c_mean)) <= spread * noise
-        along[:first] = False
-        if along.sum() < 3 or (along == keep).all():
+        along = np.zeros(r.size, dtype=np.bool_)
+        count, same = 0, True
+        for i in range(r.size):
+            # |r - r̄ - slope·(c - c̄)| <= limit, as the array expression computes it
+            along[i] = i >= first and abs(r[i] - r_mean - slope * (cols[i] - c_mean)) <= limit
+            count += along[i]
+            same = same and along[i] == keep[i]
+        if count < 3 or same:
             break
         keep = along
     return keep
+
+
+@kernel()
+def _by_line(line: IntArray, keep: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
+    """The kept points grouped by line: (m,) their indices, line by line in increasing
+    line order, each line's in increasing order; (L,) the lines (increasing, as
+    ``np.unique`` gives them) and (L + 1,) where each line's indices start."""
+    idx = np.flatnonzero(keep)
+    low, high = 0, -1
+    if idx.size:
+        low, high = line[idx[0]], line[idx[0]]
+        for i in idx:
+            low, high = min(low, line[i]), max(high, line[i])
+    start = np.zeros(high - low + 2, dtype=np.int64)
+    for i in idx:
+        start[line[i] - low + 1] += 1
+    lines = 0
+    for v in range(1, start.size):
+        lines += start[v] > 0
+        start[v] += start[v - 1]
+    grouped = np.empty(idx.size, dtype=np.int64)
+    fill = start[:-1].copy()
+    for i in idx:
+        grouped[fill[line[i] - low]] = i
+        fill[line[i] - low] += 1
+    values = np.empty(lines, dtype=np.int64)
+    bounds = np.empty(lines + 1, dtype=np.int64)
+    j = 0
+    for v in range(start.size - 1):
+        if start[v + 1] > start[v]:
+            values[j], bounds[j] = low + v, start[v]
+            j += 1
+    bounds[lines] = idx.size
+    return grouped, values, bounds
 
 
 @kernel()
@@ -136,9 +179,10 @@ def _front(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
     count = keep.sum()
     if not np.isfinite(best):
         return np.quantile(r[keep], params[4]), QUANTILE_SE * noise / np.sqrt(count), count
-    for k in np.unique(line[keep]):
-        mine = keep & (line == k)
-        if mine.sum() < min_points:
+    grouped, lines, bounds = _by_line(line, keep)
+    for j in range(lines.size):  # the lines in increasing order, as np.unique(line[keep])
+        mine = grouped[bounds[j]:bounds[j + 1]]
+        if mine.size < min_points:
             continue
         front, se = _fit_front(cols[mine], r[mine], np.median(sigma[mine]))
         if front < best - NEARER_SIGMAS * np.sqrt(se * se + error * error):
@@ -178,6 +222,197 @@ def credible(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
         front, error, support = _front(r, sigma, line, column, keep, i, min_points, params)
         return max(front, r[i]), error, float(support), float(i)
     return np.nan, np.nan, -1.0, -1.0
+
+
+@kernel("UniTuple(float64, 4)(float64[:], float64[:], int64[:], int64[:], int64, int64, "
+        "float64[:])")
+def credible_of(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
+                min_points: int, width_px: int, params: FloatArray
+                ) -> tuple[float, float, float, float]:
+    """:func:`credible` of points in any order: sorted by range ``r`` first, ties in their
+    given order (``np.argsort(kind="stable")``: a merge sort, NaN last)."""
+    order = np.argsort(r, kind="mergesort")
+    return credible(r[order], sigma[order], line[order], column[order], min_points,
+                    width_px, params)
+
+
+@kernel("float64[:, :](float64[:], float64[:], int64[:], int64[:], int64[:], int64[:], int64, "
+        "int64, float64[:])")
+def credible_per_sector(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
+                        start: IntArray, stop: IntArray, min_points: int, width_px: int,
+                        params: FloatArray) -> FloatArray:
+    """(S, 4) :func:`credible_of` of each sector's points ``start[s]`` .. ``stop[s]``
+    (exclusive) of the given (n,) arrays, one call for every sector; (nan, nan, -1, -1)
+    where a sector has fewer than ``min_points``."""
+    out = np.empty((start.size, 4))
+    for s in range(start.size):
+        lo, hi = start[s], stop[s]
+        if hi - lo < min_points:
+            out[s, 0], out[s, 1], out[s, 2], out[s, 3] = np.nan, np.nan, -1.0, -1.0
+            continue
+        out[s, 0], out[s, 1], out[s, 2], out[s, 3] = credible_of(
+            r[lo:hi], sigma[lo:hi], line[lo:hi], column[lo:hi], min_points, width_px, params)
+    return out
+
+
+@kernel("Tuple((int64[:], int64[:]))(int64[:], int64)")
+def grouped(key: IntArray, groups: int) -> tuple[IntArray, IntArray]:
+    """(n,) the order that sorts ``key`` (n,) stably (``np.argsort(kind="stable")``) and
+    (groups + 1,) how many keys lie below 0, 1, ..., ``groups`` (``np.searchsorted`` of
+    the sorted keys): one counting pass over the values' range."""
+    n = key.size
+    below = np.zeros(groups + 1, dtype=np.int64)
+    order = np.empty(n, dtype=np.int64)
+    if n == 0:
+        return order, below
+    low, high = key.min(), key.max()
+    start = np.zeros(high - low + 2, dtype=np.int64)
+    for i in range(n):
+        start[key[i] - low + 1] += 1
+    for v in range(1, start.size):
+        start[v] += start[v - 1]
+    for j in range(groups + 1):
+        below[j] = start[min(max(j - low, 0), start.size - 1)]
+    for i in range(n):
+        v = key[i] - low
+        order[start[v]] = i
+        start[v] += 1
+    return order, below
+
+
+@kernel("boolean[:](boolean[:], int64)")
+def widened(columns: BoolArray, margin: int) -> BoolArray:
+    """(W,) ``columns`` (W,) dilated by ``margin`` columns each side: True within
+    ``margin`` columns of a True one."""
+    width = columns.size
+    out = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        if columns[c]:
+            for d in range(max(c - margin, 0), min(c + margin + 1, width)):
+                out[d] = True
+    return out
+
+
+@kernel("int64[:](float64[:], float64, float64, int64)")
+def sector_index(bearing: FloatArray, half_fov: float, width: float, count: int) -> IntArray:
+    """(n,) the sector of each ``bearing`` (n,) rad: floor((bearing + ``half_fov``) /
+    ``width``) where it lies in 0 .. ``count`` - 1, else -1 (NaN too), as the numpy steps
+    of :meth:`atris_node.pipeline.sectors.SectorLayout.index_of` compute it."""
+    out = np.empty(bearing.size, dtype=np.int64)
+    for i in range(bearing.size):
+        f = np.floor((bearing[i] + half_fov) / width)
+        out[i] = int(f) if 0.0 <= f < count else -1
+    return out
+
+
+@kernel("void(float64[:], int64[:], float64[:])")
+def least_per_sector(out: FloatArray, sector: IntArray, values: FloatArray) -> None:
+    """``out[s]`` (S,) lowered to the least of the ``values`` (n,) whose ``sector`` (n,) is
+    s, as ``np.minimum.at`` does (NaN kept); sectors below 0 (outside) left out."""
+    for i in range(sector.size):
+        s = sector[i]
+        if s < 0:
+            continue
+        if s >= out.size:
+            raise IndexError("a sector beyond the sectors given")
+        v = values[i]
+        if np.isnan(v) or v < out[s]:
+            out[s] = v
+
+
+def _with_mask(before: tuple[Any, ...], after: tuple[Any, ...]) -> list[Any]:
+    """int64 kernel signatures with the arguments ``before``, a (W,) bool mask (writable
+    or read-only: the sectors' column masks are read-only), then ``after``."""
+    return [types.int64(*before, types.Array(types.boolean, 1, "A", readonly=readonly),
+                        *after) for readonly in (False, True)]
+
+
+_F, _I, _B = (types.Array(dtype, 1, "A") for dtype in (types.float64, types.int64,
+                                                       types.boolean))
+
+
+@kernel(_with_mask((_F, _F, _B, _B, _I, _I, types.int64, types.int64, types.float64,
+                    types.float64, types.int64), (_I, _F)))
+def shadowed(nearer: FloatArray, farther: FloatArray, noisy: BoolArray, bright: BoolArray,
+             start: IntArray, stop: IntArray, first: int, last: int, limit: float,
+             margin: float, lines: int, inside: BoolArray, hit_column: IntArray,
+             hit_range: FloatArray) -> int:
+    """:func:`atris_node.pipeline.verdicts.shadowed_columns`: how many of the sector's
+    columns (``inside`` (W,), spanning ``first`` .. ``last``) lie in holes (``nearer``,
+    ``farther`` m, ``noisy``, ``bright``, ``start``, ``stop``; (h,) each) of ``lines`` or
+    more lines whose flanks lie within ``margin`` of each other and not beyond
+    ``limit`` (m), quiet and bright, with no obstacle point (``hit_column``,
+    ``hit_range`` (n,)) at most ``limit`` away in them."""
+    width = inside.size
+    count = np.zeros(width, dtype=np.int64)
+    for h in range(nearer.size):
+        if (nearer[h] <= limit and farther[h] <= nearer[h] + margin and not noisy[h]
+                and start[h] <= last and stop[h] > first and bright[h]):
+            for c in range(start[h], stop[h]):
+                count[c] += 1
+    shadow = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        shadow[c] = count[c] >= lines and inside[c]
+    for i in range(hit_column.size):
+        if hit_range[i] <= limit:
+            shadow[hit_column[i]] = False
+    return shadow.sum()
+
+
+@kernel(_with_mask((_F, _B, _I, _I, _I, types.int64, types.int64, types.float64,
+                    types.float64, types.float64), (_I, _I, _F, _F, _I, _F, types.int64)))
+def unseen(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray,
+           stop: IntArray, first: int, last: int, nearer_than: float, farther_than: float,
+           strong_snr: float, inside: BoolArray, hit_line: IntArray, hit_column: IntArray,
+           hit_range: FloatArray, hit_snr: FloatArray, all_column: IntArray,
+           all_range: FloatArray, gap: int) -> int:
+    """:func:`atris_node.pipeline.verdicts.unseen_columns`: how many columns of the sector
+    (``inside`` (W,), spanning ``first`` .. ``last``) lie in a hole (``nearer`` m,
+    ``noisy``, ``line``, ``start``, ``stop``; (h,) each) flanked nearer than
+    ``nearer_than`` (m) or noisy, of a line whose obstacle points in the sector
+    (``hit_*`` (n,)) have a median SNR of ``strong_snr`` or more (a noisy hole counts
+    beyond the sector's columns too), with no obstacle point of the sector at most
+    ``farther_than`` away in the column and no point of the sector (``all_*``) farther
+    within ``gap`` columns. -1 when a line's SNR holds NaN (the median is numpy's to
+    take then)."""
+    width = inside.size
+    hole = np.zeros(width, dtype=np.bool_)
+    whole = np.zeros(width, dtype=np.bool_)
+    found = False
+    for h in range(nearer.size):
+        if not ((nearer[h] < nearer_than or noisy[h]) and start[h] <= last
+                and stop[h] > first):
+            continue
+        n = 0
+        for i in range(hit_line.size):
+            n += hit_line[i] == line[h]
+        if n == 0:
+            continue
+        snr = np.empty(n)
+        j = 0
+        for i in range(hit_line.size):
+            if hit_line[i] == line[h]:
+                if np.isnan(hit_snr[i]):
+                    return -1
+                snr[j] = hit_snr[i]
+                j += 1
+        if np.median(snr) >= strong_snr:
+            found = True
+            for c in range(start[h], stop[h]):
+                hole[c] = True
+                whole[c] |= noisy[h]
+    if not found:
+        return 0
+    for c in range(width):
+        hole[c] &= inside[c] or whole[c]
+    for i in range(hit_column.size):
+        if hit_range[i] <= farther_than:
+            hole[hit_column[i]] = False
+    for i in range(all_column.size):
+        if all_range[i] > farther_than:
+            for shift in range(-gap, gap + 1):  # clipped to the image, as np.clip does
+                hole[min(max(all_column[i] + shift, 0), width - 1)] = False
+    return hole.sum()
 
 
 @kernel("Tuple((int64[:], int64[:], int64[:]))(boolean[:, :])")
@@ -321,11 +556,75 @@ def expected_on_surface(column: IntArray, depth: FloatArray, line: IntArray, ran
     return first, onto, bottom
 
 
+@kernel("Tuple((int64, boolean[:, :], int64[:], boolean[:, :], int64[:], int64[:], int64[:]))"
+        "(float64[:], float64[:], int64[:], float64[:], int64[:], float64, float64, float64, "
+        "int64, int64, int64[:], float64[:], float64[:, :], boolean[:, :], float64[:], "
+        "boolean[:, :])")
+def lost_on_surface(range_m: FloatArray, snr: FloatArray, column: IntArray, depth: FloatArray,
+                    line: IntArray, distance: float, margin: float, strong: float,
+                    min_points: int, min_run: int, rank: IntArray, cot: FloatArray,
+                    ground_range: FloatArray, noisy: BoolArray, geometry: FloatArray,
+                    seen: BoolArray) -> tuple[int, BoolArray, IntArray, BoolArray, IntArray,
+                                              IntArray, IntArray]:
+    """The first steps of :func:`atris_node.pipeline.verdicts.missing_on_surface` over a
+    sector's obstacle points (``range_m``, ``snr``, ``column``, camera ``depth``, ``line``;
+    (n,) each): the surface is the points within ``margin`` of ``distance`` (m) with an
+    SNR of ``strong`` or more; with ``min_points`` of them, (first column c0, (K, m + 2)
+    lines expected on it, (m + 2,) lowest line seen on it, as :func:`expected_on_surface`
+    gives them under ``rank``, ``cot``, ``ground_range``, ``noisy`` and ``geometry``;
+    (K, m + 2) ``seen`` (K, W) from c0 on, the last column False; and the runs of
+    ``min_run`` or more columns where an expected line is not seen: (r,) line, start,
+    stop). With fewer points: first -1 and nothing else."""
+    bright = 0
+    for i in range(range_m.size):
+        bright += abs(range_m[i] - distance) <= margin and snr[i] >= strong
+    none = np.zeros(0, dtype=np.int64)
+    if bright < min_points:
+        flat = np.zeros((0, 0), dtype=np.bool_)
+        return -1, flat, none, flat, none, none, none
+    col = np.empty(bright, dtype=np.int64)
+    dep = np.empty(bright)
+    lin = np.empty(bright, dtype=np.int64)
+    j = 0
+    for i in range(range_m.size):
+        if abs(range_m[i] - distance) <= margin and snr[i] >= strong:
+            col[j], dep[j], lin[j] = column[i], depth[i], line[i]
+            j += 1
+    first, onto, bottom = expected_on_surface(col, dep, lin, rank, cot, ground_range, noisy,
+                                              geometry)
+    lines, span = onto.shape
+    shown = np.zeros((lines, span), dtype=np.bool_)
+    lost = np.zeros((lines, span), dtype=np.bool_)
+    for k in range(lines):
+        for c in range(span - 1):
+            shown[k, c] = seen[k, first + c]
+        for c in range(span):
+            lost[k, c] = onto[k, c] and not shown[k, c]
+    row, start, stop = runs(lost)
+    long = stop - start >= min_run
+    return first, onto, bottom, shown, row[long], start[long], stop[long]
+
+
 def warm_up() -> None:
     """Type the kernels' arguments once."""
     r = np.array([1.0, 1.0, 1.01, 1.02, 1.02, 1.03])
     credible(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
              np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
+    credible_of(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
+                np.arange(6, dtype=np.int64), 5, 8, np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
+    credible_per_sector(r, np.full(6, 0.01), np.array([0, 1, 0, 1, 0, 1], dtype=np.int64),
+                        np.arange(6, dtype=np.int64), np.array([0, 6], dtype=np.int64),
+                        np.array([6, 6], dtype=np.int64), 5, 8,
+                        np.array([0.03, 0.05, 2.0, 3.0, 0.25]))
+    grouped(np.array([1, 0, 1], dtype=np.int64), 2)
+    least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
+    sector_index(np.zeros(1), 0.6, 0.15, 8)
+    widened(np.ones(3, dtype=np.bool_), 1)
+    two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
+    pair = np.array([0, 1], dtype=np.int64)
+    shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
+    unseen(two, flag, pair, pair, pair + 1, 0, 1, 1.0, 1.0, 1.0, flag, pair, pair, two, two,
+           pair, two, 3)
     runs(np.ones((1, 2), dtype=np.bool_))
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
                np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1),
@@ -333,3 +632,6 @@ def warm_up() -> None:
     one = np.zeros(1, dtype=np.int64)
     expected_on_surface(one, np.ones(1), one, one, np.ones(1), np.ones((1, 1)),
                         np.zeros((0, 0), dtype=np.bool_), np.ones(6))
+    lost_on_surface(np.ones(1), np.ones(1), one, np.ones(1), one, 1.0, 0.2, 1.0, 1, 2, one,
+                    np.ones(1), np.ones((1, 1)), np.zeros((0, 0), dtype=np.bool_), np.ones(6),
+                    np.ones((1, 1), dtype=np.bool_))
