@@ -19,10 +19,13 @@ for the compiler; :func:`warm_up` also does the first-call argument typing. With
 
 from __future__ import annotations
 
+from typing import Any
+
+import numba
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.jit import kernel
+from atris_node.jit import CACHE, kernel
 from atris_node.pipeline.selection import median
 
 IntArray = npt.NDArray[np.int64]
@@ -32,6 +35,12 @@ _I1 = "int64[:]"
 _I2 = "int64[:, :]"
 _F1 = "float64[:]"
 _F2 = "float64[:, :]"
+
+#: a helper that neither allocates nor keeps an array, compiled without reference counting
+#: (numba's ``_nrt=False``): a counted call increments and decrements the count of each of
+#: its array arguments (atomic operations), which cost as much as a short helper's work
+_UNCOUNTED: dict[str, Any] = {"_nrt": False, "cache": CACHE, "nogil": True}
+uncounted = numba.njit(**_UNCOUNTED)
 
 
 @kernel(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})")
@@ -87,7 +96,7 @@ def _next_finite(z: FloatArray, k: int) -> int:
     return k
 
 
-@kernel()
+@uncounted
 def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
                         ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
     """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
@@ -150,6 +159,23 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
         out[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry, ground_range_m,
                                      order, z)
     return out
+
+
+@kernel()
+def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
+    """:func:`_sorted_peaks` of column c of ``peaks`` (M, W)."""
+    m = 0
+    for j in range(peaks.shape[0]):
+        p = peaks[j, c]
+        if p < 0:
+            continue
+        i = m
+        while i > 0 and out[i - 1] > p:
+            out[i] = out[i - 1]
+            i -= 1
+        out[i] = p
+        m += 1
+    return m
 
 
 @kernel()
@@ -240,12 +266,16 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
     miss_down = np.full(width, -1, dtype=np.int64)
     miss_up = np.full(width, -1, dtype=np.int64)
     z = np.empty(k_count)
+    down_c = np.empty(k_count, dtype=np.int64)  # columns copied, not viewed (no count)
+    up_c = np.empty(k_count, dtype=np.int64)
     for c in range(width):
-        unsettled[c] = differ[:, c].any()
+        for k in range(k_count):
+            unsettled[c] |= differ[k, c]
+            down_c[k], up_c[k] = down[k, c], up[k, c]
         if unsettled[c] and has_prior:
-            miss_down[c] = _unexplained_column(down[:, c], c, cot_alpha, geometry,
-                                               ground_range_m, image_order, z)
-            miss_up[c] = _unexplained_column(up[:, c], c, cot_alpha, geometry, ground_range_m,
+            miss_down[c] = _unexplained_column(down_c, c, cot_alpha, geometry, ground_range_m,
+                                               image_order, z)
+            miss_up[c] = _unexplained_column(up_c, c, cot_alpha, geometry, ground_range_m,
                                              image_order, z)
             pick_up[c], pick_down[c] = miss_up[c] < miss_down[c], miss_down[c] < miss_up[c]
     settled = ~unsettled | pick_up | pick_down

@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from atris_node.jit import kernel
 from atris_node.pipeline.alignment_kernels import _in_any, _missing
-from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column
+from atris_node.pipeline.identity_kernels import _sorted_column, _unexplained_column
 from atris_node.pipeline.selection import kth
 
 IntArray = npt.NDArray[np.int64]
@@ -204,6 +204,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     image = np.empty(k_count, dtype=np.int64)
     other = np.empty(k_count, dtype=np.int64)
     line_rows = np.empty(k_count, dtype=np.int64)
+    ref_c = np.empty(k_count)  # column c of ``ref`` (no view: a view is counted)
     z = np.empty(k_count)
     owner = np.empty(m_count, dtype=np.int64)
     seen = np.empty((SEEN_PATHS, k_count), dtype=np.int64)
@@ -212,12 +213,12 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     m_tables = -1
     for c in columns:
         n_seen = 0
-        ref_c = ref[:, c]
-        m = _sorted_peaks(peaks[:, c], column)
+        m = _sorted_column(peaks, c, column)
         for i in range(m):
             spare[i] = costs[1] if _in_any(column[i], lo, hi) else 0.0
         for k in range(k_count):
             image[k] = rows[order[k], c]
+            ref_c[k] = ref[k, c]
         best = _chosen_cost(image, column, m, lo, hi, ref_c, beyond, costs, spare)
         if best == 0.0 and costs[0] + costs[1] >= margin:
             # every line holds a peak in its band, no peak in a band is left over, nothing
@@ -257,7 +258,8 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                     continue  # no assignment giving peak i to line j comes close
                 if not priced:
                     if counted[c] < 0:
-                        counted[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry,
+                        counted[c] = _unexplained_column(_by_line(image, order, line_rows),
+                                                         c, cot_alpha, geometry,
                                                          ground_range_m, image_order, z)
                     best += costs[3] * counted[c]
                     bound, priced = best, True
