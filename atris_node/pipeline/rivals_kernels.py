@@ -26,7 +26,11 @@ import numpy.typing as npt
 
 from atris_node.jit import kernel
 from atris_node.pipeline.alignment_kernels import _in_any, _missing
-from atris_node.pipeline.identity_kernels import _sorted_column, _unexplained_column
+from atris_node.pipeline.identity_kernels import (
+    _sorted_column,
+    _unexplained_column,
+    uncounted,
+)
 from atris_node.pipeline.selection import kth
 
 IntArray = npt.NDArray[np.int64]
@@ -50,49 +54,62 @@ def _match(j: int, p: int, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
     return cost + (beyond_px if p >= beyond[j] else 0.0)
 
 
-@kernel()
+@uncounted
 def _tables(m: int, k_count: int, match: FloatArray, costs: FloatArray, spare: FloatArray,
-            f: FloatArray, g: FloatArray, f_step: npt.NDArray[np.int8],
-            g_step: npt.NDArray[np.int8]) -> None:
+            f: FloatArray, g: FloatArray) -> None:
     """Fill the forward ``f`` and backward ``g`` tables (K + 1, M + 1) of one column from
-    the ``match`` costs (K, M) of :func:`_match`, and in ``f_step`` / ``g_step`` the step a
-    cheapest path takes from each cell (TAKE, SKIP, SPARE; a match before a skip before a
-    spare on a tie)."""
+    the ``match`` costs (K, M) of :func:`_match` (the step a cheapest path takes from a
+    cell is read back from the values: :func:`_forward_step`, :func:`_backward_step`)."""
     skip_px = costs[0]
     f[0, 0] = 0.0
     for i in range(1, m + 1):
         f[0, i] = f[0, i - 1] + spare[i - 1]
-        f_step[0, i] = SPARE
     for j in range(1, k_count + 1):
         f[j, 0] = f[j - 1, 0] + skip_px
-        f_step[j, 0] = SKIP
         for i in range(1, m + 1):
-            take = f[j - 1, i - 1] + match[j - 1, i - 1]
-            skip = f[j - 1, i] + skip_px
-            here = min(take, skip, f[j, i - 1] + spare[i - 1])
-            f[j, i] = here
-            f_step[j, i] = TAKE if here == take else (SKIP if here == skip else SPARE)
+            f[j, i] = min(f[j - 1, i - 1] + match[j - 1, i - 1], f[j - 1, i] + skip_px,
+                          f[j, i - 1] + spare[i - 1])
     g[k_count, m] = 0.0
     for i in range(m - 1, -1, -1):
         g[k_count, i] = g[k_count, i + 1] + spare[i]
-        g_step[k_count, i] = SPARE
     for j in range(k_count - 1, -1, -1):
         g[j, m] = g[j + 1, m] + skip_px
-        g_step[j, m] = SKIP
         for i in range(m - 1, -1, -1):
-            take = match[j, i] + g[j + 1, i + 1]
-            skip = g[j + 1, i] + skip_px
-            here = min(take, skip, g[j, i + 1] + spare[i])
-            g[j, i] = here
-            g_step[j, i] = TAKE if here == take else (SKIP if here == skip else SPARE)
+            g[j, i] = min(match[j, i] + g[j + 1, i + 1], g[j + 1, i] + skip_px,
+                          g[j, i + 1] + spare[i])
 
 
-@kernel()
-def _read_forward(j: int, i: int, column: IntArray, f_step: npt.NDArray[np.int8],
-                  out: IntArray) -> None:
+@uncounted
+def _forward_step(j: int, i: int, f: FloatArray, match: FloatArray, skip_px: float) -> int:
+    """The step (TAKE, SKIP, SPARE) of a cheapest path to F[j, i], j > 0: the first of
+    them whose sum is the cell's value (a match before a skip before a spare on a tie;
+    the sums are those :func:`_tables` took the minimum of, the same to the bit)."""
+    if i == 0:
+        return SKIP
+    here = f[j, i]
+    if here == f[j - 1, i - 1] + match[j - 1, i - 1]:
+        return TAKE
+    return SKIP if here == f[j - 1, i] + skip_px else SPARE
+
+
+@uncounted
+def _backward_step(j: int, i: int, m: int, g: FloatArray, match: FloatArray,
+                   skip_px: float) -> int:
+    """The step of a cheapest path from G[j, i], j < K (as :func:`_forward_step`)."""
+    if i == m:
+        return SKIP
+    here = g[j, i]
+    if here == match[j, i] + g[j + 1, i + 1]:
+        return TAKE
+    return SKIP if here == g[j + 1, i] + skip_px else SPARE
+
+
+@uncounted
+def _read_forward(j: int, i: int, column: IntArray, f: FloatArray, match: FloatArray,
+                  skip_px: float, out: IntArray) -> None:
     """Rows (``out``, image order) the first j lines take on a cheapest path to F[j, i]."""
     while j > 0:
-        step = f_step[j, i]
+        step = _forward_step(j, i, f, match, skip_px)
         if step == TAKE:
             out[j - 1] = column[i - 1]
             j -= 1
@@ -104,13 +121,13 @@ def _read_forward(j: int, i: int, column: IntArray, f_step: npt.NDArray[np.int8]
             i -= 1
 
 
-@kernel()
-def _read_backward(j: int, i: int, column: IntArray, g_step: npt.NDArray[np.int8],
-                   out: IntArray) -> None:
+@uncounted
+def _read_backward(j: int, i: int, m: int, column: IntArray, g: FloatArray,
+                   match: FloatArray, skip_px: float, out: IntArray) -> None:
     """Rows (``out``, image order) lines j.. take on a cheapest path from G[j, i]."""
-    k_count = g_step.shape[0] - 1
+    k_count = out.size
     while j < k_count:
-        step = g_step[j, i]
+        step = _backward_step(j, i, m, g, match, skip_px)
         if step == TAKE:
             out[j] = column[i]
             j += 1
@@ -199,8 +216,6 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     f = np.zeros((k_count + 1, m_count + 1))
     g = np.zeros((k_count + 1, m_count + 1))
     match = np.empty((k_count, m_count))
-    f_step = np.zeros((k_count + 1, m_count + 1), dtype=np.int8)
-    g_step = np.zeros((k_count + 1, m_count + 1), dtype=np.int8)
     image = np.empty(k_count, dtype=np.int64)
     other = np.empty(k_count, dtype=np.int64)
     line_rows = np.empty(k_count, dtype=np.int64)
@@ -241,7 +256,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 same &= cost == match[j, i]
                 match[j, i] = cost
         if not same:
-            _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
+            _tables(m, k_count, match, costs, spare, f, g)
             m_tables = m
         owner[:] = -1
         for k in range(k_count):
@@ -267,9 +282,9 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         continue
                 if has_prior:
                     other[:] = -1
-                    _read_forward(j, i, column, f_step, other)
+                    _read_forward(j, i, column, f, match, costs[0], other)
                     other[j] = column[i]
-                    _read_backward(j + 1, i + 1, column, g_step, other)
+                    _read_backward(j + 1, i + 1, m, column, g, match, costs[0], other)
                     if through + costs[3] * _missing(other) >= best + margin:
                         # the path's own count of lines missing without a reason decides
                         missing = _known_count(seen, seen_count, n_seen, other)
