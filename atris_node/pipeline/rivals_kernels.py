@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.alignment_kernels import _in_any, _missing
+from atris_node.pipeline.alignment_kernels import _missing
 from atris_node.pipeline.identity_kernels import (
     _sorted_column,
     _unexplained_column,
@@ -140,10 +140,26 @@ def _read_backward(j: int, i: int, m: int, column: IntArray, g: FloatArray,
 
 
 @kernel()
+def _in_bands(lo: IntArray, hi: IntArray) -> BoolArray:
+    """(max hi,) True on the rows >= 0 that lie in one of the bands ``[lo, hi)``."""
+    inside = np.zeros(max(hi.max(), 0) if hi.size else 0, dtype=np.bool_)
+    for k in range(lo.size):
+        inside[max(lo[k], 0):max(hi[k], 0)] = True
+    return inside
+
+
+@uncounted
+def _inside(p: int, inside: BoolArray) -> bool:
+    """True when row ``p`` >= 0 lies in a band (``inside`` of :func:`_in_bands`)."""
+    return p < inside.size and inside[p]
+
+
+@uncounted
 def _chosen_cost(rows: IntArray, column: IntArray, m: int, lo: IntArray, hi: IntArray,
                  ref: FloatArray, beyond: FloatArray, costs: FloatArray,
-                 spare: FloatArray) -> float:
-    """Cost (px) of the assignment ``rows`` (K, image order) in the alignment's terms."""
+                 spare: FloatArray, inside: BoolArray) -> float:
+    """Cost (px) of the assignment ``rows`` (K, image order) in the alignment's terms;
+    ``inside`` the rows in a band (:func:`_in_bands`)."""
     skip_px, beyond_px = costs[0], costs[2]
     total = 0.0
     taken = 0.0
@@ -152,7 +168,7 @@ def _chosen_cost(rows: IntArray, column: IntArray, m: int, lo: IntArray, hi: Int
             total += skip_px
         else:
             total += _match(j, rows[j], lo, hi, ref, beyond, beyond_px)
-            taken += costs[1] if _in_any(rows[j], lo, hi) else 0.0
+            taken += costs[1] if _inside(rows[j], inside) else 0.0
     for i in range(m):
         total += spare[i]
     return total - taken
@@ -173,12 +189,11 @@ def _known_count(seen: IntArray, seen_count: IntArray, n_seen: int, path: IntArr
     return -1
 
 
-@kernel()
-def _by_line(rows_image: IntArray, order: IntArray, out: IntArray) -> IntArray:
+@uncounted
+def _by_line(rows_image: IntArray, order: IntArray, out: IntArray) -> None:
     """Rows in image order -> rows by line (``out``)."""
     for k in range(order.size):
         out[order[k]] = rows_image[k]
-    return out
 
 
 @kernel()
@@ -226,15 +241,16 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     seen_count = np.empty(SEEN_PATHS, dtype=np.int64)
     spare_tables = np.zeros(m_count)  # the costs of the tables last filled
     m_tables = -1
+    inside = _in_bands(lo, hi)
     for c in columns:
         n_seen = 0
         m = _sorted_column(peaks, c, column)
         for i in range(m):
-            spare[i] = costs[1] if _in_any(column[i], lo, hi) else 0.0
+            spare[i] = costs[1] if _inside(column[i], inside) else 0.0
         for k in range(k_count):
             image[k] = rows[order[k], c]
             ref_c[k] = ref[k, c]
-        best = _chosen_cost(image, column, m, lo, hi, ref_c, beyond, costs, spare)
+        best = _chosen_cost(image, column, m, lo, hi, ref_c, beyond, costs, spare, inside)
         if best == 0.0 and costs[0] + costs[1] >= margin:
             # every line holds a peak in its band, no peak in a band is left over, nothing
             # past z_max, no continuity cost: another order-preserving assignment must skip
@@ -273,8 +289,8 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                     continue  # no assignment giving peak i to line j comes close
                 if not priced:
                     if counted[c] < 0:
-                        counted[c] = _unexplained_column(_by_line(image, order, line_rows),
-                                                         c, cot_alpha, geometry,
+                        _by_line(image, order, line_rows)
+                        counted[c] = _unexplained_column(line_rows, c, cot_alpha, geometry,
                                                          ground_range_m, image_order, z)
                     best += costs[3] * counted[c]
                     bound, priced = best, True
@@ -289,8 +305,8 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         # the path's own count of lines missing without a reason decides
                         missing = _known_count(seen, seen_count, n_seen, other)
                         if missing < 0:  # a path not yet priced in this column
-                            missing = _unexplained_column(_by_line(other, order, line_rows),
-                                                          c, cot_alpha, geometry,
+                            _by_line(other, order, line_rows)
+                            missing = _unexplained_column(line_rows, c, cot_alpha, geometry,
                                                           ground_range_m, image_order, z)
                             if n_seen < SEEN_PATHS:
                                 seen[n_seen], seen_count[n_seen] = other, missing
@@ -327,33 +343,51 @@ def isolated(peaks: IntArray, reach: int, max_step: int) -> BoolArray:
     return out
 
 
-@kernel()
-def _block_median(row: IntArray, good: BoolArray, lo: int, hi: int, min_block: int,
+@uncounted
+def _block_median(row: IntArray, goods: IntArray, start: int, end: int, min_block: int,
                   kept: FloatArray) -> float:
-    """The upper median of the ``good`` rows of ``row`` in columns ``[lo, hi)``, inf with
-    fewer than ``min_block``; ``kept`` (hi - lo,) work space."""
+    """The upper median of ``row`` in the good columns ``goods[start:end]`` (ascending),
+    inf with fewer than ``min_block``; ``kept`` (end - start,) work space."""
     m = 0
-    for c in range(lo, hi):
-        if good[c]:
-            i = m
-            while i > 0 and kept[i - 1] > row[c]:
-                kept[i] = kept[i - 1]
-                i -= 1
-            kept[i] = row[c]
-            m += 1
+    for s in range(start, end):
+        p = row[goods[s]]
+        i = m
+        while i > 0 and kept[i - 1] > p:
+            kept[i] = kept[i - 1]
+            i -= 1
+        kept[i] = p
+        m += 1
     return kept[m // 2] if m >= min_block else np.inf
 
 
 @kernel()
-def _line_median(row: IntArray, good: BoolArray, min_line: int, values: FloatArray) -> float:
-    """The upper median of all the ``good`` rows of ``row``, inf with fewer than
-    ``min_line``; ``values`` (W,) work space."""
-    n = 0
-    for c in range(row.size):
-        if good[c]:
-            values[n] = row[c]
-            n += 1
-    return kth(values[:n], n // 2) if n >= min_line else np.inf
+def _line_median(row: IntArray, goods: IntArray, n_good: int, min_line: int,
+                 values: FloatArray) -> float:
+    """The upper median of ``row`` in all the good columns ``goods[:n_good]``, inf with
+    fewer than ``min_line``; ``values`` (W,) work space."""
+    for s in range(n_good):
+        values[s] = row[goods[s]]
+    return kth(values[:n_good], n_good // 2) if n_good >= min_line else np.inf
+
+
+@uncounted
+def _first_from(goods: IntArray, n_good: int, c: int, start: int) -> int:
+    """The first index of ``goods[:n_good]`` (ascending) whose column is >= c: from
+    ``start`` on when ``goods[start - 1]`` < c (columns taken in ascending order),
+    else by bisection."""
+    if start > 0 and goods[start - 1] >= c:
+        start = 0
+        end = n_good
+        while start < end:
+            mid = (start + end) // 2
+            if goods[mid] < c:
+                start = mid + 1
+            else:
+                end = mid
+        return start
+    while start < n_good and goods[start] < c:
+        start += 1
+    return start
 
 
 @kernel()
@@ -367,6 +401,73 @@ def _far_or_bridged(row: IntArray, c: int, left: int, right: int, bridge_px: flo
     if abs(row_l - row_r) <= bridge_px:
         return row_l if c - left <= right - c else row_r
     return np.inf
+
+
+@kernel()
+def _continuity_columns(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: int,
+                        block: int, min_block: int, min_line: int, bridge_px: float,
+                        median_px: float) -> FloatArray:
+    """:func:`continuity` as (K, n): the reference of each line in each of the (n,)
+    ``columns``. Each line's good columns (anchored, a row >= 0) are listed once; a
+    column's nearest good ones on both sides are found in that list."""
+    k_count, width = rows.shape
+    n = columns.size
+    out = np.full((k_count, n), np.inf)
+    far = np.zeros((k_count, n), dtype=np.bool_)
+    off = np.zeros(n, dtype=np.bool_)
+    goods = np.empty(width, dtype=np.int64)
+    medians = np.empty((width + block - 1) // block)
+    values = np.empty(width)
+    kept = np.empty(block)
+    for k in range(k_count):
+        row = rows[k]
+        n_good = 0
+        for c in range(width):  # without a branch: written always, kept when good
+            goods[n_good] = c
+            n_good += anchored[c] & (row[c] >= 0)
+        if n_good == 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
+            for i in range(n):
+                far[k, i] = True
+                off[i] |= row[columns[i]] >= 0
+            continue
+        medians[:] = np.nan
+        line = np.nan
+        s = 0
+        for i in range(n):
+            c = columns[i]
+            s = _first_from(goods, n_good, c, s)
+            good = s < n_good and goods[s] == c
+            before = goods[s - 1] if s > 0 else -1
+            after = goods[s + good] if s + good < n_good else width
+            left_gap = c - before if before >= 0 else reach + 1
+            right_gap = after - c if after < width else reach + 1
+            if left_gap <= reach and left_gap <= right_gap:
+                out[k, i] = row[before]
+            elif right_gap <= reach:
+                out[k, i] = row[after]
+            else:
+                b = c // block
+                if np.isnan(medians[b]):
+                    medians[b] = _block_median(
+                        row, goods, _first_from(goods, n_good, b * block, 0),
+                        _first_from(goods, n_good, min(b * block + block, width), 0),
+                        min_block, kept)
+                ref = medians[b]
+                if not np.isfinite(ref):
+                    ref = _far_or_bridged(row, c, c if good else before, c if good else after,
+                                          bridge_px)
+                if np.isnan(ref):
+                    if np.isnan(line):
+                        line = _line_median(row, goods, n_good, min_line, values)
+                    ref = line
+                    far[k, i] = True
+                    off[i] |= row[c] >= 0 and abs(row[c] - line) > median_px
+                out[k, i] = ref
+    for k in range(k_count):
+        for i in range(n):
+            if far[k, i] and off[i]:
+                out[k, i] = np.inf
+    return out
 
 
 @kernel("float64[:, :](int64[:, :], boolean[:], int64[:], int64, int64, int64, int64, "
@@ -391,64 +492,12 @@ def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: in
 
     inf in the other columns. The block and line medians are taken only where they are
     needed."""
-    k_count, width = rows.shape
-    n_blocks = (width + block - 1) // block
-    out = np.full((k_count, width), np.inf)
-    far = np.zeros((k_count, width), dtype=np.bool_)
-    off = np.zeros(width, dtype=np.bool_)
-    good = np.empty(width, dtype=np.bool_)
-    before = np.empty(width, dtype=np.int64)
-    after = np.empty(width, dtype=np.int64)
-    medians = np.empty(n_blocks)
-    values = np.empty(width)
-    kept = np.empty(block)
-    for k in range(k_count):
-        row = rows[k]
-        at = -1
-        for c in range(width):
-            before[c] = at
-            good[c] = anchored[c] and row[c] >= 0
-            if good[c]:
-                at = c
-        if at < 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
-            for c in columns:
-                far[k, c] = True
-                off[c] |= row[c] >= 0
-            continue
-        at = width
-        for c in range(width - 1, -1, -1):
-            after[c] = at
-            if good[c]:
-                at = c
-        medians[:] = np.nan
-        line = np.nan
-        for c in columns:
-            left_gap = c - before[c] if before[c] >= 0 else reach + 1
-            right_gap = after[c] - c if after[c] < width else reach + 1
-            if left_gap <= reach and left_gap <= right_gap:
-                out[k, c] = row[before[c]]
-            elif right_gap <= reach:
-                out[k, c] = row[after[c]]
-            else:
-                b = c // block
-                if np.isnan(medians[b]):
-                    medians[b] = _block_median(row, good, b * block,
-                                               min(b * block + block, width), min_block, kept)
-                ref = medians[b]
-                if not np.isfinite(ref):
-                    ref = _far_or_bridged(row, c, c if good[c] else before[c],
-                                          c if good[c] else after[c], bridge_px)
-                if np.isnan(ref):
-                    if np.isnan(line):
-                        line = _line_median(row, good, min_line, values)
-                    ref = line
-                    far[k, c] = True
-                    off[c] |= row[c] >= 0 and abs(row[c] - line) > median_px
-                out[k, c] = ref
-    for k in range(k_count):
-        for c in columns:
-            if far[k, c] and off[c]:
-                out[k, c] = np.inf
+    out = np.full(rows.shape, np.inf)
+    at = _continuity_columns(rows, anchored, columns, reach, block, min_block, min_line,
+                             bridge_px, median_px)
+    for i in range(columns.size):
+        for k in range(rows.shape[0]):
+            out[k, columns[i]] = at[k, i]
     return out
 
 
@@ -470,11 +519,13 @@ def _anchored(ambiguous: IntArray, anchored: BoolArray, again: IntArray) -> int:
     return n
 
 
-@kernel()
-def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: int) -> bool:
-    """True when column c of ``ref`` (K, W, image ``order``) is ``by_line`` (K, W) there."""
+@uncounted
+def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: int,
+                    i: int) -> bool:
+    """True when column c of ``ref`` (K, W, image ``order``) is column i of ``by_line``
+    (K, n)."""
     for k in range(order.size):  # noqa: SIM110 (a generator does not compile)
-        if ref[k, c] != by_line[order[k], c]:
+        if ref[k, c] != by_line[order[k], i]:
             return False
     return True
 
@@ -530,14 +581,15 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         if n in (0, left):
             break  # all anchored, or the last round anchored nothing new
         left = n
-        by_line = continuity(rows, anchored, columns[:n], reach, block, min_block, min_line,
-                             bridge_px, median_px)
+        by_line = _continuity_columns(rows, anchored, columns[:n], reach, block, min_block,
+                                      min_line, bridge_px, median_px)
         n_again = 0
-        for c in columns[:n]:  # each was tested in the last round (or pass 1)
-            if _same_reference(ref, by_line, order, c):
+        for i in range(n):  # each was tested in the last round (or pass 1)
+            c = columns[i]
+            if _same_reference(ref, by_line, order, c, i):
                 continue  # the same test again: the same result
             for k in range(k_count):
-                ref[k, c] = by_line[order[k], c]
+                ref[k, c] = by_line[order[k], i]
                 ambiguous[k, c] = -1
             again[n_again] = c
             n_again += 1
