@@ -259,8 +259,14 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
     down = assign_down(peaks, lo, hi, line)
     up = assign_up(peaks, lo, hi, line)
     k_count, width = down.shape
-    differ = down != up
+    # the (K, W) passes go along the rows of the tables (contiguous), the per-column
+    # work only where the matchings differ
+    differ = np.empty((k_count, width), dtype=np.bool_)
     unsettled = np.zeros(width, dtype=np.bool_)
+    for k in range(k_count):
+        for c in range(width):
+            differ[k, c] = down[k, c] != up[k, c]
+            unsettled[c] |= differ[k, c]
     pick_up = np.zeros(width, dtype=np.bool_)
     pick_down = np.zeros(width, dtype=np.bool_)
     miss_down = np.full(width, -1, dtype=np.int64)
@@ -269,22 +275,20 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
     down_c = np.empty(k_count, dtype=np.int64)  # columns copied, not viewed (no count)
     up_c = np.empty(k_count, dtype=np.int64)
     for c in range(width):
-        for k in range(k_count):
-            unsettled[c] |= differ[k, c]
-            down_c[k], up_c[k] = down[k, c], up[k, c]
         if unsettled[c] and has_prior:
+            for k in range(k_count):
+                down_c[k], up_c[k] = down[k, c], up[k, c]
             miss_down[c] = _unexplained_column(down_c, c, cot_alpha, geometry, ground_range_m,
                                                image_order, z)
             miss_up[c] = _unexplained_column(up_c, c, cot_alpha, geometry, ground_range_m,
                                              image_order, z)
             pick_up[c], pick_down[c] = miss_up[c] < miss_down[c], miss_down[c] < miss_up[c]
     settled = ~unsettled | pick_up | pick_down
-    chosen = down.copy()
+    chosen = np.empty((k_count, width), dtype=np.int64)
     good = np.empty((k_count, width), dtype=np.bool_)
-    for c in range(width):
-        for k in range(k_count):
-            if pick_up[c]:
-                chosen[k, c] = up[k, c]
+    for k in range(k_count):
+        for c in range(width):
+            chosen[k, c] = up[k, c] if pick_up[c] else down[k, c]
             good[k, c] = (not differ[k, c] or settled[c]) and chosen[k, c] >= 0
     ref = continuity_reference(chosen, good, block, min_block, min_line)
     rows = down.copy()
@@ -311,8 +315,10 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
             missing[c] = miss_down[c]
     certain = np.empty((0, 0))
     if aligned:
-        certain = continuity_reference(down, ~differ & (down >= 0), block, min_block,
-                                       min_line)
+        for k in range(k_count):  # (good: the rows where both matchings agree)
+            for c in range(width):
+                good[k, c] = not differ[k, c] and down[k, c] >= 0
+        certain = continuity_reference(down, good, block, min_block, min_line)
     return rows, unsure, unsettled, certain, missing
 
 
