@@ -416,3 +416,29 @@ def test_paths_read_back_from_the_table_values_are_those_of_stored_steps() -> No
             out = np.full(k_count, -7, np.int64)
             rk._read_backward(j, i, m, column, g, match, costs[0], out)
             assert list(out[j:]) == want
+
+
+def test_the_identity_hands_on_the_prior_s_counts_of_its_final_rows(pipe: Pipeline) -> None:
+    """identify_counted returns, beside the identity of identify_lines, the prior's count
+    of its rows' missing lines wherever the greedy matchings or the alignment took it
+    (also where the alignment replaced the rows), and the rival test given these counts
+    is the one that takes them itself: on 10 random maps."""
+    from atris_node.pipeline.identity import identify_counted, identify_lines
+    from atris_node.pipeline.rivals import _unique_rows
+
+    rng = np.random.default_rng(10)
+    prior = pipe._prior
+    edges = in_image_order(pipe.bands)
+    for _ in range(10):
+        peaks = _random_map(rng, 640)
+        rows, unsure, counted = identify_counted(peaks, pipe.bands, 3, prior, aligned=True)
+        want = identify_lines(peaks, pipe.bands, 3, prior, aligned=True)
+        np.testing.assert_array_equal(rows, want[0])
+        np.testing.assert_array_equal(unsure, want[1])
+        known = np.flatnonzero(counted >= 0)
+        assert known.size > 100
+        np.testing.assert_array_equal(counted[known], prior.unexplained(rows[:, known], known))
+        given = _unique_rows(peaks, edges, rows, prior, None, counted)
+        taken = _unique_rows(peaks, edges, rows, prior, None, None)
+        for g, t in zip(given, taken, strict=True):
+            np.testing.assert_array_equal(g, t)

@@ -166,7 +166,9 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
     ``rows`` (K, W) by line and ``unsure`` (W,). ``costs`` (skip, spare, beyond,
     unexplained) px; the prior (``cot_alpha``, ``geometry``, ``ground_range_m``,
     ``image_order``, as :func:`unexplained` takes them) counts only with ``has_prior``;
-    ``known`` (W,) its count for the given rows where already taken (-1 elsewhere)."""
+    ``known`` (W,) its count for the given rows where already taken (-1 elsewhere), in
+    place: on return the count of the returned rows where this call or an earlier one
+    took it."""
     k_count, m_count = order.size, peaks.shape[0]
     unexplained_px = costs[3]
     scratch = np.empty((2, m_count + 1))
@@ -186,9 +188,10 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
             peaks_c[i] = peaks[i, c]
         missing = 0.0
         if has_prior:
-            count = known[c] if known[c] >= 0 else _unexplained_column(
-                old, c, cot_alpha, geometry, ground_range_m, image_order, z)
-            missing = unexplained_px * count
+            if known[c] < 0:
+                known[c] = _unexplained_column(old, c, cot_alpha, geometry, ground_range_m,
+                                               image_order, z)
+            missing = unexplained_px * known[c]
         excess, floor, assigned = _assignment_cost(old, order, peaks_c, lo, hi, ref_c, beyond,
                                                    costs)
         if excess + missing < margin:
@@ -204,11 +207,14 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
             new[order[k]] = aligned[k]
         # the prior's cost can only raise the alignment's total, by at most its count of
         # missing lines: taken only when that could undo the switch
+        count = -1  # of the new rows, where taken
         if has_prior and total + unexplained_px * _missing(new) + margin > old_total:
-            total += unexplained_px * _unexplained_column(new, c, cot_alpha, geometry,
-                                                          ground_range_m, image_order, z)
+            count = _unexplained_column(new, c, cot_alpha, geometry, ground_range_m,
+                                        image_order, z)
+            total += unexplained_px * count
             if total + margin > old_total:
                 continue
+        known[c] = count
         kept = 0
         for k in range(k_count):
             kept += new[k] >= 0

@@ -47,7 +47,7 @@ from atris_node.pipeline.identity import (
     MIN_LINE_SAMPLES,
     SWITCH_PX,
     VisibilityPrior,
-    identify_lines,
+    identify_counted,
     prior_arrays,
 )
 
@@ -89,18 +89,20 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
         rows: (K, W) int64, the identity chosen so far (:func:`identify_lines`).
         prior: the visibility prior; without it only bands, order and continuity count.
     """
-    rows, ambiguous, _ = _unique_rows(peaks, in_image_order(bands), rows, prior, None)
+    rows, ambiguous, _ = _unique_rows(peaks, in_image_order(bands), rows, prior, None, None)
     return rows, ambiguous
 
 
 def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
                  rows: IntArray, prior: VisibilityPrior | None,
-                 earlier: tuple[IntArray, BoolArray] | None
+                 earlier: tuple[IntArray, BoolArray] | None, counted: IntArray | None
                  ) -> tuple[IntArray, IntArray, IntArray]:
     """:func:`unique_identity` (bands as ``edges``, :func:`in_image_order`), and (K, W)
     the rival test's result without continuity (pass 1) in every column. ``earlier``:
     that pass-1 result of an earlier identity and (W,) the columns where its peaks and
-    ``rows`` were these, which take it over."""
+    ``rows`` were these, which take it over. ``counted``: (W,) the prior's count of the
+    lines of ``rows`` missing without a reason where known (-1 elsewhere; None:
+    nowhere)."""
     lo, hi, order = edges
     # a stripe from past its line's z_max (the ground or a wall beyond the range) is as
     # good an explanation as the next line at a near range, and the rival test must see
@@ -113,9 +115,11 @@ def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
         passed, reuse = np.empty_like(ambiguous), np.zeros(rows.shape[1], dtype=np.bool_)
     else:
         passed, reuse = earlier[0].copy(), np.ascontiguousarray(earlier[1], dtype=np.bool_)
+    counted = (np.full(rows.shape[1], -1, dtype=np.int64) if counted is None else
+               np.array(counted, dtype=np.int64))
     rivals_kernels.unique(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, order, rows,
                           ambiguous, passed, reuse, _MARGINS, _SPANS, _COSTS,
-                          *prior_arrays(prior, rows.shape))
+                          *prior_arrays(prior, rows.shape), counted)
     return rows, ambiguous, passed
 
 
@@ -184,19 +188,21 @@ def _unique(peaks: IntArray, bands: tuple[Band, ...],
             prior: VisibilityPrior | None, aligned: bool,
             earlier: tuple[IntArray, IntArray, BoolArray] | None
             ) -> tuple[Identity, IntArray, IntArray]:
-    """:func:`identify_lines` then :func:`unique_identity`. Peaks the rival test removed
+    """:func:`identify_lines` then :func:`unique_identity` (with the prior's counts the
+    identity took). Peaks the rival test removed
     keep their nearest rival as doubt; peaks the greedy matchings could not place, the
     lowest band that holds them. Also returns the (K, W) identity before the rival test
     and the test's (K, W) result without continuity, for a later identity of the same
     map (``earlier``: those two and (W,) the columns where its peaks are these).
     ``edges``: the bands in image order (:func:`in_image_order`)."""
-    first, unsure = identify_lines(peaks, bands, sep, prior, aligned=aligned, edges=edges)
+    first, unsure, counted = identify_counted(peaks, bands, sep, prior, aligned=aligned,
+                                              edges=edges)
     first = np.ascontiguousarray(first, dtype=np.int64)
     reuse = None
     if earlier is not None:
         same = earlier[2] & (first == earlier[0]).all(axis=0)
         reuse = (earlier[1], same)
-    rows, nearest, passed = _unique_rows(peaks, edges, first, prior, reuse)
+    rows, nearest, passed = _unique_rows(peaks, edges, first, prior, reuse, counted)
     doubts = rivals_kernels.doubts(np.ascontiguousarray(peaks, dtype=np.int64), first, rows,
                                    nearest, np.ascontiguousarray(unsure, dtype=np.int64),
                                    *edges)

@@ -532,11 +532,12 @@ def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: in
 
 @kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
         "int64[:, :], boolean[:], float64[:], int64[:], float64[:], boolean, float64[:], "
-        "float64[:], float64[:, :], int64[:])")
+        "float64[:], float64[:, :], int64[:], int64[:])")
 def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
            ambiguous: IntArray, passed: IntArray, reuse: BoolArray, margins: FloatArray,
            spans: IntArray, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
-           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
+           counted: IntArray) -> None:
     """The rounds of :func:`atris_node.pipeline.rivals.unique_identity`, in place on
     ``rows`` (K, W) by line (every sample with a rival set to -1) and ``ambiguous`` (K, W)
     (-1 on entry; the nearest rival line of each removed sample).
@@ -552,7 +553,8 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     anchors nothing new. A column whose reference is the one of its last test is not
     tested again (the test is a function of the column's peaks, rows, prior and
     reference). Bands ``lo``, ``hi`` and ``order`` and the prior as
-    :func:`rivals` takes them."""
+    :func:`rivals` takes them; ``counted`` (W,) the prior's count of the lines of ``rows``
+    missing without a reason where known (-1 elsewhere; filled in where taken)."""
     k_count, width = rows.shape
     margin, bridge_px, median_px = margins[0], margins[1], margins[2]
     reach, block, min_block, min_line, rounds = spans[0], spans[1], spans[2], spans[3], spans[4]
@@ -569,7 +571,6 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 n += 1
                 break
     ref = np.full((k_count, width), np.inf)  # the reference of each column's last test
-    counted = np.full(width, -1, dtype=np.int64)  # the rows do not change: nor their count
     rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
            has_prior, cot_alpha, geometry, ground_range_m, image_order, counted)
     passed[:, :] = ambiguous
@@ -762,7 +763,7 @@ def warm_up() -> None:
            np.array([np.inf]), 10.0, costs, *prior, np.full(1, -1, dtype=i64))
     unique(peaks, one, hi, one, rows.copy(), none.copy(), none.copy(),
            np.zeros(1, dtype=np.bool_), np.array([10.0, 4.0, 6.0]),
-           np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior)
+           np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior, np.full(1, -1, dtype=i64))
     doubts(peaks, rows, rows, none, one, one, hi, one)
     stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
     set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
