@@ -204,24 +204,29 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
     out = np.empty((k_count, width))
     values = np.empty(width)
     kept = np.empty(block)
+    starts = np.empty((width + block - 1) // block + 1, dtype=np.int64)
     for k in range(k_count):
+        # the good rows in column order, once (without a branch: written always, kept
+        # when good); block b's are values[starts[b]:starts[b + 1]]
         n = 0
-        for c in range(width):
-            if good[k, c]:
+        for b, lo in enumerate(range(0, width, block)):
+            starts[b] = n
+            for c in range(lo, min(lo + block, width)):
                 values[n] = rows[k, c]
-                n += 1
+                n += good[k, c]
+        starts[-1] = n
         line = np.nan  # taken when a block needs it
-        for lo in range(0, width, block):
+        for b, lo in enumerate(range(0, width, block)):
             hi = min(lo + block, width)
             m = 0
-            for c in range(lo, hi):
-                if good[k, c]:
-                    i = m
-                    while i > 0 and kept[i - 1] > rows[k, c]:
-                        kept[i] = kept[i - 1]
-                        i -= 1
-                    kept[i] = rows[k, c]
-                    m += 1
+            for s in range(starts[b], starts[b + 1]):
+                p = values[s]
+                i = m
+                while i > 0 and kept[i - 1] > p:
+                    kept[i] = kept[i - 1]
+                    i -= 1
+                kept[i] = p
+                m += 1
             if m < min_block and np.isnan(line):
                 line = median(values[:n]) if n >= min_line else np.inf
             out[k, lo:hi] = kept[m // 2] if m >= min_block else line
