@@ -14,7 +14,11 @@ of whole and half pixels, exact in float64, so the order of the sums does not ch
 comparison. Every kernel has explicit signatures: it is compiled at import, or loaded from
 numba's cache next to this file (``__pycache__``, or ``NUMBA_CACHE_DIR``), so no map waits
 for the compiler; :func:`warm_up` also does the first-call argument typing. With
-``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow, for debugging).
+``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow, for debugging). A helper called
+once per column or path that neither allocates nor keeps an array is compiled without
+reference counting (:data:`uncounted`, also used by the rival test and the alignment):
+a counted call increments and decrements each array argument's count, and so does taking
+a column as a view (``a[:, c]``), which the per-column loops avoid by copying.
 """
 
 from __future__ import annotations

@@ -188,12 +188,12 @@ def _unique(peaks: IntArray, bands: tuple[Band, ...],
             prior: VisibilityPrior | None, aligned: bool,
             earlier: tuple[IntArray, IntArray, BoolArray] | None
             ) -> tuple[Identity, IntArray, IntArray]:
-    """:func:`identify_lines` then :func:`unique_identity` (with the prior's counts the
-    identity took). Peaks the rival test removed
-    keep their nearest rival as doubt; peaks the greedy matchings could not place, the
-    lowest band that holds them. Also returns the (K, W) identity before the rival test
-    and the test's (K, W) result without continuity, for a later identity of the same
-    map (``earlier``: those two and (W,) the columns where its peaks are these).
+    """:func:`identify_lines` then :func:`unique_identity` (starting from the prior's
+    counts the identity took). Peaks the rival test removed keep their nearest rival as
+    doubt; peaks the greedy matchings could not place, the lowest band that holds them.
+    Also returns the (K, W) identity before the rival test and the test's (K, W) result
+    without continuity, for a later identity of the same map (``earlier``: those two and
+    (W,) the columns where its peaks are these).
     ``edges``: the bands in image order (:func:`in_image_order`)."""
     first, unsure, counted = identify_counted(peaks, bands, sep, prior, aligned=aligned,
                                               edges=edges)

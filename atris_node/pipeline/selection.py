@@ -1,9 +1,9 @@
 """Order statistics by selection, for compiled code (numba, ``nopython``).
 
 numpy's median sorts; inside a compiled loop a selection (``np.partition``, O(n)) of the
-order statistic needed is several times faster than numba's sort. The mean of
-the middle two is numpy's own arithmetic, so the results are the same to the bit
-(tests/test_lines_reference.py).
+order statistic needed is several times faster than numba's sort. The mean of the middle
+two is numpy's own arithmetic, so the results are the same to the bit
+(tests/test_lines_reference.py, tests/test_kernels_reference.py).
 """
 
 from __future__ import annotations
