@@ -1200,3 +1200,23 @@ def test_widened_is_the_shifted_or() -> None:
             want[d:] |= columns[:-d]
             want[:-d] |= columns[d:]
         np.testing.assert_array_equal(verdicts_kernels.widened(columns, margin), want)
+
+
+# ------------------------------------------------------------- line identity: selection
+# (the median of a compiled loop takes one selection for an even count, not two)
+
+
+def test_selection_median_is_numpys_median() -> None:
+    """600 random arrays (1 to 300 values, odd and even counts, many ties, whole and
+    fractional values, negative ones): selection.median equals np.median, bitwise."""
+    from atris_node.pipeline.selection import median
+
+    rng = np.random.default_rng(31)
+    for _ in range(600):
+        n = int(rng.integers(1, 301))
+        values = rng.integers(-5, int(rng.integers(1, 400)), n).astype(np.float64)
+        if rng.random() < 0.4:
+            values = values + rng.choice([0.0, 0.25, 0.5, 0.1], n)
+        got, want = median(values), float(np.median(values))
+        assert got == want or (np.isnan(got) and np.isnan(want))
+        assert np.float64(got).tobytes() == np.float64(want).tobytes()

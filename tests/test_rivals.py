@@ -366,3 +366,116 @@ def test_feature_line_medians_do_not_overrule_the_prior(pipe: Pipeline) -> None:
     assert (out[:, 500:600] == comb[:, None]).all()
     assert not (out[:, 150:260] >= 0).any()
     assert (ambiguous[:, 150:260] >= 0).any(axis=0).all()
+
+
+def _paths_by_step_tables(match: np.ndarray, spare: np.ndarray, skip_px: float
+                          ) -> tuple[dict[tuple[int, int], list[int]],
+                                     dict[tuple[int, int], list[int]]]:
+    """Every cell's cheapest path as the recursion's stored steps give it (a match before
+    a skip before a spare on a tie): by cell (j, i), the peak index each of the first j
+    lines takes (forward, -1 = none) and each of lines j.. (backward)."""
+    k_count, m = match.shape
+    f = np.zeros((k_count + 1, m + 1))
+    g = np.zeros((k_count + 1, m + 1))
+    f_step = np.full((k_count + 1, m + 1), "spare", dtype=object)
+    g_step = np.full((k_count + 1, m + 1), "spare", dtype=object)
+    for i in range(1, m + 1):
+        f[0, i] = f[0, i - 1] + spare[i - 1]
+    for j in range(1, k_count + 1):
+        f[j, 0], f_step[j, 0] = f[j - 1, 0] + skip_px, "skip"
+        for i in range(1, m + 1):
+            take, skip = f[j - 1, i - 1] + match[j - 1, i - 1], f[j - 1, i] + skip_px
+            f[j, i] = min(take, skip, f[j, i - 1] + spare[i - 1])
+            f_step[j, i] = ("take" if f[j, i] == take else
+                            "skip" if f[j, i] == skip else "spare")
+    for i in range(m - 1, -1, -1):
+        g[k_count, i] = g[k_count, i + 1] + spare[i]
+    for j in range(k_count - 1, -1, -1):
+        g[j, m], g_step[j, m] = g[j + 1, m] + skip_px, "skip"
+        for i in range(m - 1, -1, -1):
+            take, skip = match[j, i] + g[j + 1, i + 1], g[j + 1, i] + skip_px
+            g[j, i] = min(take, skip, g[j, i + 1] + spare[i])
+            g_step[j, i] = ("take" if g[j, i] == take else
+                            "skip" if g[j, i] == skip else "spare")
+    forward, backward = {}, {}
+    for j0 in range(k_count + 1):
+        for i0 in range(m + 1):
+            out, j, i = [-1] * j0, j0, i0
+            while j > 0:
+                step = f_step[j, i]
+                if step == "take":
+                    out[j - 1] = i - 1
+                    i -= 1
+                if step != "spare":
+                    j -= 1
+                else:
+                    i -= 1
+            forward[j0, i0] = out
+            out, j, i = [-1] * (k_count - j0), j0, i0
+            while j < k_count:
+                step = g_step[j, i]
+                if step == "take":
+                    out[j - j0] = i
+                    i += 1
+                if step != "spare":
+                    j += 1
+                else:
+                    i += 1
+            backward[j0, i0] = out
+    return forward, backward
+
+
+def test_paths_read_back_from_the_table_values_are_those_of_stored_steps() -> None:
+    """The rival test reads a cheapest path back from the values of its tables (the first
+    step whose sum is the cell's value) instead of storing each cell's step: on 300
+    random columns (whole and half pixel costs with many ties, bands as inf) every
+    cell's path is the one the stored steps give."""
+    from atris_node.pipeline import rivals_kernels as rk
+
+    rng = np.random.default_rng(9)
+    for _ in range(300):
+        k_count, m = int(rng.integers(1, 9)), int(rng.integers(0, 13))
+        match = rng.choice([0.0, 0.5, 1.0, 3.0, 10.0, 10.5, np.inf], (k_count, m))
+        spare = rng.choice([0.0, 40.0], m)
+        costs = np.array([10.0, 40.0, 10.0, 10.0])
+        f = np.zeros((k_count + 1, m + 1))
+        g = np.zeros((k_count + 1, m + 1))
+        rk._tables(m, k_count, match, costs, spare, f, g)
+        forward, backward = _paths_by_step_tables(match, spare, costs[0])
+        column = np.arange(m, dtype=np.int64)  # a peak's row is its index here
+        for (j, i), want in forward.items():
+            out = np.full(k_count, -7, np.int64)
+            rk._read_forward(j, i, column, f, match, costs[0], out)
+            assert list(out[:j]) == want
+        for (j, i), want in backward.items():
+            out = np.full(k_count, -7, np.int64)
+            rk._read_backward(j, i, m, column, g, match, costs[0], out)
+            assert list(out[j:]) == want
+
+
+def test_the_identity_hands_on_the_prior_s_counts_of_its_final_rows(pipe: Pipeline) -> None:
+    """identify_counted returns, beside the identity of identify_lines, the prior's count
+    of its rows' missing lines wherever the greedy matchings or the alignment took it
+    (also where the alignment replaced the rows), and the rival test given these counts
+    is the one that takes them itself: on 10 random maps."""
+    from atris_node.pipeline.identity import identify_counted, identify_lines
+    from atris_node.pipeline.rivals import _unique_rows
+
+    rng = np.random.default_rng(10)
+    prior = pipe._prior
+    edges = in_image_order(pipe.bands)
+    for _ in range(10):
+        peaks = _random_map(rng, 640)
+        rows, unsure, counted = identify_counted(peaks, pipe.bands, 3, prior, aligned=True)
+        want = identify_lines(peaks, pipe.bands, 3, prior, aligned=True)
+        np.testing.assert_array_equal(rows, want[0])
+        np.testing.assert_array_equal(unsure, want[1])
+        known = np.flatnonzero(counted >= 0)
+        assert known.size > 100
+        np.testing.assert_array_equal(counted[known], prior.unexplained(rows[:, known], known))
+        given = _unique_rows(peaks, edges, rows, prior, None, counted)
+        taken = _unique_rows(peaks, edges, rows, prior, None, None)
+        for g, t in zip(given[:2], taken[:2], strict=True):
+            np.testing.assert_array_equal(g, t)
+        np.testing.assert_array_equal(given[2].ambiguous, taken[2].ambiguous)
+        np.testing.assert_array_equal(given[2].outranked, taken[2].outranked)

@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column
+from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column, uncounted
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -26,7 +26,7 @@ _F1 = "float64[:]"
 _F2 = "float64[:, :]"
 
 
-@kernel()
+@uncounted
 def _in_any(p: int, lo: IntArray, hi: IntArray) -> bool:
     """True when row ``p`` lies in one of the bands ``[lo, hi)``."""
     for k in range(lo.size):  # noqa: SIM110 (a generator does not compile)
@@ -35,7 +35,7 @@ def _in_any(p: int, lo: IntArray, hi: IntArray) -> bool:
     return False
 
 
-@kernel()
+@uncounted
 def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, ref: float,
                 beyond: float, spare: FloatArray, skip_px: float, beyond_px: float,
                 d: FloatArray, choice: npt.NDArray[np.int8]) -> None:
@@ -61,7 +61,7 @@ def _align_line(j: int, column: IntArray, m: int, lo: IntArray, hi: IntArray, re
             choice[j, i] = 0
 
 
-@kernel()
+@uncounted
 def _missing(rows: IntArray) -> int:
     """The count of lines without a row (-1) in ``rows`` (K,)."""
     count = 0
@@ -70,7 +70,7 @@ def _missing(rows: IntArray) -> int:
     return count
 
 
-@kernel()
+@uncounted
 def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntArray) -> None:
     """The rows each line took (``out``, -1 = none) from the choices of :func:`align`."""
     j, i = choice.shape[0], m
@@ -86,7 +86,7 @@ def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntA
             i -= 1
 
 
-@kernel()
+@uncounted
 def _align_column(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
                   beyond: FloatArray, costs: FloatArray, scratch: FloatArray,
                   column: IntArray, choice: npt.NDArray[np.int8], out: IntArray) -> float:
@@ -129,7 +129,7 @@ def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
     return rows, total
 
 
-@kernel()
+@uncounted
 def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntArray,
                      hi: IntArray, ref: FloatArray, beyond: FloatArray,
                      costs: FloatArray) -> tuple[float, float, int]:
@@ -166,7 +166,9 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
     ``rows`` (K, W) by line and ``unsure`` (W,). ``costs`` (skip, spare, beyond,
     unexplained) px; the prior (``cot_alpha``, ``geometry``, ``ground_range_m``,
     ``image_order``, as :func:`unexplained` takes them) counts only with ``has_prior``;
-    ``known`` (W,) its count for the given rows where already taken (-1 elsewhere)."""
+    ``known`` (W,) its count for the given rows where already taken (-1 elsewhere), in
+    place: on return the count of the returned rows where this call or an earlier one
+    took it."""
     k_count, m_count = order.size, peaks.shape[0]
     unexplained_px = costs[3]
     scratch = np.empty((2, m_count + 1))
@@ -176,21 +178,28 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
     new = np.empty(k_count, dtype=np.int64)
     ref_image = np.empty(k_count)
     z = np.empty(k_count)
+    old = np.empty(k_count, dtype=np.int64)  # column c copied, not viewed (no count)
+    peaks_c = np.empty(m_count, dtype=np.int64)
+    ref_c = np.empty(k_count)
     for c in columns:
-        old = rows[:, c]
+        for k in range(k_count):
+            old[k], ref_c[k] = rows[k, c], ref[k, c]
+        for i in range(m_count):
+            peaks_c[i] = peaks[i, c]
         missing = 0.0
         if has_prior:
-            count = known[c] if known[c] >= 0 else _unexplained_column(
-                old, c, cot_alpha, geometry, ground_range_m, image_order, z)
-            missing = unexplained_px * count
-        excess, floor, assigned = _assignment_cost(old, order, peaks[:, c], lo, hi, ref[:, c],
-                                                   beyond, costs)
+            if known[c] < 0:
+                known[c] = _unexplained_column(old, c, cot_alpha, geometry, ground_range_m,
+                                               image_order, z)
+            missing = unexplained_px * known[c]
+        excess, floor, assigned = _assignment_cost(old, order, peaks_c, lo, hi, ref_c, beyond,
+                                                   costs)
         if excess + missing < margin:
             continue  # no alignment can save the margin here
         old_total = excess + floor + missing
         for k in range(k_count):
             ref_image[k] = ref[order[k], c]
-        total = _align_column(peaks[:, c], lo, hi, ref_image, beyond, costs, scratch, column,
+        total = _align_column(peaks_c, lo, hi, ref_image, beyond, costs, scratch, column,
                               choice, aligned)
         if total + margin > old_total:
             continue
@@ -198,11 +207,14 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
             new[order[k]] = aligned[k]
         # the prior's cost can only raise the alignment's total, by at most its count of
         # missing lines: taken only when that could undo the switch
+        count = -1  # of the new rows, where taken
         if has_prior and total + unexplained_px * _missing(new) + margin > old_total:
-            total += unexplained_px * _unexplained_column(new, c, cot_alpha, geometry,
-                                                          ground_range_m, image_order, z)
+            count = _unexplained_column(new, c, cot_alpha, geometry, ground_range_m,
+                                        image_order, z)
+            total += unexplained_px * count
             if total + margin > old_total:
                 continue
+        known[c] = count
         kept = 0
         for k in range(k_count):
             kept += new[k] >= 0

@@ -133,18 +133,21 @@ def improve(peaks: IntArray, edges: tuple[IntArray, IntArray], order: IntArray,
     Returns:
         rows (K, W) and (W,) unsure counts. A peak the greedy choice used that the
         alignment leaves to no line counts as unsure, so the foreign-peak count (peaks in
-        the bands minus assigned minus unsure) is that of the greedy matching.
+        the bands minus assigned minus unsure) is that of the greedy matching. ``missing``
+        (when given) then holds the count of the returned rows where it was taken.
     """
     rows, unsure = rows_and_unsure = (greedy[0].copy(), greedy[1].copy())
     cols = np.flatnonzero(unsettled & (unsure == 0))
     lo, hi = edges
-    if missing is None:
-        missing = np.full(rows.shape[1], -1, dtype=np.int64)
+    known = (np.full(rows.shape[1], -1, dtype=np.int64) if missing is None else
+             np.ascontiguousarray(missing, dtype=np.int64))
     alignment_kernels.improve(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi,
                     order.astype(np.int64), rows, unsure, cols.astype(np.int64),
                     np.ascontiguousarray(ref, dtype=np.float64), beyond_rows(prior, order),
                     max(SWITCH_PX, float(sep)), _COSTS, *prior_arrays(prior, rows.shape),
-                    np.ascontiguousarray(missing, dtype=np.int64))
+                    known)
+    if missing is not None and known is not missing:
+        missing[:] = known
     return rows_and_unsure
 
 
@@ -241,12 +244,24 @@ def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
     middle of a column, which both greedy matchings answer with a shifted run of lines).
     ``edges``: ``in_image_order(bands)`` where the caller has it.
     """
+    rows, unsure, _ = identify_counted(peaks, bands, sep, prior, aligned=aligned, edges=edges)
+    return rows, unsure
+
+
+def identify_counted(peaks: IntArray, bands: tuple[Band, ...], sep: int,
+                     prior: VisibilityPrior | None = None, *, aligned: bool = False,
+                     edges: tuple[IntArray, IntArray, IntArray] | None = None
+                     ) -> tuple[IntArray, IntArray, IntArray]:
+    """:func:`identify_lines`, and (W,) int64 the prior's count of the rows' lines missing
+    without a reason (:meth:`VisibilityPrior.unexplained`) in the columns where the
+    matchings or the alignment took it (-1 elsewhere), for the rival test."""
     lo, hi, line = in_image_order(bands) if edges is None else edges
     rows, unsure, unsettled, certain, missing = kernels.greedy_identity(
         np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, line, int(sep), aligned,
         *prior_arrays(prior, (len(bands), peaks.shape[1])), CONTINUITY_BLOCK,
         MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES)
     if not aligned or not unsettled.any():
-        return rows, unsure
-    return improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain, prior, sep,
-                   missing)
+        return rows, unsure, missing
+    rows, unsure = improve(peaks, (lo, hi), line, (rows, unsure), unsettled, certain, prior,
+                           sep, missing)
+    return rows, unsure, missing

@@ -14,15 +14,22 @@ of whole and half pixels, exact in float64, so the order of the sums does not ch
 comparison. Every kernel has explicit signatures: it is compiled at import, or loaded from
 numba's cache next to this file (``__pycache__``, or ``NUMBA_CACHE_DIR``), so no map waits
 for the compiler; :func:`warm_up` also does the first-call argument typing. With
-``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow, for debugging).
+``NUMBA_DISABLE_JIT=1`` they run as plain Python (slow, for debugging). A helper called
+once per column or path that neither allocates nor keeps an array is compiled without
+reference counting (:data:`uncounted`, also used by the rival test and the alignment):
+a counted call increments and decrements each array argument's count, and so does taking
+a column as a view (``a[:, c]``), which the per-column loops avoid by copying.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
+import numba
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.jit import kernel
+from atris_node.jit import CACHE, kernel
 from atris_node.pipeline.selection import median
 
 IntArray = npt.NDArray[np.int64]
@@ -32,6 +39,12 @@ _I1 = "int64[:]"
 _I2 = "int64[:, :]"
 _F1 = "float64[:]"
 _F2 = "float64[:, :]"
+
+#: a helper that neither allocates nor keeps an array, compiled without reference counting
+#: (numba's ``_nrt=False``): a counted call increments and decrements the count of each of
+#: its array arguments (atomic operations), which cost as much as a short helper's work
+_UNCOUNTED: dict[str, Any] = {"_nrt": False, "cache": CACHE, "nogil": True}
+uncounted = numba.njit(**_UNCOUNTED)
 
 
 @kernel(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})")
@@ -87,7 +100,7 @@ def _next_finite(z: FloatArray, k: int) -> int:
     return k
 
 
-@kernel()
+@uncounted
 def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
                         ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
     """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
@@ -153,6 +166,23 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
 
 
 @kernel()
+def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
+    """:func:`_sorted_peaks` of column c of ``peaks`` (M, W)."""
+    m = 0
+    for j in range(peaks.shape[0]):
+        p = peaks[j, c]
+        if p < 0:
+            continue
+        i = m
+        while i > 0 and out[i - 1] > p:
+            out[i] = out[i - 1]
+            i -= 1
+        out[i] = p
+        m += 1
+    return m
+
+
+@kernel()
 def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
     """The peaks >= 0 into ``out``, ascending (insertion sort; M is small); their count."""
     m = 0
@@ -178,24 +208,29 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
     out = np.empty((k_count, width))
     values = np.empty(width)
     kept = np.empty(block)
+    starts = np.empty((width + block - 1) // block + 1, dtype=np.int64)
     for k in range(k_count):
+        # the good rows in column order, once (without a branch: written always, kept
+        # when good); block b's are values[starts[b]:starts[b + 1]]
         n = 0
-        for c in range(width):
-            if good[k, c]:
+        for b, lo in enumerate(range(0, width, block)):
+            starts[b] = n
+            for c in range(lo, min(lo + block, width)):
                 values[n] = rows[k, c]
-                n += 1
+                n += good[k, c]
+        starts[-1] = n
         line = np.nan  # taken when a block needs it
-        for lo in range(0, width, block):
+        for b, lo in enumerate(range(0, width, block)):
             hi = min(lo + block, width)
             m = 0
-            for c in range(lo, hi):
-                if good[k, c]:
-                    i = m
-                    while i > 0 and kept[i - 1] > rows[k, c]:
-                        kept[i] = kept[i - 1]
-                        i -= 1
-                    kept[i] = rows[k, c]
-                    m += 1
+            for s in range(starts[b], starts[b + 1]):
+                p = values[s]
+                i = m
+                while i > 0 and kept[i - 1] > p:
+                    kept[i] = kept[i - 1]
+                    i -= 1
+                kept[i] = p
+                m += 1
             if m < min_block and np.isnan(line):
                 line = median(values[:n]) if n >= min_line else np.inf
             out[k, lo:hi] = kept[m // 2] if m >= min_block else line
@@ -233,28 +268,36 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
     down = assign_down(peaks, lo, hi, line)
     up = assign_up(peaks, lo, hi, line)
     k_count, width = down.shape
-    differ = down != up
+    # the (K, W) passes go along the rows of the tables (contiguous), the per-column
+    # work only where the matchings differ
+    differ = np.empty((k_count, width), dtype=np.bool_)
     unsettled = np.zeros(width, dtype=np.bool_)
+    for k in range(k_count):
+        for c in range(width):
+            differ[k, c] = down[k, c] != up[k, c]
+            unsettled[c] |= differ[k, c]
     pick_up = np.zeros(width, dtype=np.bool_)
     pick_down = np.zeros(width, dtype=np.bool_)
     miss_down = np.full(width, -1, dtype=np.int64)
     miss_up = np.full(width, -1, dtype=np.int64)
     z = np.empty(k_count)
+    down_c = np.empty(k_count, dtype=np.int64)  # columns copied, not viewed (no count)
+    up_c = np.empty(k_count, dtype=np.int64)
     for c in range(width):
-        unsettled[c] = differ[:, c].any()
         if unsettled[c] and has_prior:
-            miss_down[c] = _unexplained_column(down[:, c], c, cot_alpha, geometry,
-                                               ground_range_m, image_order, z)
-            miss_up[c] = _unexplained_column(up[:, c], c, cot_alpha, geometry, ground_range_m,
+            for k in range(k_count):
+                down_c[k], up_c[k] = down[k, c], up[k, c]
+            miss_down[c] = _unexplained_column(down_c, c, cot_alpha, geometry, ground_range_m,
+                                               image_order, z)
+            miss_up[c] = _unexplained_column(up_c, c, cot_alpha, geometry, ground_range_m,
                                              image_order, z)
             pick_up[c], pick_down[c] = miss_up[c] < miss_down[c], miss_down[c] < miss_up[c]
     settled = ~unsettled | pick_up | pick_down
-    chosen = down.copy()
+    chosen = np.empty((k_count, width), dtype=np.int64)
     good = np.empty((k_count, width), dtype=np.bool_)
-    for c in range(width):
-        for k in range(k_count):
-            if pick_up[c]:
-                chosen[k, c] = up[k, c]
+    for k in range(k_count):
+        for c in range(width):
+            chosen[k, c] = up[k, c] if pick_up[c] else down[k, c]
             good[k, c] = (not differ[k, c] or settled[c]) and chosen[k, c] >= 0
     ref = continuity_reference(chosen, good, block, min_block, min_line)
     rows = down.copy()
@@ -281,8 +324,10 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
             missing[c] = miss_down[c]
     certain = np.empty((0, 0))
     if aligned:
-        certain = continuity_reference(down, ~differ & (down >= 0), block, min_block,
-                                       min_line)
+        for k in range(k_count):  # (good: the rows where both matchings agree)
+            for c in range(width):
+                good[k, c] = not differ[k, c] and down[k, c] >= 0
+        certain = continuity_reference(down, good, block, min_block, min_line)
     return rows, unsure, unsettled, certain, missing
 
 

@@ -54,7 +54,7 @@ from atris_node.pipeline.identity import (
     MIN_LINE_SAMPLES,
     SWITCH_PX,
     VisibilityPrior,
-    identify_lines,
+    identify_counted,
     prior_arrays,
 )
 
@@ -96,18 +96,19 @@ def unique_identity(peaks: IntArray, bands: tuple[Band, ...], rows: IntArray,
         rows: (K, W) int64, the identity chosen so far (:func:`identify_lines`).
         prior: the visibility prior; without it only bands, order and continuity count.
     """
-    rows, ambiguous, _ = _unique_rows(peaks, in_image_order(bands), rows, prior, None)
+    rows, ambiguous, _ = _unique_rows(peaks, in_image_order(bands), rows, prior, None, None)
     return rows, ambiguous
 
 
 def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
                  rows: IntArray, prior: VisibilityPrior | None,
-                 earlier: tuple[FirstPass, BoolArray] | None
+                 earlier: tuple[FirstPass, BoolArray] | None, counted: IntArray | None
                  ) -> tuple[IntArray, IntArray, FirstPass]:
     """:func:`unique_identity` (bands as ``edges``, :func:`in_image_order`), and the rival
     test's result without continuity (pass 1) in every column. ``earlier``: that pass-1
     result of an earlier identity and (W,) the columns where its peaks and ``rows`` were
-    these, which take it over."""
+    these, which take it over. ``counted``: (W,) the prior's count of the lines of
+    ``rows`` missing without a reason where known (-1 elsewhere; None: nowhere)."""
     lo, hi, order = edges
     # a stripe from past its line's z_max (the ground or a wall beyond the range) is as
     # good an explanation as the next line at a near range, and the rival test must see
@@ -122,9 +123,11 @@ def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
     else:
         passed, outranked = earlier[0].ambiguous.copy(), earlier[0].outranked.copy()
         reuse = np.ascontiguousarray(earlier[1], dtype=np.bool_)
+    counted = (np.full(rows.shape[1], -1, dtype=np.int64) if counted is None else
+               np.array(counted, dtype=np.int64))
     rivals_kernels.unique(np.ascontiguousarray(peaks, dtype=np.int64), lo, hi, order, rows,
                           ambiguous, passed, outranked, reuse, _MARGINS, _SPANS, _COSTS,
-                          *prior_arrays(prior, rows.shape))
+                          *prior_arrays(prior, rows.shape), counted)
     return rows, ambiguous, FirstPass(passed, outranked)
 
 
@@ -204,19 +207,21 @@ def _unique(peaks: IntArray, bands: tuple[Band, ...],
             prior: VisibilityPrior | None, aligned: bool,
             earlier: tuple[IntArray, FirstPass, BoolArray] | None
             ) -> tuple[Identity, IntArray, FirstPass]:
-    """:func:`identify_lines` then :func:`unique_identity`. Peaks the rival test removed
-    keep their nearest rival as doubt; peaks the greedy matchings could not place, the
-    lowest band that holds them. Also returns the (K, W) identity before the rival test
-    and the test's (K, W) result without continuity, for a later identity of the same
-    map (``earlier``: those two and (W,) the columns where its peaks are these).
+    """:func:`identify_lines` then :func:`unique_identity` (starting from the prior's
+    counts the identity took). Peaks the rival test removed keep their nearest rival as
+    doubt; peaks the greedy matchings could not place, the lowest band that holds them.
+    Also returns the (K, W) identity before the rival test and the test's result without
+    continuity, for a later identity of the same map (``earlier``: those two and (W,)
+    the columns where its peaks are these).
     ``edges``: the bands in image order (:func:`in_image_order`)."""
-    first, unsure = identify_lines(peaks, bands, sep, prior, aligned=aligned, edges=edges)
+    first, unsure, counted = identify_counted(peaks, bands, sep, prior, aligned=aligned,
+                                              edges=edges)
     first = np.ascontiguousarray(first, dtype=np.int64)
     reuse = None
     if earlier is not None:
         same = earlier[2] & (first == earlier[0]).all(axis=0)
         reuse = (earlier[1], same)
-    rows, nearest, passed = _unique_rows(peaks, edges, first, prior, reuse)
+    rows, nearest, passed = _unique_rows(peaks, edges, first, prior, reuse, counted)
     doubts = rivals_kernels.doubts(np.ascontiguousarray(peaks, dtype=np.int64), first, rows,
                                    nearest, np.ascontiguousarray(unsure, dtype=np.int64),
                                    *edges)

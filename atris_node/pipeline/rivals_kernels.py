@@ -25,8 +25,12 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.alignment_kernels import _in_any, _missing
-from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column
+from atris_node.pipeline.alignment_kernels import _missing
+from atris_node.pipeline.identity_kernels import (
+    _sorted_column,
+    _unexplained_column,
+    uncounted,
+)
 from atris_node.pipeline.selection import kth
 
 IntArray = npt.NDArray[np.int64]
@@ -50,49 +54,62 @@ def _match(j: int, p: int, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
     return cost + (beyond_px if p >= beyond[j] else 0.0)
 
 
-@kernel()
+@uncounted
 def _tables(m: int, k_count: int, match: FloatArray, costs: FloatArray, spare: FloatArray,
-            f: FloatArray, g: FloatArray, f_step: npt.NDArray[np.int8],
-            g_step: npt.NDArray[np.int8]) -> None:
+            f: FloatArray, g: FloatArray) -> None:
     """Fill the forward ``f`` and backward ``g`` tables (K + 1, M + 1) of one column from
-    the ``match`` costs (K, M) of :func:`_match`, and in ``f_step`` / ``g_step`` the step a
-    cheapest path takes from each cell (TAKE, SKIP, SPARE; a match before a skip before a
-    spare on a tie)."""
+    the ``match`` costs (K, M) of :func:`_match` (the step a cheapest path takes from a
+    cell is read back from the values: :func:`_forward_step`, :func:`_backward_step`)."""
     skip_px = costs[0]
     f[0, 0] = 0.0
     for i in range(1, m + 1):
         f[0, i] = f[0, i - 1] + spare[i - 1]
-        f_step[0, i] = SPARE
     for j in range(1, k_count + 1):
         f[j, 0] = f[j - 1, 0] + skip_px
-        f_step[j, 0] = SKIP
         for i in range(1, m + 1):
-            take = f[j - 1, i - 1] + match[j - 1, i - 1]
-            skip = f[j - 1, i] + skip_px
-            here = min(take, skip, f[j, i - 1] + spare[i - 1])
-            f[j, i] = here
-            f_step[j, i] = TAKE if here == take else (SKIP if here == skip else SPARE)
+            f[j, i] = min(f[j - 1, i - 1] + match[j - 1, i - 1], f[j - 1, i] + skip_px,
+                          f[j, i - 1] + spare[i - 1])
     g[k_count, m] = 0.0
     for i in range(m - 1, -1, -1):
         g[k_count, i] = g[k_count, i + 1] + spare[i]
-        g_step[k_count, i] = SPARE
     for j in range(k_count - 1, -1, -1):
         g[j, m] = g[j + 1, m] + skip_px
-        g_step[j, m] = SKIP
         for i in range(m - 1, -1, -1):
-            take = match[j, i] + g[j + 1, i + 1]
-            skip = g[j + 1, i] + skip_px
-            here = min(take, skip, g[j, i + 1] + spare[i])
-            g[j, i] = here
-            g_step[j, i] = TAKE if here == take else (SKIP if here == skip else SPARE)
+            g[j, i] = min(match[j, i] + g[j + 1, i + 1], g[j + 1, i] + skip_px,
+                          g[j, i + 1] + spare[i])
 
 
-@kernel()
-def _read_forward(j: int, i: int, column: IntArray, f_step: npt.NDArray[np.int8],
-                  out: IntArray) -> None:
+@uncounted
+def _forward_step(j: int, i: int, f: FloatArray, match: FloatArray, skip_px: float) -> int:
+    """The step (TAKE, SKIP, SPARE) of a cheapest path to F[j, i], j > 0: the first of
+    them whose sum is the cell's value (a match before a skip before a spare on a tie;
+    the sums are those :func:`_tables` took the minimum of, the same to the bit)."""
+    if i == 0:
+        return SKIP
+    here = f[j, i]
+    if here == f[j - 1, i - 1] + match[j - 1, i - 1]:
+        return TAKE
+    return SKIP if here == f[j - 1, i] + skip_px else SPARE
+
+
+@uncounted
+def _backward_step(j: int, i: int, m: int, g: FloatArray, match: FloatArray,
+                   skip_px: float) -> int:
+    """The step of a cheapest path from G[j, i], j < K (as :func:`_forward_step`)."""
+    if i == m:
+        return SKIP
+    here = g[j, i]
+    if here == match[j, i] + g[j + 1, i + 1]:
+        return TAKE
+    return SKIP if here == g[j + 1, i] + skip_px else SPARE
+
+
+@uncounted
+def _read_forward(j: int, i: int, column: IntArray, f: FloatArray, match: FloatArray,
+                  skip_px: float, out: IntArray) -> None:
     """Rows (``out``, image order) the first j lines take on a cheapest path to F[j, i]."""
     while j > 0:
-        step = f_step[j, i]
+        step = _forward_step(j, i, f, match, skip_px)
         if step == TAKE:
             out[j - 1] = column[i - 1]
             j -= 1
@@ -104,13 +121,13 @@ def _read_forward(j: int, i: int, column: IntArray, f_step: npt.NDArray[np.int8]
             i -= 1
 
 
-@kernel()
-def _read_backward(j: int, i: int, column: IntArray, g_step: npt.NDArray[np.int8],
-                   out: IntArray) -> None:
+@uncounted
+def _read_backward(j: int, i: int, m: int, column: IntArray, g: FloatArray,
+                   match: FloatArray, skip_px: float, out: IntArray) -> None:
     """Rows (``out``, image order) lines j.. take on a cheapest path from G[j, i]."""
-    k_count = g_step.shape[0] - 1
+    k_count = out.size
     while j < k_count:
-        step = g_step[j, i]
+        step = _backward_step(j, i, m, g, match, skip_px)
         if step == TAKE:
             out[j] = column[i]
             j += 1
@@ -123,10 +140,26 @@ def _read_backward(j: int, i: int, column: IntArray, g_step: npt.NDArray[np.int8
 
 
 @kernel()
+def _in_bands(lo: IntArray, hi: IntArray) -> BoolArray:
+    """(max hi,) True on the rows >= 0 that lie in one of the bands ``[lo, hi)``."""
+    inside = np.zeros(max(hi.max(), 0) if hi.size else 0, dtype=np.bool_)
+    for k in range(lo.size):
+        inside[max(lo[k], 0):max(hi[k], 0)] = True
+    return inside
+
+
+@uncounted
+def _inside(p: int, inside: BoolArray) -> bool:
+    """True when row ``p`` >= 0 lies in a band (``inside`` of :func:`_in_bands`)."""
+    return p < inside.size and inside[p]
+
+
+@uncounted
 def _chosen_cost(rows: IntArray, column: IntArray, m: int, lo: IntArray, hi: IntArray,
                  ref: FloatArray, beyond: FloatArray, costs: FloatArray,
-                 spare: FloatArray) -> float:
-    """Cost (px) of the assignment ``rows`` (K, image order) in the alignment's terms."""
+                 spare: FloatArray, inside: BoolArray) -> float:
+    """Cost (px) of the assignment ``rows`` (K, image order) in the alignment's terms;
+    ``inside`` the rows in a band (:func:`_in_bands`)."""
     skip_px, beyond_px = costs[0], costs[2]
     total = 0.0
     taken = 0.0
@@ -135,7 +168,7 @@ def _chosen_cost(rows: IntArray, column: IntArray, m: int, lo: IntArray, hi: Int
             total += skip_px
         else:
             total += _match(j, rows[j], lo, hi, ref, beyond, beyond_px)
-            taken += costs[1] if _in_any(rows[j], lo, hi) else 0.0
+            taken += costs[1] if _inside(rows[j], inside) else 0.0
     for i in range(m):
         total += spare[i]
     return total - taken
@@ -156,12 +189,11 @@ def _known_count(seen: IntArray, seen_count: IntArray, n_seen: int, path: IntArr
     return -1
 
 
-@kernel()
-def _by_line(rows_image: IntArray, order: IntArray, out: IntArray) -> IntArray:
+@uncounted
+def _by_line(rows_image: IntArray, order: IntArray, out: IntArray) -> None:
     """Rows in image order -> rows by line (``out``)."""
     for k in range(order.size):
         out[order[k]] = rows_image[k]
-    return out
 
 
 @kernel()
@@ -199,26 +231,26 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     f = np.zeros((k_count + 1, m_count + 1))
     g = np.zeros((k_count + 1, m_count + 1))
     match = np.empty((k_count, m_count))
-    f_step = np.zeros((k_count + 1, m_count + 1), dtype=np.int8)
-    g_step = np.zeros((k_count + 1, m_count + 1), dtype=np.int8)
     image = np.empty(k_count, dtype=np.int64)
     other = np.empty(k_count, dtype=np.int64)
     line_rows = np.empty(k_count, dtype=np.int64)
+    ref_c = np.empty(k_count)  # column c of ``ref`` (no view: a view is counted)
     z = np.empty(k_count)
     owner = np.empty(m_count, dtype=np.int64)
     seen = np.empty((SEEN_PATHS, k_count), dtype=np.int64)
     seen_count = np.empty(SEEN_PATHS, dtype=np.int64)
     spare_tables = np.zeros(m_count)  # the costs of the tables last filled
     m_tables = -1
+    inside = _in_bands(lo, hi)
     for c in columns:
         n_seen = 0
-        ref_c = ref[:, c]
-        m = _sorted_peaks(peaks[:, c], column)
+        m = _sorted_column(peaks, c, column)
         for i in range(m):
-            spare[i] = costs[1] if _in_any(column[i], lo, hi) else 0.0
+            spare[i] = costs[1] if _inside(column[i], inside) else 0.0
         for k in range(k_count):
             image[k] = rows[order[k], c]
-        best = _chosen_cost(image, column, m, lo, hi, ref_c, beyond, costs, spare)
+            ref_c[k] = ref[k, c]
+        best = _chosen_cost(image, column, m, lo, hi, ref_c, beyond, costs, spare, inside)
         if best == 0.0 and costs[0] + costs[1] >= margin:
             # every line holds a peak in its band, no peak in a band is left over, nothing
             # past z_max, no continuity cost: another order-preserving assignment must skip
@@ -240,7 +272,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 same &= cost == match[j, i]
                 match[j, i] = cost
         if not same:
-            _tables(m, k_count, match, costs, spare, f, g, f_step, g_step)
+            _tables(m, k_count, match, costs, spare, f, g)
             m_tables = m
         owner[:] = -1
         for k in range(k_count):
@@ -258,7 +290,8 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                     continue  # no assignment giving peak i to line j comes close
                 if not priced:
                     if counted[c] < 0:
-                        counted[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry,
+                        _by_line(image, order, line_rows)
+                        counted[c] = _unexplained_column(line_rows, c, cot_alpha, geometry,
                                                          ground_range_m, image_order, z)
                     best += costs[3] * counted[c]
                     bound, priced = best, True
@@ -266,15 +299,15 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         continue
                 if has_prior:
                     other[:] = -1
-                    _read_forward(j, i, column, f_step, other)
+                    _read_forward(j, i, column, f, match, costs[0], other)
                     other[j] = column[i]
-                    _read_backward(j + 1, i + 1, column, g_step, other)
+                    _read_backward(j + 1, i + 1, m, column, g, match, costs[0], other)
                     if through + costs[3] * _missing(other) >= best + margin:
                         # the path's own count of lines missing without a reason decides
                         missing = _known_count(seen, seen_count, n_seen, other)
                         if missing < 0:  # a path not yet priced in this column
-                            missing = _unexplained_column(_by_line(other, order, line_rows),
-                                                          c, cot_alpha, geometry,
+                            _by_line(other, order, line_rows)
+                            missing = _unexplained_column(line_rows, c, cot_alpha, geometry,
                                                           ground_range_m, image_order, z)
                             if n_seen < SEEN_PATHS:
                                 seen[n_seen], seen_count[n_seen] = other, missing
@@ -288,12 +321,12 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         break
                     if has_prior and not exact:
                         other[:] = -1
-                        _read_forward(j, i, column, f_step, other)
+                        _read_forward(j, i, column, f, match, costs[0], other)
                         other[j] = column[i]
-                        _read_backward(j + 1, i + 1, column, g_step, other)
+                        _read_backward(j + 1, i + 1, m, column, g, match, costs[0], other)
+                        _by_line(other, order, line_rows)
                         through += costs[3] * _unexplained_column(
-                            _by_line(other, order, line_rows), c, cot_alpha, geometry,
-                            ground_range_m, image_order, z)
+                            line_rows, c, cot_alpha, geometry, ground_range_m, image_order, z)
                     if through < best - margin:
                         outranked[c] = True
                         break
@@ -325,33 +358,51 @@ def isolated(peaks: IntArray, reach: int, max_step: int) -> BoolArray:
     return out
 
 
-@kernel()
-def _block_median(row: IntArray, good: BoolArray, lo: int, hi: int, min_block: int,
+@uncounted
+def _block_median(row: IntArray, goods: IntArray, start: int, end: int, min_block: int,
                   kept: FloatArray) -> float:
-    """The upper median of the ``good`` rows of ``row`` in columns ``[lo, hi)``, inf with
-    fewer than ``min_block``; ``kept`` (hi - lo,) work space."""
+    """The upper median of ``row`` in the good columns ``goods[start:end]`` (ascending),
+    inf with fewer than ``min_block``; ``kept`` (end - start,) work space."""
     m = 0
-    for c in range(lo, hi):
-        if good[c]:
-            i = m
-            while i > 0 and kept[i - 1] > row[c]:
-                kept[i] = kept[i - 1]
-                i -= 1
-            kept[i] = row[c]
-            m += 1
+    for s in range(start, end):
+        p = row[goods[s]]
+        i = m
+        while i > 0 and kept[i - 1] > p:
+            kept[i] = kept[i - 1]
+            i -= 1
+        kept[i] = p
+        m += 1
     return kept[m // 2] if m >= min_block else np.inf
 
 
 @kernel()
-def _line_median(row: IntArray, good: BoolArray, min_line: int, values: FloatArray) -> float:
-    """The upper median of all the ``good`` rows of ``row``, inf with fewer than
-    ``min_line``; ``values`` (W,) work space."""
-    n = 0
-    for c in range(row.size):
-        if good[c]:
-            values[n] = row[c]
-            n += 1
-    return kth(values[:n], n // 2) if n >= min_line else np.inf
+def _line_median(row: IntArray, goods: IntArray, n_good: int, min_line: int,
+                 values: FloatArray) -> float:
+    """The upper median of ``row`` in all the good columns ``goods[:n_good]``, inf with
+    fewer than ``min_line``; ``values`` (W,) work space."""
+    for s in range(n_good):
+        values[s] = row[goods[s]]
+    return kth(values[:n_good], n_good // 2) if n_good >= min_line else np.inf
+
+
+@uncounted
+def _first_from(goods: IntArray, n_good: int, c: int, start: int) -> int:
+    """The first index of ``goods[:n_good]`` (ascending) whose column is >= c: from
+    ``start`` on when ``goods[start - 1]`` < c (columns taken in ascending order),
+    else by bisection."""
+    if start > 0 and goods[start - 1] >= c:
+        start = 0
+        end = n_good
+        while start < end:
+            mid = (start + end) // 2
+            if goods[mid] < c:
+                start = mid + 1
+            else:
+                end = mid
+        return start
+    while start < n_good and goods[start] < c:
+        start += 1
+    return start
 
 
 @kernel()
@@ -365,6 +416,73 @@ def _far_or_bridged(row: IntArray, c: int, left: int, right: int, bridge_px: flo
     if abs(row_l - row_r) <= bridge_px:
         return row_l if c - left <= right - c else row_r
     return np.inf
+
+
+@kernel()
+def _continuity_columns(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: int,
+                        block: int, min_block: int, min_line: int, bridge_px: float,
+                        median_px: float) -> FloatArray:
+    """:func:`continuity` as (K, n): the reference of each line in each of the (n,)
+    ``columns``. Each line's good columns (anchored, a row >= 0) are listed once; a
+    column's nearest good ones on both sides are found in that list."""
+    k_count, width = rows.shape
+    n = columns.size
+    out = np.full((k_count, n), np.inf)
+    far = np.zeros((k_count, n), dtype=np.bool_)
+    off = np.zeros(n, dtype=np.bool_)
+    goods = np.empty(width, dtype=np.int64)
+    medians = np.empty((width + block - 1) // block)
+    values = np.empty(width)
+    kept = np.empty(block)
+    for k in range(k_count):
+        row = rows[k]
+        n_good = 0
+        for c in range(width):  # without a branch: written always, kept when good
+            goods[n_good] = c
+            n_good += anchored[c] & (row[c] >= 0)
+        if n_good == 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
+            for i in range(n):
+                far[k, i] = True
+                off[i] |= row[columns[i]] >= 0
+            continue
+        medians[:] = np.nan
+        line = np.nan
+        s = 0
+        for i in range(n):
+            c = columns[i]
+            s = _first_from(goods, n_good, c, s)
+            good = s < n_good and goods[s] == c
+            before = goods[s - 1] if s > 0 else -1
+            after = goods[s + good] if s + good < n_good else width
+            left_gap = c - before if before >= 0 else reach + 1
+            right_gap = after - c if after < width else reach + 1
+            if left_gap <= reach and left_gap <= right_gap:
+                out[k, i] = row[before]
+            elif right_gap <= reach:
+                out[k, i] = row[after]
+            else:
+                b = c // block
+                if np.isnan(medians[b]):
+                    medians[b] = _block_median(
+                        row, goods, _first_from(goods, n_good, b * block, 0),
+                        _first_from(goods, n_good, min(b * block + block, width), 0),
+                        min_block, kept)
+                ref = medians[b]
+                if not np.isfinite(ref):
+                    ref = _far_or_bridged(row, c, c if good else before, c if good else after,
+                                          bridge_px)
+                if np.isnan(ref):
+                    if np.isnan(line):
+                        line = _line_median(row, goods, n_good, min_line, values)
+                    ref = line
+                    far[k, i] = True
+                    off[i] |= row[c] >= 0 and abs(row[c] - line) > median_px
+                out[k, i] = ref
+    for k in range(k_count):
+        for i in range(n):
+            if far[k, i] and off[i]:
+                out[k, i] = np.inf
+    return out
 
 
 @kernel("float64[:, :](int64[:, :], boolean[:], int64[:], int64, int64, int64, int64, "
@@ -389,64 +507,12 @@ def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: in
 
     inf in the other columns. The block and line medians are taken only where they are
     needed."""
-    k_count, width = rows.shape
-    n_blocks = (width + block - 1) // block
-    out = np.full((k_count, width), np.inf)
-    far = np.zeros((k_count, width), dtype=np.bool_)
-    off = np.zeros(width, dtype=np.bool_)
-    good = np.empty(width, dtype=np.bool_)
-    before = np.empty(width, dtype=np.int64)
-    after = np.empty(width, dtype=np.int64)
-    medians = np.empty(n_blocks)
-    values = np.empty(width)
-    kept = np.empty(block)
-    for k in range(k_count):
-        row = rows[k]
-        at = -1
-        for c in range(width):
-            before[c] = at
-            good[c] = anchored[c] and row[c] >= 0
-            if good[c]:
-                at = c
-        if at < 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
-            for c in columns:
-                far[k, c] = True
-                off[c] |= row[c] >= 0
-            continue
-        at = width
-        for c in range(width - 1, -1, -1):
-            after[c] = at
-            if good[c]:
-                at = c
-        medians[:] = np.nan
-        line = np.nan
-        for c in columns:
-            left_gap = c - before[c] if before[c] >= 0 else reach + 1
-            right_gap = after[c] - c if after[c] < width else reach + 1
-            if left_gap <= reach and left_gap <= right_gap:
-                out[k, c] = row[before[c]]
-            elif right_gap <= reach:
-                out[k, c] = row[after[c]]
-            else:
-                b = c // block
-                if np.isnan(medians[b]):
-                    medians[b] = _block_median(row, good, b * block,
-                                               min(b * block + block, width), min_block, kept)
-                ref = medians[b]
-                if not np.isfinite(ref):
-                    ref = _far_or_bridged(row, c, c if good[c] else before[c],
-                                          c if good[c] else after[c], bridge_px)
-                if np.isnan(ref):
-                    if np.isnan(line):
-                        line = _line_median(row, good, min_line, values)
-                    ref = line
-                    far[k, c] = True
-                    off[c] |= row[c] >= 0 and abs(row[c] - line) > median_px
-                out[k, c] = ref
-    for k in range(k_count):
-        for c in columns:
-            if far[k, c] and off[c]:
-                out[k, c] = np.inf
+    out = np.full(rows.shape, np.inf)
+    at = _continuity_columns(rows, anchored, columns, reach, block, min_block, min_line,
+                             bridge_px, median_px)
+    for i in range(columns.size):
+        for k in range(rows.shape[0]):
+            out[k, columns[i]] = at[k, i]
     return out
 
 
@@ -468,23 +534,26 @@ def _anchored(ambiguous: IntArray, anchored: BoolArray, again: IntArray) -> int:
     return n
 
 
-@kernel()
-def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: int) -> bool:
-    """True when column c of ``ref`` (K, W, image ``order``) is ``by_line`` (K, W) there."""
+@uncounted
+def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: int,
+                    i: int) -> bool:
+    """True when column c of ``ref`` (K, W, image ``order``) is column i of ``by_line``
+    (K, n)."""
     for k in range(order.size):  # noqa: SIM110 (a generator does not compile)
-        if ref[k, c] != by_line[order[k], c]:
+        if ref[k, c] != by_line[order[k], i]:
             return False
     return True
 
 
 @kernel("void(int64[:, :], int64[:], int64[:], int64[:], int64[:, :], int64[:, :], "
         "int64[:, :], boolean[:], boolean[:], float64[:], int64[:], float64[:], boolean, "
-        "float64[:], float64[:], float64[:, :], int64[:])")
+        "float64[:], float64[:], float64[:, :], int64[:], int64[:])")
 def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: IntArray,
            ambiguous: IntArray, passed: IntArray, outranked: BoolArray, reuse: BoolArray,
            margins: FloatArray,
            spans: IntArray, costs: FloatArray, has_prior: bool, cot_alpha: FloatArray,
-           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray) -> None:
+           geometry: FloatArray, ground_range_m: FloatArray, image_order: IntArray,
+           counted: IntArray) -> None:
     """The rounds of :func:`atris_node.pipeline.rivals.unique_identity`, in place on
     ``rows`` (K, W) by line (every sample with a rival set to -1) and ``ambiguous`` (K, W)
     (-1 on entry; the nearest rival line of each removed sample).
@@ -499,8 +568,12 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     min_block, min_line; ``margins``: rival margin, bridge px, median px), until a round
     anchors nothing new. A column whose reference is the one of its last test is not
     tested again (the test is a function of the column's peaks, rows, prior and
-    reference). Bands ``lo``, ``hi`` and ``order`` and the prior as
-    :func:`rivals` takes them."""
+    reference), nor is a column pass 1 found ``outranked`` (W,; filled in by pass 1 except
+    in the ``reuse`` columns, which keep theirs): a rival cheaper than its chosen identity
+    by the margin, which continuity may not overrule. Bands ``lo``, ``hi`` and ``order``
+    and the prior as :func:`rivals` takes them; ``counted`` (W,) the prior's count of the
+    lines of ``rows`` missing without a reason where known (-1 elsewhere; filled in where
+    taken)."""
     k_count, width = rows.shape
     margin, bridge_px, median_px = margins[0], margins[1], margins[2]
     reach, block, min_block, min_line, rounds = spans[0], spans[1], spans[2], spans[3], spans[4]
@@ -518,7 +591,6 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 n += 1
                 break
     ref = np.full((k_count, width), np.inf)  # the reference of each column's last test
-    counted = np.full(width, -1, dtype=np.int64)  # the rows do not change: nor their count
     rivals(peaks, lo, hi, order, rows, ambiguous, columns[:n], ref, beyond, margin, costs,
            has_prior, cot_alpha, geometry, ground_range_m, image_order, counted, outranked)
     passed[:, :] = ambiguous
@@ -531,14 +603,15 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         if n in (0, left):
             break  # all anchored, or the last round anchored nothing new
         left = n
-        by_line = continuity(rows, anchored, columns[:n], reach, block, min_block, min_line,
-                             bridge_px, median_px)
+        by_line = _continuity_columns(rows, anchored, columns[:n], reach, block, min_block,
+                                      min_line, bridge_px, median_px)
         n_again = 0
-        for c in columns[:n]:  # each was tested in the last round (or pass 1)
-            if outranked[c] or _same_reference(ref, by_line, order, c):
+        for i in range(n):  # each was tested in the last round (or pass 1)
+            c = columns[i]
+            if outranked[c] or _same_reference(ref, by_line, order, c, i):
                 continue  # the same test again: the same result
             for k in range(k_count):
-                ref[k, c] = by_line[order[k], c]
+                ref[k, c] = by_line[order[k], i]
                 ambiguous[k, c] = -1
             again[n_again] = c
             n_again += 1
@@ -713,7 +786,7 @@ def warm_up() -> None:
            np.zeros(1, dtype=np.bool_))
     unique(peaks, one, hi, one, rows.copy(), none.copy(), none.copy(),
            np.zeros(1, dtype=np.bool_), np.zeros(1, dtype=np.bool_), np.array([10.0, 4.0, 6.0]),
-           np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior)
+           np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior, np.full(1, -1, dtype=i64))
     doubts(peaks, rows, rows, none, one, one, hi, one)
     stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
     set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
