@@ -57,7 +57,9 @@ as 8.55 m (σ 0.10) and pole_16cm_far the wall at 8.92 m as 8.64 m: 94.4 % and 9
 accurate. With the continuity rounds testing again the columns where the prior prefers a
 rival by the margin (rivals_kernels.unique before the outranked columns were kept out),
 retro_box_shifted_onto_pole read 0.67 m for a box at 4.1 m in 1 sector-frame on seeds 1
-and 3 (a pole's line medians settled the box's two stripes one line low).
+and 3 (a pole's line medians settled the box's two stripes one line low). With the lowest
+flank value instead of the median in peaks_kernels._flank_floor (the step test),
+flicker_step_at_box_foot read 4.09 m VALID where no sheet reaches its box (seed 1).
 """
 
 from __future__ import annotations
@@ -108,9 +110,6 @@ KNOWN_WRONG: dict[str, str] = {
     "edge_on_glossy_plate_dark_wall": "near phantom: the upper sheets on a dark wall at 7.6 m "
                                       "found at rows that read 0.31-0.94 m, sector 4 VALID "
                                       "at 0.31 m in map 3",
-    "flicker_step_at_box_foot": "near phantom: a faint ground stripe on a flicker step at a "
-                                "pale box's foot peaks 1.2 px high, 13 cm over the ground: "
-                                "sector 5 VALID at 4.09 m where no sheet reaches the box",
 }
 #: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
 #: not a pipeline fault (the unit cannot know its calibration is off), strict expected

@@ -595,17 +595,41 @@ def _edge_signatures() -> list[Any]:
 
 @kernel()
 def _flank_floor(values: npt.NDArray[np.generic], row: int, c: int, step: int, near: int,
-                 far: int) -> float:
-    """The lowest value (DN) of column ``c`` from ``near`` to ``far`` rows away from
-    ``row`` in direction ``step`` (+1 down, -1 up), rows inside the image only; inf when
-    none is."""
+                 far: int, stop: int) -> float:
+    """The median value (DN) of column ``c`` from ``near`` to ``far`` rows away from
+    ``row`` in direction ``step`` (+1 down, -1 up), rows inside the image only, and ending
+    ``near`` rows before the next maximum ``stop`` rows away (the valley half-way to it
+    when they are closer than that); inf when no row is. The median, not the lowest: the
+    lowest of a few noisy values lies over a σ under its side's level, and a step's bright
+    side then looks like a drop; the next maximum is another stripe's, not a flank."""
     height = values.shape[0]
-    low = np.inf
-    for d in range(near, far + 1):
+    last = min(far, stop - near)
+    first = near
+    if last < first:
+        first = last = stop // 2
+    kept = np.empty(max(last - first + 1, 1))
+    n = 0
+    for d in range(first, last + 1):
         i = row + step * d
-        if 0 <= i < height:
-            low = min(low, np.float64(values[i, c]))
-    return low
+        if d > 0 and 0 <= i < height:
+            kept[n] = np.float64(values[i, c])
+            n += 1
+    if n == 0:
+        return np.inf
+    return np.median(kept[:n])
+
+
+@kernel()
+def _next_maximum(peaks: IntArray, m: int, c: int, step: int) -> int:
+    """Rows from peak ``m`` of column ``c`` to the nearest other peak in direction
+    ``step`` (+1 down, -1 up); a large number when there is none."""
+    row = peaks[m, c]
+    best = 1 << 30
+    for q in range(peaks.shape[0]):
+        other = peaks[q, c]
+        if q != m and other >= 0 and (other - row) * step > 0:
+            best = min(best, abs(other - row))
+    return best
 
 
 @kernel(_edge_signatures())
@@ -615,8 +639,9 @@ def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
               ratio: float, sigmas: float) -> npt.NDArray[np.bool_]:
     """(P, W) True for the maxima ``peaks`` (rows, -1 padding) that stand above one side
     of their column only: the edge of a step, not a stripe. A stripe falls on both sides
-    within a few stripe widths: the lowest value ``near``..``far`` rows above it and the
-    lowest below it both lie well under it. A maximum is one-sided when the smaller of its
+    within a few stripe widths: the median value ``near``..``far`` rows above it and the
+    median below it (each flank ending before the next maximum, another stripe's) both
+    lie well under it. A maximum is one-sided when the smaller of its
     two drops is under ``ratio`` times the larger or under ``sigmas`` of its noise tile's
     σ (DN). A step of the background does that: flicker that beats with the code leaves a
     residual image of the lit scene, bright ground under a dark wall, and the first rows
@@ -631,8 +656,10 @@ def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
             if row < 0 or (any_saturated and _flat_top(saturated, row, c)):
                 continue
             v = np.float64(values[row, c])
-            above = v - _flank_floor(values, row, c, -1, near, far)
-            below = v - _flank_floor(values, row, c, 1, near, far)
+            above = v - _flank_floor(values, row, c, -1, near, far,
+                                     _next_maximum(peaks, m, c, -1))
+            below = v - _flank_floor(values, row, c, 1, near, far,
+                                     _next_maximum(peaks, m, c, 1))
             low, high = min(above, below), max(above, below)
             if np.isinf(low):
                 low = high  # one side outside the image: the other side decides
