@@ -49,3 +49,11 @@ def kernel(signatures: Any = None) -> Callable[[Any], Any]:
     if signatures is None:
         return numba.njit(cache=CACHE, nogil=True)
     return numba.njit(signatures, cache=CACHE, nogil=True)
+
+
+#: ``numba.njit`` for a helper that neither allocates nor keeps an array, compiled without
+#: reference counting (numba's ``_nrt=False``): a counted call increments and decrements
+#: the count of each of its array arguments (atomic operations), which cost as much as a
+#: short helper's work when it is called per column or per peak
+_UNCOUNTED: dict[str, Any] = {"_nrt": False, "cache": CACHE, "nogil": True}
+uncounted = numba.njit(**_UNCOUNTED)

@@ -23,13 +23,10 @@ a column as a view (``a[:, c]``), which the per-column loops avoid by copying.
 
 from __future__ import annotations
 
-from typing import Any
-
-import numba
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.jit import CACHE, kernel
+from atris_node.jit import kernel, uncounted
 from atris_node.pipeline.selection import median
 
 IntArray = npt.NDArray[np.int64]
@@ -39,12 +36,6 @@ _I1 = "int64[:]"
 _I2 = "int64[:, :]"
 _F1 = "float64[:]"
 _F2 = "float64[:, :]"
-
-#: a helper that neither allocates nor keeps an array, compiled without reference counting
-#: (numba's ``_nrt=False``): a counted call increments and decrements the count of each of
-#: its array arguments (atomic operations), which cost as much as a short helper's work
-_UNCOUNTED: dict[str, Any] = {"_nrt": False, "cache": CACHE, "nogil": True}
-uncounted = numba.njit(**_UNCOUNTED)
 
 
 @kernel(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})")

@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import types
 
-from atris_node.jit import kernel
+from atris_node.jit import kernel, uncounted
 from atris_node.pipeline.selection import median
 
 IntArray = npt.NDArray[np.int64]
@@ -593,41 +593,51 @@ def _edge_signatures() -> list[Any]:
             for readonly in (False, True)]
 
 
-@kernel()
+@uncounted
 def _flank_floor(values: npt.NDArray[np.generic], row: int, c: int, step: int, near: int,
-                 far: int, stop: int) -> float:
+                 far: int, stop: int, kept: FloatArray) -> float:
     """The median value (DN) of column ``c`` from ``near`` to ``far`` rows away from
     ``row`` in direction ``step`` (+1 down, -1 up), rows inside the image only, and ending
     ``near`` rows before the next maximum ``stop`` rows away (the valley half-way to it
     when they are closer than that); inf when no row is. The median, not the lowest: the
     lowest of a few noisy values lies over a σ under its side's level, and a step's bright
-    side then looks like a drop; the next maximum is another stripe's, not a flank."""
+    side then looks like a drop; the next maximum is another stripe's, not a flank.
+    ``kept`` (at least far - near + 1,) work space; the median as np.median takes it."""
     height = values.shape[0]
     last = min(far, stop - near)
     first = near
     if last < first:
         first = last = stop // 2
-    kept = np.empty(max(last - first + 1, 1))
     n = 0
     for d in range(first, last + 1):
         i = row + step * d
         if d > 0 and 0 <= i < height:
-            kept[n] = np.float64(values[i, c])
+            v = np.float64(values[i, c])
+            j = n
+            while j > 0 and kept[j - 1] > v:  # insertion: a flank is a few rows
+                kept[j] = kept[j - 1]
+                j -= 1
+            kept[j] = v
             n += 1
     if n == 0:
         return np.inf
-    return np.median(kept[:n])
+    if n % 2:
+        return kept[n // 2]
+    return (kept[n // 2 - 1] + kept[n // 2]) / 2.0
 
 
-@kernel()
+@uncounted
 def _next_maximum(peaks: IntArray, m: int, c: int, step: int) -> int:
     """Rows from peak ``m`` of column ``c`` to the nearest other peak in direction
-    ``step`` (+1 down, -1 up); a large number when there is none."""
+    ``step`` (+1 down, -1 up); a large number when there is none. ``peaks`` holds its -1
+    padding after the rows."""
     row = peaks[m, c]
     best = 1 << 30
     for q in range(peaks.shape[0]):
         other = peaks[q, c]
-        if q != m and other >= 0 and (other - row) * step > 0:
+        if other < 0:
+            break
+        if (other - row) * step > 0:
             best = min(best, abs(other - row))
     return best
 
@@ -650,6 +660,7 @@ def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
     ``any_saturated``) are left to the saturated-run test; a side outside the image does
     not count."""
     out = np.zeros(peaks.shape, dtype=np.bool_)
+    kept = np.empty(max(far - near + 1, 1))  # one flank's values, sorted
     for m in range(peaks.shape[0]):
         for c in range(peaks.shape[1]):
             row = peaks[m, c]
@@ -657,9 +668,9 @@ def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
                 continue
             v = np.float64(values[row, c])
             above = v - _flank_floor(values, row, c, -1, near, far,
-                                     _next_maximum(peaks, m, c, -1))
+                                     _next_maximum(peaks, m, c, -1), kept)
             below = v - _flank_floor(values, row, c, 1, near, far,
-                                     _next_maximum(peaks, m, c, 1))
+                                     _next_maximum(peaks, m, c, 1), kept)
             low, high = min(above, below), max(above, below)
             if np.isinf(low):
                 low = high  # one side outside the image: the other side decides
