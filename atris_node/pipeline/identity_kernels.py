@@ -23,6 +23,8 @@ a column as a view (``a[:, c]``), which the per-column loops avoid by copying.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 
@@ -156,20 +158,26 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
     return out
 
 
+@uncounted
+def insert_sorted(out: npt.NDArray[Any], m: int, value: Any) -> None:
+    """``value`` into ``out[:m + 1]``, keeping ``out[:m]`` ascending (one step of an
+    insertion sort: the arrays sorted so are a column's few peaks or rows)."""
+    i = m
+    while i > 0 and out[i - 1] > value:
+        out[i] = out[i - 1]
+        i -= 1
+    out[i] = value
+
+
 @kernel()
 def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
     """:func:`_sorted_peaks` of column c of ``peaks`` (M, W)."""
     m = 0
     for j in range(peaks.shape[0]):
         p = peaks[j, c]
-        if p < 0:
-            continue
-        i = m
-        while i > 0 and out[i - 1] > p:
-            out[i] = out[i - 1]
-            i -= 1
-        out[i] = p
-        m += 1
+        if p >= 0:
+            insert_sorted(out, m, p)
+            m += 1
     return m
 
 
@@ -178,14 +186,9 @@ def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
     """The peaks >= 0 into ``out``, ascending (insertion sort; M is small); their count."""
     m = 0
     for p in peaks:
-        if p < 0:
-            continue
-        i = m
-        while i > 0 and out[i - 1] > p:
-            out[i] = out[i - 1]
-            i -= 1
-        out[i] = p
-        m += 1
+        if p >= 0:
+            insert_sorted(out, m, p)
+            m += 1
     return m
 
 
