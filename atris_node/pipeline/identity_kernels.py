@@ -159,7 +159,7 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
 
 
 @uncounted
-def insert_sorted(out: npt.NDArray[Any], m: int, value: Any) -> None:
+def _insert_sorted(out: npt.NDArray[Any], m: int, value: Any) -> None:
     """``value`` into ``out[:m + 1]``, keeping ``out[:m]`` ascending (one step of an
     insertion sort: the arrays sorted so are a column's few peaks or rows)."""
     i = m
@@ -176,7 +176,7 @@ def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
     for j in range(peaks.shape[0]):
         p = peaks[j, c]
         if p >= 0:
-            insert_sorted(out, m, p)
+            _insert_sorted(out, m, p)
             m += 1
     return m
 
@@ -187,7 +187,7 @@ def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
     m = 0
     for p in peaks:
         if p >= 0:
-            insert_sorted(out, m, p)
+            _insert_sorted(out, m, p)
             m += 1
     return m
 
