@@ -708,6 +708,20 @@ def _runs_numpy(mask: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], ...
     return row.astype(np.int64), start.astype(np.int64), stop.astype(np.int64)
 
 
+def _random_prior(rng: np.random.Generator) -> tuple[int, int, Any]:
+    """(lines, width, a VisibilityPrior) drawn at random: lines 1-8 over 4-89 columns,
+    cot α about ±0.4, ground ranges 0.5-12 m with a fifth of them inf."""
+    from atris_node.pipeline.identity import VisibilityPrior
+
+    lines, width = int(rng.integers(1, 9)), int(rng.integers(4, 90))
+    cot = rng.permutation(np.linspace(-0.4, 0.4, lines)) + rng.normal(0, 0.01, lines)
+    ground = rng.uniform(0.5, 12.0, (lines, width))
+    ground[rng.random((lines, width)) < 0.2] = np.inf
+    return lines, width, VisibilityPrior(
+        cot, float(rng.uniform(300, 900)), float(rng.uniform(150, 500)),
+        int(rng.integers(200, 900)), float(rng.uniform(0.05, 0.1)), 10.0, ground)
+
+
 def test_runs_is_the_numpy_form() -> None:
     """500 random (K, W) masks of every density: the compiled runs equal the numpy
     definition (rows, starts, stops, in order)."""
@@ -759,19 +773,13 @@ def test_expected_on_surface_is_the_numpy_form() -> None:
     some zero) under random priors (lines out of image order, ground ranges of inf,
     noisy bands or none): the compiled pass gives the numpy definition's first column,
     expected lines and lowest seen lines, bitwise."""
-    from atris_node.pipeline.identity import VisibilityPrior
     from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints
     from atris_node.pipeline.verdicts import _expected_on_surface as compiled
 
     rng = np.random.default_rng(8)
     for _ in range(400):
-        lines, width = int(rng.integers(1, 9)), int(rng.integers(4, 90))
-        cot = rng.permutation(np.linspace(-0.4, 0.4, lines)) + rng.normal(0, 0.01, lines)
-        ground = rng.uniform(0.5, 12.0, (lines, width))
-        ground[rng.random((lines, width)) < 0.2] = np.inf
-        prior = VisibilityPrior(cot, float(rng.uniform(300, 900)), float(rng.uniform(150, 500)),
-                                int(rng.integers(200, 900)), float(rng.uniform(0.05, 0.1)),
-                                10.0, ground)
+        lines, width, prior = _random_prior(rng)
+        ground = prior.ground_range_m
         n = int(rng.integers(1, 60))
         column = rng.integers(0, width, n).astype(np.int64)
         line = rng.integers(0, lines, n).astype(np.int64)
@@ -1070,18 +1078,11 @@ def test_lost_on_surface_is_the_numpy_form() -> None:
     compiled first steps of missing_on_surface give the numpy steps' surface, expected
     and seen lines and long runs."""
     from atris_node.pipeline import verdicts_kernels
-    from atris_node.pipeline.identity import VisibilityPrior
     from atris_node.pipeline.verdicts import _geometry
 
     rng = np.random.default_rng(27)
     for _ in range(400):
-        lines, width = int(rng.integers(1, 9)), int(rng.integers(4, 90))
-        cot = rng.permutation(np.linspace(-0.4, 0.4, lines)) + rng.normal(0, 0.01, lines)
-        ground = rng.uniform(0.5, 12.0, (lines, width))
-        ground[rng.random((lines, width)) < 0.2] = np.inf
-        prior = VisibilityPrior(cot, float(rng.uniform(300, 900)), float(rng.uniform(150, 500)),
-                                int(rng.integers(200, 900)), float(rng.uniform(0.05, 0.1)),
-                                10.0, ground)
+        lines, width, prior = _random_prior(rng)
         n = int(rng.integers(0, 200))
         column = rng.integers(0, width, n).astype(np.int64)
         line = rng.integers(0, lines, n).astype(np.int64)
