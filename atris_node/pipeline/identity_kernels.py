@@ -23,13 +23,11 @@ a column as a view (``a[:, c]``), which the per-column loops avoid by copying.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel, uncounted
-from atris_node.pipeline.selection import median
+from atris_node.pipeline.selection import insert_sorted, median
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -158,17 +156,6 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
     return out
 
 
-@uncounted
-def _insert_sorted(out: npt.NDArray[Any], m: int, value: Any) -> None:
-    """``value`` into ``out[:m + 1]``, keeping ``out[:m]`` ascending (one step of an
-    insertion sort: the arrays sorted so are a column's few peaks or rows)."""
-    i = m
-    while i > 0 and out[i - 1] > value:
-        out[i] = out[i - 1]
-        i -= 1
-    out[i] = value
-
-
 @kernel()
 def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
     """:func:`_sorted_peaks` of column c of ``peaks`` (M, W)."""
@@ -176,7 +163,7 @@ def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
     for j in range(peaks.shape[0]):
         p = peaks[j, c]
         if p >= 0:
-            _insert_sorted(out, m, p)
+            insert_sorted(out, m, p)
             m += 1
     return m
 
@@ -187,7 +174,7 @@ def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
     m = 0
     for p in peaks:
         if p >= 0:
-            _insert_sorted(out, m, p)
+            insert_sorted(out, m, p)
             m += 1
     return m
 

@@ -26,7 +26,7 @@ import numpy.typing as npt
 from numba import types
 
 from atris_node.jit import kernel, uncounted
-from atris_node.pipeline.selection import median
+from atris_node.pipeline.selection import insert_sorted, median
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -618,12 +618,8 @@ def _flank_floor(values: npt.NDArray[np.generic], row: int, c: int, step: int, n
         return np.inf
     if n == 7:  # the whole flank of a stripe of σ 1.5 px (the default)
         return _median_of_7(kept)
-    for a in range(1, n):  # insertion: a flank is a few rows
-        v, j = kept[a], a
-        while j > 0 and kept[j - 1] > v:
-            kept[j] = kept[j - 1]
-            j -= 1
-        kept[j] = v
+    for a in range(1, n):  # a flank is a few rows
+        insert_sorted(kept, a, kept[a])
     if n % 2:
         return kept[n // 2]
     return (kept[n // 2 - 1] + kept[n // 2]) / 2.0
@@ -674,7 +670,7 @@ def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
     ``any_saturated``) are left to the saturated-run test; a side outside the image does
     not count."""
     out = np.zeros(peaks.shape, dtype=np.bool_)
-    kept = np.empty(max(far - near + 1, 1))  # one flank's values, sorted
+    kept = np.empty(max(far - near + 1, 1))  # one flank's values
     for m in range(peaks.shape[0]):
         for c in range(peaks.shape[1]):
             row = peaks[m, c]

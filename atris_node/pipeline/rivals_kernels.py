@@ -27,12 +27,11 @@ import numpy.typing as npt
 from atris_node.jit import kernel
 from atris_node.pipeline.alignment_kernels import _missing
 from atris_node.pipeline.identity_kernels import (
-    _insert_sorted,
     _sorted_column,
     _unexplained_column,
     uncounted,
 )
-from atris_node.pipeline.selection import kth
+from atris_node.pipeline.selection import insert_sorted, kth
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -366,7 +365,7 @@ def _block_median(row: IntArray, goods: IntArray, start: int, end: int, min_bloc
     inf with fewer than ``min_block``; ``kept`` (end - start,) work space."""
     m = 0
     for s in range(start, end):
-        _insert_sorted(kept, m, np.float64(row[goods[s]]))
+        insert_sorted(kept, m, np.float64(row[goods[s]]))
         m += 1
     return kept[m // 2] if m >= min_block else np.inf
 
