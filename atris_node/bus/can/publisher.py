@@ -236,6 +236,7 @@ class Publisher:
         nothing: the scheduler thread then sends the whole cycle, with new counters."""
         sent, stamp = False, now
         if now < self._retry_at_s:
+            late = self._late(stamp)
             self.stats.skipped_cycles += 1
         else:
             with self._lock:
@@ -246,11 +247,10 @@ class Publisher:
             # lateness as near the send as the sender sees it: waiting for the locks and
             # composing the status took time the bus would see as lateness
             stamp = self.clock()
-            sent = self._send_all(self.frames(measurement, status, now, self._late(stamp)),
-                                  timeout_s)
+            late = self._late(stamp)
+            sent = self._send_all(self.frames(measurement, status, now, late), timeout_s)
             if not sent and timeout_s == 0.0:
                 return False
-        late = self._late(stamp)
         self._last_cycle_s = stamp
         self.stats.cycles += 1
         self.stats.deadline_misses += int(late)
