@@ -285,7 +285,6 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 if j == owner[i] or not lo[j] <= column[i] < hi[j]:
                     continue
                 through = f[j, i] + match[j, i] + g[j + 1, i + 1]
-                exact = not has_prior
                 if through >= bound + margin:
                     continue  # no assignment giving peak i to line j comes close
                 if not priced:
@@ -297,12 +296,14 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                     bound, priced = best, True
                     if through >= best + margin:
                         continue
+                # outranking is judged on the exact price (pass 1, until the column is)
+                ranking = outranked.size > 0 and not outranked[c]
                 if has_prior:
                     other[:] = -1
                     _read_forward(j, i, column, f, match, costs[0], other)
                     other[j] = column[i]
                     _read_backward(j + 1, i + 1, m, column, g, match, costs[0], other)
-                    if through + costs[3] * _missing(other) >= best + margin:
+                    if ranking or through + costs[3] * _missing(other) >= best + margin:
                         # the path's own count of lines missing without a reason decides
                         missing = _known_count(seen, seen_count, n_seen, other)
                         if missing < 0:  # a path not yet priced in this column
@@ -313,20 +314,11 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                                 seen[n_seen], seen_count[n_seen] = other, missing
                                 n_seen += 1
                         through += costs[3] * missing
-                        exact = True
                 if through < best + margin:
                     if ambiguous[order[owner[i]], c] < 0:
                         ambiguous[order[owner[i]], c] = order[max(j, owner[i])]
-                    if outranked.size == 0 or outranked[c]:
+                    if not ranking:
                         break
-                    if has_prior and not exact:
-                        other[:] = -1
-                        _read_forward(j, i, column, f, match, costs[0], other)
-                        other[j] = column[i]
-                        _read_backward(j + 1, i + 1, m, column, g, match, costs[0], other)
-                        _by_line(other, order, line_rows)
-                        through += costs[3] * _unexplained_column(
-                            line_rows, c, cot_alpha, geometry, ground_range_m, image_order, z)
                     if through < best - margin:
                         outranked[c] = True
                         break
