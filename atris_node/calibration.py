@@ -51,12 +51,21 @@ class LaserCalibration:
     """Baseline b (m, > 0) and the angle alpha_k (rad, in (0, π)) of each projected line.
 
     Lines are ordered by their singular row ``f·cot(alpha_k)``, top of the image first.
+
+    ``return_dn_m2`` is the line's radiometric calibration: the peak a line leaves, in DN
+    per sub-frame the laser is on, on a white Lambertian surface facing the unit 1 m
+    away, times m² (a surface of albedo ρ at r metres, lit at incidence i, returns
+    ``return_dn_m2 · ρ · cos i / r²`` DN per on sub-frame), at the exposure
+    ``return_exposure_us`` (µs). 0 when not calibrated: the pipeline then cannot tell a
+    return too faint for its range (:mod:`atris_node.pipeline.radiometry`).
     """
 
     baseline_m: float
     alpha_rad: tuple[float, ...]
     baseline_sigma_m: float = 0.0
     alpha_sigma_rad: tuple[float, ...] = field(default_factory=tuple)
+    return_dn_m2: float = 0.0
+    return_exposure_us: float = 0.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.baseline_m) and self.baseline_m > 0):
@@ -65,6 +74,13 @@ class LaserCalibration:
             raise CalibrationError("at least one line angle alpha_rad is needed")
         if not all(np.isfinite(a) and 0.0 < a < np.pi for a in self.alpha_rad):
             raise CalibrationError(f"every alpha_rad must be in (0, π), got {self.alpha_rad}")
+        if not (np.isfinite(self.return_dn_m2) and self.return_dn_m2 >= 0.0):
+            raise CalibrationError(f"return_dn_m2 must be a number >= 0 (0: not calibrated), "
+                                   f"got {self.return_dn_m2}")
+        if self.return_dn_m2 > 0.0 and not (np.isfinite(self.return_exposure_us)
+                                            and self.return_exposure_us > 0.0):
+            raise CalibrationError("return_exposure_us must be > 0 when return_dn_m2 is "
+                                   f"given, got {self.return_exposure_us}")
 
 
 @dataclass(frozen=True)

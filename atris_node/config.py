@@ -108,6 +108,9 @@ PARAMS: tuple[Param, ...] = (
     P("pipeline.min_points", int, 5, "points a sector needs to be valid", in_range(1, 10000)),
     P("pipeline.invalid_on_interference", bool, False, "foreign light anywhere makes every "
       "sector invalid (false: only the affected columns are left out)"),
+    P("pipeline.min_reflectance", float, 0.002, "apparent reflectance (albedo x cos "
+      "incidence) under which a return is too faint for the range its line gives, and is a "
+      "doubt, not a point (0 = off; needs the calibration's return_dn_m2)", in_range(0.0, 0.5)),
     P("interference.every_windows", int, 8, "measure other codes' energy on one window of N "
       "sub-frames out of this many (0 = never; hopping needs it)", in_range(0, 10000)),
     P("pipeline.thread", bool, True, "measure maps on a thread beside the camera loop (a "

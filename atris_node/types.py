@@ -74,6 +74,8 @@ class DistortionMap:
         dropped: sub-frames lost since the previous map.
         processing_gain / snr: measured per paper Eq. 5-6 (0.0 when not measured).
         window: the window's raw sub-frames (None for a map read back from a recording).
+        exposure_us: the exposure of the window's sub-frames, µs (a window restarts when it
+            changes); 0.0 when not known.
     """
 
     values: npt.NDArray[np.int16] | npt.NDArray[np.int32]
@@ -89,6 +91,7 @@ class DistortionMap:
     snr: float = 0.0
     extra: dict[str, float] = field(default_factory=dict)
     window: WindowFrames | None = None
+    exposure_us: float = 0.0
 
 
 class SectorState(enum.IntEnum):

@@ -60,7 +60,7 @@ MAX_DISTORTION_COEFFS = 14
 _CAMERA_KEYS = {"width_px", "height_px", "focal_px", "cx_px", "cy_px", "distortion",
                 "rms_px", "focal_sigma_px", "cx_sigma_px", "cy_sigma_px"}
 _LASER_KEYS = {"baseline_m", "baseline_sigma_m", "alpha_rad", "alpha_sigma_rad",
-               "residual_rms_px", "residual_rms_mm"}
+               "residual_rms_px", "residual_rms_mm", "return_dn_m2", "return_exposure_us"}
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,9 @@ def _laser_table(laser: LaserCalibration, meta: Mapping[str, object]) -> dict[st
         "baseline_m": float(laser.baseline_m), "baseline_sigma_m": float(laser.baseline_sigma_m),
         "alpha_rad": [float(a) for a in laser.alpha_rad],
         "alpha_sigma_rad": [float(a) for a in laser.alpha_sigma_rad]}
+    if laser.return_dn_m2 > 0.0:
+        table["return_dn_m2"] = float(laser.return_dn_m2)
+        table["return_exposure_us"] = float(laser.return_exposure_us)
     for key in ("residual_rms_px", "residual_rms_mm"):
         if key in meta:
             table[key] = float(meta[key])  # type: ignore[arg-type]
@@ -260,7 +263,10 @@ def _parse_laser(table: Mapping[str, object], where: str) -> LaserCalibration:
     return LaserCalibration(
         baseline_m=_number(table, "baseline_m", where, BASELINE_RANGE_M),
         baseline_sigma_m=_number(table, "baseline_sigma_m", where, (0.0, 1.0), default=0.0),
-        alpha_rad=tuple(alpha), alpha_sigma_rad=tuple(sigma))
+        alpha_rad=tuple(alpha), alpha_sigma_rad=tuple(sigma),
+        return_dn_m2=_number(table, "return_dn_m2", where, (0.0, 1e12), default=0.0),
+        return_exposure_us=_number(table, "return_exposure_us", where, (0.0, 1e7),
+                                   default=0.0))
 
 
 def _check_size(camera: CameraModel, expected_size: tuple[int, int] | None, where: Path) -> None:
@@ -310,3 +316,17 @@ def load_camera_file(path: str | Path, expected_size: tuple[int, int] | None = N
     return CameraFile(camera=camera, rms_px=rms_px,
                       sigma=_parse_sigma(table, f"{where}: camera"), meta=_meta(doc, "meta"),
                       board=_meta(doc, "board"))
+
+
+def save_updated_calibration(source: str | Path, out: str | Path,
+                             calibration: Calibration) -> Path:
+    """Write ``calibration`` to ``out`` with the meta data, intrinsics σ and laser fit
+    residuals of the unit file ``source`` (a later step, such as the radiometric
+    calibration, adds its values and keeps what the earlier steps measured)."""
+    kept = load_camera_file(source)
+    laser_table = _read_document(Path(source)).get("laser", {})
+    meta: dict[str, object] = {**kept.meta, "rms_px": kept.rms_px}
+    if isinstance(laser_table, dict):
+        meta.update({k: laser_table[k] for k in ("residual_rms_px", "residual_rms_mm")
+                     if k in laser_table})
+    return save_calibration(out, calibration, meta, sigma=kept.sigma)

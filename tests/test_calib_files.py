@@ -92,3 +92,19 @@ def test_missing_file_is_a_clear_error(tmp_path: Path) -> None:
 def test_non_finite_value_is_never_written(tmp_path: Path) -> None:
     with pytest.raises(CalibrationError, match="finite"):
         save_camera_file(tmp_path / "c.toml", _calibration().camera, math.inf, {}, {})
+
+
+def test_radiometric_calibration_round_trip(tmp_path: Path) -> None:
+    """return_dn_m2 and its exposure are written when calibrated and read back; a file
+    without them loads as not calibrated (0), and a negative value is a clear error."""
+    calibration = _calibration()
+    calibrated = Calibration(calibration.camera, LaserCalibration(
+        0.075, (1.45, 1.52), 1e-4, (2e-4, 3e-4), return_dn_m2=641.25, return_exposure_us=800.0))
+    path = save_calibration(tmp_path / "unit.calib.toml", calibrated, {})
+    assert "return_dn_m2" in path.read_text()
+    assert load_calibration(path) == calibrated
+    bare = save_calibration(tmp_path / "bare.calib.toml", calibration, {})
+    assert "return_dn_m2" not in bare.read_text()
+    assert load_calibration(bare).laser.return_dn_m2 == 0.0
+    with pytest.raises(CalibrationError, match="return_dn_m2"):
+        load_calibration(_edit(path, "return_dn_m2 = 641.25", "return_dn_m2 = -3.0"))

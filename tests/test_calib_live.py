@@ -83,3 +83,42 @@ def test_calibration_for_another_resolution_stops_the_live_check(
                  "--driver-option", f"scene={scene}", "--distance", "1.2"])
     assert code == 1
     assert "640x400 images but the camera delivers 320x200" in capsys.readouterr().err
+
+
+def test_radiometry_from_a_live_target_matches_the_renderer(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path, wall: tuple) -> None:
+    """``atris calib radiometry`` on the simulated wall (albedo 0.7 at 1.2 m, noise on):
+    the measured return_dn_m2 is the simulator's own within 10 %, and the written file
+    keeps the laser planes and holds it."""
+    from dataclasses import replace
+
+    from calib.files import load_calibration
+
+    scene, truth = wall
+    bare = replace(truth, laser=replace(truth.laser, return_dn_m2=0.0, return_exposure_us=0.0))
+    path = save_calibration(tmp_path / "unit.calib.toml", bare, {"rms_px": 0.2})
+    out = tmp_path / "with_return.calib.toml"
+    code = main(["calib", "radiometry", "--calibration", str(path), "--backend", "sim",
+                 "--driver-option", f"scene={scene}", "--driver-option", "seed=3",
+                 "--distance", "1.2", "--albedo", "0.7", "--exposure-us", "1000",
+                 "--out", str(out), "--json"])
+    report = json.loads(capsys.readouterr()[0])
+    assert code == 0 and report["samples"] > 100
+    assert report["return_dn_m2"] == pytest.approx(truth.laser.return_dn_m2, rel=0.1)
+    written = load_calibration(out)
+    assert written.laser.alpha_rad == truth.laser.alpha_rad
+    assert written.laser.return_dn_m2 == pytest.approx(report["return_dn_m2"])
+    assert written.laser.return_exposure_us == 1000.0
+
+
+def test_radiometry_needs_a_target(capsys: pytest.CaptureFixture[str], tmp_path: Path,
+                                   wall: tuple) -> None:
+    """Neither --map nor --backend, or a bad albedo: a clear error, no file written."""
+    _, truth = wall
+    path = save_calibration(tmp_path / "unit.calib.toml", truth, {})
+    out = tmp_path / "out.calib.toml"
+    base = ["calib", "radiometry", "--calibration", str(path), "--distance", "1.2",
+            "--exposure-us", "1000", "--out", str(out)]
+    assert main([*base, "--albedo", "0.7"]) != 0
+    assert "--map FILE or --backend NAME" in capsys.readouterr()[1]
+    assert not out.exists()

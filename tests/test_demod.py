@@ -244,6 +244,8 @@ def test_exposure_change_re_primes_the_window(cls: type[Demod]) -> None:
     assert demod.exposure_changes == 1
     assert all(m.last_sequence < 6 or m.first_sequence >= 6 for m in maps)
     assert min(m.first_sequence for m in maps if m.last_sequence >= 6) == 6
+    # each map carries its window's exposure (the pipeline scales the expected return by it)
+    assert all(m.exposure_us == (100.0 if m.last_sequence < 6 else 50.0) for m in maps)
 
 
 @pytest.mark.parametrize("cls", DEMODULATORS)

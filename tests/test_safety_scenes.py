@@ -60,6 +60,11 @@ retro_box_shifted_onto_pole read 0.67 m for a box at 4.1 m in 1 sector-frame on 
 and 3 (a pole's line medians settled the box's two stripes one line low). With the lowest
 flank value instead of the median in peaks_kernels._flank_floor (the step test),
 flicker_step_at_box_foot read 4.09 m VALID where no sheet reaches its box (seed 1).
+With min_reflectance 0 (no check of a return's brightness against its range,
+pipeline.radiometry), edge_on_glossy_plate_dark_wall read a dark wall's upper stripes at
+7.6 m as 0.31 m (sector 4 VALID in map 3) and retro_pole_stray_stripe a hanging sphere's
+stripe at 2.05 m as 0.71 m (sector 6 VALID in map 0; tests/test_radiometry.py runs both
+ways).
 """
 
 from __future__ import annotations
@@ -104,12 +109,6 @@ KNOWN_WRONG: dict[str, str] = {
                      "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
                      "up, no line seen above) is INVALID since pipeline.tops (far on seed "
                      "11 still: 3 sector-frames of 32, was 4)",
-    "retro_pole_stray_stripe": "near phantom: a stripe of SNR 130 in the retro-reflective "
-                               "pole's columns taken as the third sheet at 0.71 m (the pole "
-                               "at 0.96 m), sector 6 VALID in map 0",
-    "edge_on_glossy_plate_dark_wall": "near phantom: the upper sheets on a dark wall at 7.6 m "
-                                      "found at rows that read 0.31-0.94 m, sector 4 VALID "
-                                      "at 0.31 m in map 3",
 }
 #: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
 #: not a pipeline fault (the unit cannot know its calibration is off), strict expected

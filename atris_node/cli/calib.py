@@ -1,4 +1,5 @@
-"""``atris calib NAME``: intrinsics, printable board, laser planes, verification, simulation."""
+"""``atris calib NAME``: intrinsics, printable board, laser planes, verification, radiometry,
+simulation."""
 
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ CALIB_COMMANDS: dict[str, tuple[str, str]] = {
     "board": ("calib.commands.board", "write a printable ChArUco board (PNG and PDF)"),
     "laser": ("calib.commands.laser", "baseline b and angle alpha per line (flat target or board)"),
     "verify": ("calib.commands.verify", "range error on a target at a known distance"),
+    "radiometry": ("calib.commands.radiometry",
+                   "the lines' return on a white target (brightness against range check)"),
     "simulate": ("calib.commands.simulate", "write a simulated capture set with its truth"),
 }
 

@@ -289,7 +289,8 @@ class Demodulator:
             phase=self._lag or 0, dropped=dropped, processing_gain=gain, snr=snr,
             extra={"ambient_level": ambient, "saturated_fraction": float(fraction),
                    "signal_dn": signal, "residual_dn": residual},
-            window=_window(frames, infos, self._before))
+            window=_window(frames, infos, self._before),
+            exposure_us=0.0 if self._last is None else float(self._last.exposure_us))
 
     # --- per window, in the subclasses ---------------------------------------------------
 

@@ -118,7 +118,8 @@ def pipeline_config(config: Config) -> PipelineConfig:
                           fov_deg=p["fov_deg"], min_points=p["min_points"],
                           objects=p["objects"], roi_narrowing=p["roi_narrowing"],
                           roi_full_every=p["roi_full_every"], identity=p["identity"],
-                          invalid_on_interference=p["invalid_on_interference"])
+                          invalid_on_interference=p["invalid_on_interference"],
+                          min_reflectance=p["min_reflectance"])
 
 
 def make_pipeline(config: Config, camera: Camera) -> Pipeline:

@@ -27,6 +27,7 @@ from atris_node.pipeline import (
     alignment_kernels,
     identity_kernels,
     peaks_kernels,
+    radiometry,
     rivals,
     verdicts_kernels,
 )
@@ -70,6 +71,7 @@ logger = logging.getLogger(__name__)
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
+IntArray = npt.NDArray[np.int64]
 #: columns next to one with foreign light that are not trusted either
 FOREIGN_MARGIN_COLUMNS = 4
 GROUND_MODES = ("calibrated", "estimate")
@@ -115,6 +117,8 @@ class PipelineConfig:
     #: measure what it does
     unique_identity: bool = True
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
+    #: ρ cos i under which a sample is too faint for its range (pipeline.radiometry; 0 = off)
+    min_reflectance: float = radiometry.MIN_REFLECTANCE
 
     def __post_init__(self) -> None:
         _check(self.peak_method in PEAK_METHODS, "peak_method", self.peak_method,
@@ -135,6 +139,8 @@ class PipelineConfig:
             _check(getattr(self, name) >= 1, name, getattr(self, name), "an integer >= 1")
         _check(0.0 <= self.min_confidence <= 1.0, "min_confidence", self.min_confidence,
                "in [0, 1]")
+        _check(0.0 <= self.min_reflectance < 1.0, "min_reflectance", self.min_reflectance,
+               "in [0, 1)")
 
     def layout(self) -> SectorLayout:
         """The :class:`SectorLayout` of ``sector_count`` and ``fov_deg``."""
@@ -183,6 +189,9 @@ class Diagnostics:
     #: of ``unassigned_fraction``, the maxima set aside as one side of a step (no stripe:
     #: flicker residual, motion smear; they blank their columns' sectors too)
     step_fraction: float = 0.0
+    #: samples too faint for the range their line gives: doubts, not points
+    #: (atris_node.pipeline.radiometry)
+    too_faint: int = 0
 
 
 @dataclass(frozen=True)
@@ -231,6 +240,25 @@ def foreign_energy(dmap: DistortionMap, spans: tuple[tuple[int, int], ...],
     if negative == 0.0:
         return 0.0, columns
     return negative / max(positive, threshold_dn, 1.0), columns
+
+
+def _with_doubts(doubts: tuple[IntArray, IntArray, IntArray], samples: LineSamples,
+                 which: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
+    """``doubts`` (row, column, line) with the ``which`` samples added on their own line
+    (rows and columns rounded): the range that line gives is where they cannot be, and
+    which line is theirs is not known; a sector cannot be VALID farther nor free."""
+    row, col, line = doubts
+    return (np.concatenate([row, np.rint(samples.row_px[which]).astype(np.int64)]),
+            np.concatenate([col, np.rint(samples.col_px[which]).astype(np.int64)]),
+            np.concatenate([line, samples.line[which].astype(np.int64)]))
+
+
+def _kept(samples: LineSamples, points: Points, vehicle: FloatArray, keep: BoolArray
+          ) -> tuple[LineSamples, Points, FloatArray]:
+    """The samples, their points and vehicle-frame points where ``keep`` is True."""
+    return (select(samples, keep),
+            Points(points.xyz_m[keep], points.valid[keep], points.sigma_z_m[keep]),
+            vehicle[keep])
 
 
 def _widen(columns: BoolArray, margin: int) -> BoolArray:
@@ -291,12 +319,21 @@ class Pipeline:
         removed = (per_column(extraction.samples.col_px, self._width)
                    - per_column(samples.col_px, self._width))
         points, vehicle = self._triangulate(samples)
+        faint = radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
+                                     self.calibration.laser, dmap.exposure_us or None,
+                                     self.config.min_reflectance)
+        doubts = extraction.doubts
+        if faint.any():  # not at the range their line gives: doubts, not points
+            doubts = _with_doubts(doubts, samples, faint)
+            removed = removed + per_column(samples.col_px[faint], self._width)
+            samples, points, vehicle = _kept(samples, points, vehicle, ~faint)
         timings["triangulate"] = _lap(start)
         self._update_ground(vehicle[points.valid])
         # the samples dropped by the cleaning count as doubtful in their columns
         result = self._assemble(dmap, replace(
             extraction, samples=samples, dropped=extraction.dropped + int(removed.sum()),
-            doubtful_columns=extraction.doubtful_columns + removed), points, vehicle, timings)
+            doubtful_columns=extraction.doubtful_columns + removed, doubts=doubts,
+            too_faint=int(faint.sum())), points, vehicle, timings)
         timings["sectors"] = _lap(start)
         if self.roi is not None:
             self.roi.update(extraction.samples, whole, result.diagnostics.interference)
@@ -405,7 +442,8 @@ class Pipeline:
             unassigned_fraction=unassigned, foreign_columns=columns,
             interference=max(energy, foreign_unassigned) > self.config.foreign_limit,
             ground=self._ground, timings_ms=timings,
-            moving_fraction=extraction.moving / slots, step_fraction=extraction.steps / slots)
+            moving_fraction=extraction.moving / slots, step_fraction=extraction.steps / slots,
+            too_faint=extraction.too_faint)
 
     def _objects(self, obstacle_points: FloatArray) -> tuple[objects_mod.ObjectBox, ...]:
         return objects_mod.cluster_objects(obstacle_points, self.config.object_eps_m,

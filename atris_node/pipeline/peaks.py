@@ -157,6 +157,9 @@ class Extraction:
     #: (K, W) line k's band in column c holds pixels blinded in every sub-frame (saturated
     #: without laser light above the threshold): the line cannot be seen there; None: none
     blinded: BoolArray | None = None
+    #: samples too faint for the range their line gives (atris_node.pipeline.radiometry):
+    #: kept as doubts, not points (counted by the chain after triangulation)
+    too_faint: int = 0
 
 
 # --------------------------------------------------------------------------- rows read

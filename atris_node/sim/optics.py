@@ -68,6 +68,24 @@ def electrons_per_radiance(camera: CameraSpec, wavelength_nm: float) -> float:
         4.0 * camera.f_number**2 * photon_j)
 
 
+def line_return_dn_m2(camera: CameraSpec, pattern: LinePattern) -> float:
+    """The radiometric calibration of a line (:class:`atris_node.calibration.LaserCalibration`
+    ``return_dn_m2``): the peak DN per on sub-frame of a line centred on a pixel row of a
+    white Lambertian surface facing the unit 1 m away, times m², at the camera's exposure.
+    By the laws above: the sheet's peak irradiance at 1 m, scaled by its pixel footprint
+    (a pixel spans 1/f rad of a facing surface seen from the source), its radiance
+    ``E / π``, the electrons a pixel collects in one exposure and the sensor gain; no full
+    scale (a calibration target is not saturated)."""
+    sigma = pattern.line_sigma_rad
+    footprint = 1.0 / camera.focal_px
+    var = sigma**2 + footprint**2 * (1.0 / 12.0 + camera.psf_sigma_px**2)
+    peak_w_m2 = pattern.power_w / len(pattern.alpha_rad) / (
+        pattern.fan_rad * sigma * math.sqrt(2.0 * math.pi)) * sigma / math.sqrt(var)
+    electrons = (peak_w_m2 / math.pi * electrons_per_radiance(camera, pattern.wavelength_nm)
+                 * camera.exposure_us * 1e-6)
+    return electrons * camera.gain_dn_per_e
+
+
 def lux_to_w_m2(lux: float, filter_factor: float) -> float:
     """In-band irradiance (W/m²) of ``lux`` passed by a filter of ``filter_factor``."""
     return lux / LUMINOUS_EFFICACY_LM_PER_W * filter_factor
