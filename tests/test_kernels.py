@@ -14,6 +14,7 @@ from atris_node.pipeline import (
     alignment_kernels,
     identity_kernels,
     peaks_kernels,
+    radiometry_kernels,
     rivals_kernels,
     verdicts_kernels,
 )
@@ -21,7 +22,7 @@ from atris_node.pipeline.bands import Band
 from atris_node.pipeline.peaks import ExtractorSettings, extract_lines
 
 MODULES = (peaks_kernels, identity_kernels, alignment_kernels, rivals_kernels,
-           verdicts_kernels)
+           verdicts_kernels, radiometry_kernels)
 
 
 def _public_kernels(module: ModuleType) -> list[str]:

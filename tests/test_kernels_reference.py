@@ -1256,3 +1256,45 @@ def test_flank_floor_is_numpys_median_of_the_flank() -> None:
     for _ in range(2000):
         seven = rng.integers(-5, int(rng.integers(2, 50)), 7).astype(np.float64)
         assert peaks_kernels._median_of_7(seven.copy()) == float(np.median(seven))
+
+
+# --------------------------------------------------------------------------- radiometry
+# (the too-faint check in one compiled pass, held to its numpy functions)
+
+def test_too_faint_kernel_is_the_numpy_form() -> None:
+    """200 random maps (int16 and int32, negative values too), samples anywhere (rows and
+    columns past the edges included), valid or not, saturated or not, exposures and
+    code lengths: radiometry.too_faint equals the threshold on
+    apparent_reflectance(sample_peaks, source_range_m), bitwise."""
+    from dataclasses import replace
+
+    from atris_node.calibration import LaserCalibration
+    from atris_node.pipeline import radiometry
+    from atris_node.pipeline.geometry import Points
+    from atris_node.pipeline.peaks import LineSamples
+
+    rng = np.random.default_rng(31)
+    laser = LaserCalibration(0.075, (1.5, 1.6), return_dn_m2=500.0, return_exposure_us=1000.0)
+    flagged = 0
+    for _ in range(200):
+        h, w, n = int(rng.integers(2, 60)), int(rng.integers(2, 60)), int(rng.integers(0, 80))
+        dtype = rng.choice([np.int16, np.int32])
+        values = rng.integers(-50, 3000, (h, w)).astype(dtype)
+        row, col = rng.uniform(-2, h + 2, n), rng.uniform(-2, w + 2, n)
+        samples = LineSamples(np.zeros(n, np.int64), row, col, np.ones(n), np.ones(n),
+                              rng.random(n) < 0.2)
+        points = Points(rng.uniform(-1, 1, (n, 3)) * [1, 1, 0] + [0, 0, 1] * rng.uniform(
+            0.3, 9, (n, 1)), rng.random(n) < 0.8, np.zeros(n))
+        code_length, exposure = int(rng.choice([8, 16, 32])), rng.choice([None, 250.0, 2e3])
+        this = replace(laser, return_dn_m2=float(rng.uniform(10, 2000)))
+        got = radiometry.too_faint(values, samples, points, code_length, this, exposure, 0.05)
+        test = points.valid & ~samples.saturated
+        want = np.zeros(n, bool)
+        if test.any():
+            reflectance = radiometry.apparent_reflectance(
+                radiometry.sample_peaks(values, row, col),
+                radiometry.source_range_m(points, this), code_length, this, exposure)
+            want = test & (reflectance < 0.05)
+        np.testing.assert_array_equal(got, want)
+        flagged += int(got.sum())
+    assert flagged > 50

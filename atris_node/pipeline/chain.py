@@ -28,6 +28,7 @@ from atris_node.pipeline import (
     identity_kernels,
     peaks_kernels,
     radiometry,
+    radiometry_kernels,
     rivals,
     verdicts_kernels,
 )
@@ -296,7 +297,7 @@ class Pipeline:
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
         for kernels in (peaks_kernels, identity_kernels, alignment_kernels, rivals,
-                        verdicts_kernels):
+                        verdicts_kernels, radiometry_kernels):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
         if self.bands and not self._prior.looks_beyond.any():

@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.calibration import LaserCalibration
+from atris_node.pipeline import radiometry_kernels
 from atris_node.pipeline.geometry import Points
 from atris_node.pipeline.peaks import LineSamples
 
@@ -89,16 +90,21 @@ def apparent_reflectance(peak_dn: FloatArray, range_m: FloatArray, code_length: 
 def too_faint(values: npt.NDArray[Any], samples: LineSamples, points: Points,
               code_length: int, laser: LaserCalibration, exposure_us: float | None,
               min_reflectance: float = MIN_REFLECTANCE) -> BoolArray:
-    """(n,) True for the valid, unsaturated samples whose peak stands for an apparent
-    reflectance under ``min_reflectance`` at the range their line gives; all False when
-    the check is left out (no calibration, ``min_reflectance`` 0, or no valid sample)."""
-    test = points.valid & ~samples.saturated
+    """(n,) True for the valid, unsaturated samples whose peak (:func:`sample_peaks`)
+    stands for an apparent reflectance (:func:`apparent_reflectance` at
+    :func:`source_range_m`) under ``min_reflectance`` at the range their line gives; all
+    False when the check is left out (no calibration, ``min_reflectance`` 0, no sample).
+    One compiled pass (:func:`radiometry_kernels.too_faint`); the numpy functions above are
+    its reference and the calibration's."""
     out = np.zeros(len(samples), dtype=np.bool_)
-    if not calibrated(laser) or min_reflectance <= 0.0 or not test.any():
+    if not calibrated(laser) or min_reflectance <= 0.0 or not len(samples):
         return out
-    index = np.flatnonzero(test)
-    peaks = sample_peaks(values, samples.row_px[index], samples.col_px[index])
-    reflectance = apparent_reflectance(peaks, source_range_m(points, laser)[index],
-                                       code_length, laser, exposure_us)
-    out[index] = reflectance < min_reflectance
+    exposure = laser.return_exposure_us if exposure_us is None else exposure_us
+    per_map = 0.5 * code_length * laser.return_dn_m2 * exposure / laser.return_exposure_us
+    radiometry_kernels.too_faint(
+        values, np.ascontiguousarray(samples.row_px, dtype=np.float64),
+        np.ascontiguousarray(samples.col_px, dtype=np.float64),
+        np.ascontiguousarray(points.valid & ~samples.saturated),
+        np.ascontiguousarray(points.xyz_m.reshape(-1, 3), dtype=np.float64),
+        float(laser.baseline_m), per_map, float(min_reflectance), out)
     return out
