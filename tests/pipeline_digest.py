@@ -91,7 +91,9 @@ def digest(result: PipelineResult) -> dict[str, str]:
 
 def _maps(key: str, scene: Scene, seed: int, cache: Path | None
           ) -> tuple[Any, list[DistortionMap]]:
-    path = None if cache is None else cache / (key.replace("/", "_") + ".pkl")
+    # the cache holds the calibration as well: a name per calibration format (v2: with the
+    # lines' radiometric calibration), so that an older cache is not read as this one
+    path = None if cache is None else cache / (key.replace("/", "_") + ".v2.pkl")
     if path is not None and path.exists():
         with path.open("rb") as f:
             return pickle.load(f)  # our own cache
