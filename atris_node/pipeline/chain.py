@@ -292,7 +292,8 @@ class Pipeline:
                    - per_column(samples.col_px, self._width))
         points, vehicle = self._triangulate(samples)
         timings["triangulate"] = _lap(start)
-        self._update_ground(vehicle[points.valid])
+        if self._ground_due():
+            self._update_ground(vehicle[points.valid])
         # the samples dropped by the cleaning count as doubtful in their columns
         result = self._assemble(dmap, replace(
             extraction, samples=samples, dropped=extraction.dropped + int(removed.sum()),
@@ -338,10 +339,15 @@ class Pipeline:
                              z_max_m=self.config.z_max_m, sigma_u_px=sigma_u)
         return points, self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))
 
-    def _update_ground(self, vehicle: FloatArray) -> None:
+    def _ground_due(self) -> bool:
+        """True when this map's valid points are to refit the ground plane."""
         cfg = self.config
-        if cfg.ground_plane != "estimate" or self._counter % cfg.ground_estimate_every:
-            return
+        return cfg.ground_plane == "estimate" and not self._counter % cfg.ground_estimate_every
+
+    def _update_ground(self, vehicle: FloatArray) -> None:
+        """Refit the ground plane to the (n, 3) vehicle-frame valid points (m) and, when a
+        plane is found, the visibility prior over it."""
+        cfg = self.config
         plane = estimate_ground(vehicle, self._ground)
         if plane is not None:
             self._ground = plane

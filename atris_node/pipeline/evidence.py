@@ -232,7 +232,7 @@ class SectorJudge:
         cam = self.calibration.camera
         u, v = undistort_pixels(row_px, col_px, cam)
         points = triangulate(u, v, line, cam, self.calibration.laser,
-                             z_max_m=self.z_range_m[1], sigma_u_px=np.zeros(line.size))
+                             z_max_m=self.z_range_m[1])
         xyz = points.xyz_m.reshape(-1, 3)
         vehicle = self.mounting.camera_to_vehicle(xyz)[points.valid & (xyz[:, 2] >= z_min_m)]
         x, y = vehicle[:, 0], vehicle[:, 1]

@@ -28,6 +28,7 @@ import numpy.typing as npt
 
 from atris_node.calibration import CameraModel, LaserCalibration
 from atris_node.errors import CalibrationError
+from atris_node.jit import kernel
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -127,20 +128,60 @@ def triangulate(u_px: npt.ArrayLike, v_px: npt.ArrayLike, line: npt.ArrayLike,
     """Eq. 1 for n samples: (n,) undistorted u, v (px from the principal point), line index.
 
     ``sigma_u_px`` (scalar or (n,)) gives ``sigma_z ≈ z²·σ_u / (f·b)``. Returns
-    :class:`Points`; a denominator <= 0 or ``z > z_max_m`` is not valid.
+    :class:`Points`; a denominator <= 0 or ``z > z_max_m`` is not valid. One compiled
+    pass (:func:`_eq1`) over the samples flattened (any matching shapes; ``xyz_m`` is
+    their shape plus (3,)).
     """
-    u = np.asarray(u_px, dtype=np.float64)
-    v = np.asarray(v_px, dtype=np.float64)
-    f, b = camera.focal_px, laser.baseline_m
-    denominator = singular_rows(camera, laser)[np.asarray(line, dtype=np.int64)] - u
-    ok = denominator > MIN_DENOMINATOR_PX
-    scale = np.divide(b, denominator, out=np.zeros_like(u), where=ok)
-    valid = ok & (scale * f <= z_max_m)
-    scale = np.where(valid, scale, z_max_m / f)
-    xyz = np.stack([v * scale, u * scale, np.full_like(u, f) * scale], axis=-1)
-    z = xyz[:, 2] if xyz.ndim == 2 else xyz[..., 2]
-    sigma_z = np.where(valid, z * z * np.asarray(sigma_u_px, np.float64) / (f * b), 0.0)
-    return Points(xyz_m=xyz, valid=valid, sigma_z_m=sigma_z)
+    u, v = np.asarray(u_px, dtype=np.float64), np.asarray(v_px, dtype=np.float64)
+    k, sigma = np.asarray(line, dtype=np.int64), np.asarray(sigma_u_px, dtype=np.float64)
+    if not (u.shape == v.shape == k.shape and sigma.shape in ((), u.shape)):
+        u, v, k, sigma = np.broadcast_arrays(u, v, k, sigma)
+    shape = u.shape
+    xyz, valid, sigma_z = _eq1(np.ascontiguousarray(u).reshape(-1),
+                               np.ascontiguousarray(v).reshape(-1),
+                               np.ascontiguousarray(k).reshape(-1), sigma.reshape(-1),
+                               singular_rows(camera, laser), float(camera.focal_px),
+                               float(laser.baseline_m), float(z_max_m))
+    return Points(xyz_m=xyz.reshape(*shape, 3), valid=valid.reshape(shape),
+                  sigma_z_m=sigma_z.reshape(shape))
+
+
+@kernel("Tuple((float64[:, ::1], boolean[::1], float64[::1]))(float64[::1], float64[::1], "
+        "int64[::1], float64[:], float64[::1], float64, float64, float64)")
+def _eq1(u: FloatArray, v: FloatArray, line: IntArray, sigma_u: FloatArray,
+         singular: FloatArray, f: float, b: float, z_max_m: float
+         ) -> tuple[FloatArray, BoolArray, FloatArray]:
+    """(n, 3) points m, (n,) valid and (n,) σ_z m of Eq. 1 at (n,) u, v px, line (a
+    negative one counted from the last, as numpy indexes; beyond the lines: IndexError)
+    and σ_u px ((n,), or (1,) for every sample; any strides), with the (K,) ``singular``
+    rows px: as the array steps, ``scale = b / (f·cot α - u)`` where that denominator
+    exceeds MIN_DENOMINATOR_PX and ``scale·f <= z_max``, else ``z_max / f``;
+    ``[v, u, f]·scale``; ``σ_z = z·z·σ_u / (f·b)`` where valid, else 0."""
+    n = u.size
+    xyz = np.empty((n, 3))
+    valid = np.empty(n, dtype=np.bool_)
+    sigma_z = np.empty(n)
+    lines = singular.size
+    fb = f * b
+    far = z_max_m / f
+    for i in range(n):
+        k = line[i] + lines if line[i] < 0 else line[i]
+        if k < 0 or k >= lines:
+            raise IndexError("a line beyond the calibrated lines")
+        denominator = singular[k] - u[i]
+        ok = denominator > MIN_DENOMINATOR_PX
+        scale = b / denominator if ok else 0.0
+        good = ok and scale * f <= z_max_m
+        if not good:
+            scale = far
+        xyz[i, 0] = v[i] * scale
+        xyz[i, 1] = u[i] * scale
+        z = f * scale
+        xyz[i, 2] = z
+        valid[i] = good
+        sigma = sigma_u[0] if sigma_u.size == 1 else sigma_u[i]
+        sigma_z[i] = z * z * sigma / fb if good else 0.0
+    return xyz, valid, sigma_z
 
 
 def range_sigma(z_m: npt.ArrayLike, sigma_u_px: float, focal_px: float,
