@@ -1318,3 +1318,62 @@ def test_triangulate_is_the_numpy_form() -> None:
     with pytest.raises(IndexError):
         triangulate(np.zeros(2), np.zeros(2), np.array([0, 3]), cam,
                     LaserCalibration(0.1, (1.5, 1.6)), z_max_m=10.0)
+
+
+def test_temporal_series_is_the_take_per_frame() -> None:
+    """temporal._series (one compiled gather per uint8 or uint16 frame, take for other
+    dtypes) gives the take of each frame as float64 rows, bitwise, on 200 random windows:
+    uint8, uint16 (full range), read-only and non-contiguous frames, int16 and float32
+    frames, negative and repeated indices, no index at all."""
+    from atris_node.pipeline.temporal import _series
+
+    rng = np.random.default_rng(72)
+    for trial in range(200):
+        height, width = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+        dtype = [np.uint8, np.uint16, np.int16, np.float32][trial % 4]
+        top = 255 if dtype == np.uint8 else 1023 if dtype == np.int16 else 65535
+        frames = []
+        for _ in range(int(rng.integers(1, 18))):
+            frame = rng.integers(0, top + 1, (height, width)).astype(dtype)
+            if rng.random() < 0.3:
+                frame = frame.T  # a non-contiguous view: ravel copies it
+            if rng.random() < 0.3:
+                frame.setflags(write=False)
+            frames.append(frame)
+        size = height * width
+        flat = rng.integers(-size, size, int(rng.integers(0, 300)))
+        want = np.empty((len(frames), flat.size))
+        for i, frame in enumerate(frames):
+            want[i] = np.ravel(frame).take(flat)
+        got = _series(tuple(frames), flat)
+        assert got.dtype == np.float64 and got.tobytes() == want.tobytes()
+
+
+def test_mark_not_own_is_the_numpy_form() -> None:
+    """temporal._mark_not_own gives the numpy steps' marks (σ the square root of the
+    largest of the tile's variance over N, the rounding's and gain·level; marked where the
+    statistic lies under -LOCAL_SIGMAS·σ·norm) on 500 random batches: statistics around
+    the limit, equal terms, a NaN gain (np.quantile's answer when a ratio is NaN), zero
+    and huge levels."""
+    from atris_node.pipeline import temporal
+
+    rng = np.random.default_rng(73)
+    for trial in range(500):
+        slots, width, n = int(rng.integers(1, 12)), int(rng.integers(1, 60)), 0
+        present = rng.random((slots, width)) < rng.random()
+        m, c = np.nonzero(present)
+        n = m.size
+        tile = rng.choice([0.5, 1.0, 2.5, rng.uniform(0.1, 50.0)], n).astype(np.float32)
+        level = rng.choice([1.0, 0.0, 1e9, rng.uniform(1.0, 300.0)], n)
+        gain = float(rng.choice([0.0, np.nan, rng.uniform(0.0, 3.0)]))
+        root_n, norm = float(np.sqrt(rng.integers(2, 33))), float(rng.uniform(0.5, 5.0))
+        sigma = np.sqrt(np.maximum(np.maximum(np.square(tile.astype(np.float64) / root_n),
+                                              temporal.QUANTIZATION_DN ** 2), gain * level))
+        limit = -temporal.LOCAL_SIGMAS * sigma * norm
+        statistic = np.where(rng.random(n) < 0.3, limit, limit * rng.uniform(0.5, 1.5, n))
+        want = np.zeros((slots, width), dtype=bool)
+        want[m, c] = statistic < -temporal.LOCAL_SIGMAS * sigma * norm
+        got = np.zeros((slots, width), dtype=bool)
+        temporal._mark_not_own(got, m.astype(np.int64), c.astype(np.int64), statistic, tile,
+                               level, gain, root_n, norm)
+        assert np.array_equal(got, want), trial
