@@ -17,7 +17,7 @@ import numpy.typing as npt
 from atris_node.calibration import Calibration
 from atris_node.mounting import Mounting
 from atris_node.pipeline import verdicts_kernels
-from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
+from atris_node.pipeline.geometry import Points, rows_where, triangulate, undistort_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
 from atris_node.pipeline.peaks import Extraction, per_column, seen_lines
@@ -93,6 +93,8 @@ class SectorJudge:
         #: the last prior and its lines expected on the ground (the prior changes only
         #: with the ground plane)
         self._expected: tuple[VisibilityPrior, BoolArray] | None = None
+        #: the last ground plane and the camera's and projector's heights above it, m
+        self._heights: tuple[GroundPlane, float, float] | None = None
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
@@ -116,7 +118,7 @@ class SectorJudge:
         obstacle = data.obstacle if sheet is None else self._credible_obstacle(
             data.obstacle, line, column, sheet)
         found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr,
-                               points.xyz_m[clean, 2])
+                               points.xyz_m[:, 2][clean])
         evidence = self._evidence(extraction, foreign, prior, points.valid)
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
@@ -147,18 +149,27 @@ class SectorJudge:
 
     def _sheet(self, data: SectorInput, ground: GroundPlane, sigma_m: FloatArray) -> Sheet:
         """Where each sample (range σ ``sigma_m``) lies on its sheet, measured from the
-        ``ground`` plane."""
-        height = ground.height(data.points)
+        ``ground`` plane (``data.height_m`` when given: the heights above it)."""
+        height = ground.height(data.points) if data.height_m is None else data.height_m
         origin = self.projector_m
         distance = np.hypot(data.points[:, 0] - origin[0], data.points[:, 1] - origin[1])
         camera = self.mounting.translation
+        camera_h, projector_h = self._unit_heights(ground)
         sigma_h = height_sigma_m(
-            sigma_m, height, float(ground.height(camera[None, :])[0]),
+            sigma_m, height, camera_h,
             np.hypot(data.points[:, 0] - camera[0], data.points[:, 1] - camera[1]))
-        projector_h = float(ground.height(origin[None, :])[0])
         fb = self.calibration.camera.focal_px * self.calibration.laser.baseline_m
         return Sheet(height, sigma_h, distance, projector_h, fb,
                      rows_off_ground(distance, height, projector_h, fb))
+
+    def _unit_heights(self, ground: GroundPlane) -> tuple[float, float]:
+        """The camera's and the projector's height (m) above ``ground``, kept while the
+        plane is the same (it changes only with a new ground fit)."""
+        if self._heights is None or self._heights[0] is not ground:
+            camera = self.mounting.translation
+            self._heights = (ground, float(ground.height(camera[None, :])[0]),
+                             float(ground.height(self.projector_m[None, :])[0]))
+        return self._heights[1], self._heights[2]
 
     def _unseen_tops(self, found: ObstaclePoints, valid: BoolArray, sheet: Sheet
                      ) -> BoolArray:
@@ -234,7 +245,8 @@ class SectorJudge:
         points = triangulate(u, v, line, cam, self.calibration.laser,
                              z_max_m=self.z_range_m[1])
         xyz = points.xyz_m.reshape(-1, 3)
-        vehicle = self.mounting.camera_to_vehicle(xyz)[points.valid & (xyz[:, 2] >= z_min_m)]
+        vehicle = rows_where(self.mounting.camera_to_vehicle(xyz),
+                             points.valid & (xyz[:, 2] >= z_min_m))
         x, y = vehicle[:, 0], vehicle[:, 1]
         verdicts_kernels.least_per_sector(out, self.layout.index_of(x, y),
                                           self.layout.horizontal_range(x, y))

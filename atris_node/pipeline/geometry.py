@@ -22,6 +22,7 @@ A denominator ``f·cot α_k - u <= 0`` (at or beyond the singular row) or a rang
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -33,6 +34,7 @@ from atris_node.jit import kernel
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
+ScalarT = TypeVar("ScalarT", bound=np.generic)
 
 #: smallest accepted Eq. 1 denominator f·cot α - u, pixels; below it the range is infinite
 MIN_DENOMINATOR_PX = 1e-6
@@ -182,6 +184,14 @@ def _eq1(u: FloatArray, v: FloatArray, line: IntArray, sigma_u: FloatArray,
         sigma = sigma_u[0] if sigma_u.size == 1 else sigma_u[i]
         sigma_z[i] = z * z * sigma / fb if good else 0.0
     return xyz, valid, sigma_z
+
+
+def rows_where(array: npt.NDArray[ScalarT], mask: BoolArray) -> npt.NDArray[ScalarT]:
+    """``array[mask]`` for an (n, ...) ``array`` and an (n,) bool ``mask``: the rows where
+    it is True, in order (a copy). By the rows' indices (``take``): numpy's boolean
+    indexing of an (n, 3) array costs ten times as much (33 against 3.5 µs at 2900
+    rows)."""
+    return array.take(np.flatnonzero(mask), axis=0)
 
 
 def range_sigma(z_m: npt.ArrayLike, sigma_u_px: float, focal_px: float,
