@@ -1411,3 +1411,63 @@ def test_present_per_column_is_the_sum_over_rows() -> None:
                                      int(rng.integers(1, 100))))
         got, want = _present_per_column(rows), (rows >= 0).sum(axis=0)
         assert got.dtype == np.int64 and np.array_equal(got, want)
+
+
+def _former_fit_front() -> Any:
+    """The front of a straight fit as verdicts_kernels computed it on gathered points
+    before its fits took the points' indices (its former _fit_front), compiled as it was
+    (Python's own ``** 2`` is libm's pow, which may differ from x·x in the last bit)."""
+    import numba
+
+    from atris_node.pipeline import verdicts_kernels
+
+    fit, sloped = verdicts_kernels._fit, verdicts_kernels._sloped
+
+    def former(cols: Any, ranges: Any, noise: float) -> tuple[float, float]:
+        c_mean, r_mean, slope, residual, sxx = fit(cols, ranges)
+        n = ranges.size
+        if sxx == 0.0:
+            return np.inf, np.inf
+        scatter = max(residual, noise)
+        if not sloped(slope, residual, sxx):
+            return r_mean, scatter / np.sqrt(n)
+        end = cols.min() if slope > 0 else cols.max()
+        return (r_mean + slope * (end - c_mean),
+                scatter * np.sqrt(1.0 / n + (end - c_mean) ** 2 / sxx))
+
+    return numba.njit(former)
+
+
+def test_fits_at_indices_are_the_fits_of_the_gathered_points() -> None:
+    """verdicts_kernels._fit_at and _front_of on 3000 random index sets (none, one, equal
+    columns, slanted and flat surfaces, outliers) give the fit and the front of the
+    gathered points, bitwise; _followed's points are _follow's and its fit, when it says
+    it made one, is that of its points."""
+    from atris_node.pipeline import verdicts_kernels
+
+    former_front = _former_fit_front()
+    rng = np.random.default_rng(76)
+    for trial in range(3000):
+        n = int(rng.integers(1, 120))
+        cols = np.sort(rng.integers(0, int(rng.integers(1, 300)), n)).astype(np.float64)
+        r = 3.0 + rng.normal(0.0, 0.02) * cols * (trial % 2) + rng.normal(0.0, 0.01, n)
+        r[rng.random(n) < 0.1] += rng.uniform(-1.0, 1.0)
+        keep = rng.random(n) < rng.uniform(0.0, 1.0)
+        idx = np.flatnonzero(keep)
+        fit = verdicts_kernels._fit_at(cols, r, idx)
+        want = verdicts_kernels._fit(cols[idx], r[idx])
+        assert np.array(fit).tobytes() == np.array(want).tobytes(), trial
+        noise = float(rng.uniform(0.001, 0.05))
+        got_front = verdicts_kernels._front_of(fit, cols, idx, noise)
+        if idx.size:
+            assert (np.array(got_front).tobytes()
+                    == np.array(former_front(cols[idx], r[idx], noise)).tobytes())
+        first, spread = int(rng.integers(0, max(n // 3, 1))), float(rng.choice([2.0, 3.0]))
+        followed, at, fitted_on, fitted = verdicts_kernels._followed(
+            r, cols, keep.copy(), first, noise, spread)
+        np.testing.assert_array_equal(
+            followed, verdicts_kernels._follow(r, cols, keep.copy(), first, noise, spread))
+        np.testing.assert_array_equal(at, np.flatnonzero(followed))
+        if fitted:
+            assert (np.array(fitted_on).tobytes()
+                    == np.array(verdicts_kernels._fit(cols[at], r[at])).tobytes())
