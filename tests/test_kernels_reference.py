@@ -1471,3 +1471,43 @@ def test_fits_at_indices_are_the_fits_of_the_gathered_points() -> None:
         if fitted:
             assert (np.array(fitted_on).tobytes()
                     == np.array(verdicts_kernels._fit(cols[at], r[at])).tobytes())
+
+
+def test_triangulate_pixels_is_undistort_then_triangulate() -> None:
+    """geometry.triangulate_pixels (the undistortion folded into the compiled pass for a
+    camera without distortion) gives undistort_pixels then the numpy form of Eq. 1,
+    bitwise, on 300 random batches of observed rows and columns (off-centre principal
+    points, odd focal lengths, rows beyond the singular rows, NaN); with distortion it is
+    undistort_pixels then triangulate."""
+    from atris_node.calibration import CameraModel, LaserCalibration
+    from atris_node.pipeline.geometry import (
+        triangulate,
+        triangulate_pixels,
+        undistort_pixels,
+    )
+
+    rng = np.random.default_rng(77)
+    for trial in range(300):
+        distortion = ((float(rng.uniform(-0.05, 0.05)), float(rng.uniform(-0.01, 0.01)))
+                      if trial % 5 == 0 else ())
+        cam = CameraModel(1280, 800, float(rng.uniform(600.0, 1500.0)),
+                          float(rng.uniform(500.0, 780.0)), float(rng.uniform(300.0, 500.0)),
+                          distortion=distortion)
+        alphas = tuple(float(a) for a in rng.uniform(1.2, 1.9, int(rng.integers(1, 9))))
+        laser = LaserCalibration(float(rng.uniform(0.02, 0.3)), alphas)
+        n = int(rng.integers(0, 500))
+        row = rng.uniform(-50.0, 850.0, n)
+        row[rng.random(n) < 0.03] = np.nan
+        col = rng.uniform(0.0, 1280.0, n)
+        line = rng.integers(0, len(alphas), n)
+        sigma = rng.uniform(0.0, 1.0, n)
+        z_max = float(rng.uniform(1.0, 20.0))
+        got = triangulate_pixels(row, col, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma)
+        u, v = undistort_pixels(row, col, cam)
+        want = (triangulate(u, v, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma)
+                if distortion else
+                _triangulate_numpy(u, v, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma))
+        if distortion:
+            want = (want.xyz_m, want.valid, want.sigma_z_m)
+        for a, b in zip((got.xyz_m, got.valid, got.sigma_z_m), want, strict=True):
+            assert a.tobytes() == b.tobytes(), trial

@@ -34,7 +34,7 @@ from atris_node.pipeline import objects as objects_mod
 from atris_node.pipeline.bands import Band, line_bands
 from atris_node.pipeline.evidence import SectorJudge
 from atris_node.pipeline.faint import faint_sectors
-from atris_node.pipeline.geometry import Points, rows_where, triangulate, undistort_pixels
+from atris_node.pipeline.geometry import Points, rows_where, triangulate_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import (
     ClosingTracker,
@@ -337,11 +337,10 @@ class Pipeline:
 
     def _triangulate(self, samples: LineSamples) -> tuple[Points, FloatArray]:
         """Eq. 1 on undistorted samples; vehicle-frame points (n, 3) of every sample."""
-        cam = self.calibration.camera
-        u, v = undistort_pixels(samples.row_px, samples.col_px, cam)
         sigma_u = np.hypot(samples.sigma_u_px, self.config.sigma_u_px)
-        points = triangulate(u, v, samples.line, cam, self.calibration.laser,
-                             z_max_m=self.config.z_max_m, sigma_u_px=sigma_u)
+        points = triangulate_pixels(samples.row_px, samples.col_px, samples.line,
+                                    self.calibration.camera, self.calibration.laser,
+                                    z_max_m=self.config.z_max_m, sigma_u_px=sigma_u)
         return points, self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))
 
     def _ground_due(self) -> bool:

@@ -10,6 +10,7 @@ calibration and mounting. Counts are int64 (W,), ranges float64 m, inf where non
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -17,7 +18,7 @@ import numpy.typing as npt
 from atris_node.calibration import Calibration
 from atris_node.mounting import Mounting
 from atris_node.pipeline import verdicts_kernels
-from atris_node.pipeline.geometry import Points, rows_where, triangulate, undistort_pixels
+from atris_node.pipeline.geometry import Points, rows_where, triangulate_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
 from atris_node.pipeline.peaks import Extraction, per_column, seen_lines
@@ -48,6 +49,7 @@ CLEAN_NOISE = 2.0
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
+ScalarT = TypeVar("ScalarT", bound=np.generic)
 
 
 @dataclass(frozen=True)
@@ -112,9 +114,10 @@ class SectorJudge:
         columns from being free (:mod:`atris_node.pipeline.tops`)."""
         samples = extraction.samples
         sector, range_m = data.placed(self.layout)
-        sigma_m = points.sigma_z_m[clean]
+        pick = _Clean(clean)
+        sigma_m = pick(points.sigma_z_m)
         sheet = None if ground is None else self._sheet(data, ground, sigma_m)
-        line, column = samples.line[clean], samples.col_px[clean].astype(np.int64)
+        line, column = pick(samples.line), pick(samples.col_px).astype(np.int64)
         obstacle = data.obstacle if sheet is None else self._credible_obstacle(
             data.obstacle, line, column, sheet)
         found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr,
@@ -123,13 +126,13 @@ class SectorJudge:
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
         if sheet is not None:
-            valid = points.valid[clean]
+            valid = pick(points.valid)
             tops = self._unseen_tops(found, valid, sheet)
             under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
             evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
                 found.column[tops | under].astype(np.float64), self.column_sector.size))
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
-                samples.row_px[clean][under], samples.col_px[clean][under]))
+                pick(samples.row_px)[under], pick(samples.col_px)[under]))
             verdicts_kernels.least_per_sector(top_m, np.where(tops, sector, -1), range_m)
         return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
                                self._columns)
@@ -240,10 +243,8 @@ class SectorJudge:
         out = np.full(self.layout.count, np.inf)
         if row_px.size == 0:
             return out
-        cam = self.calibration.camera
-        u, v = undistort_pixels(row_px, col_px, cam)
-        points = triangulate(u, v, line, cam, self.calibration.laser,
-                             z_max_m=self.z_range_m[1])
+        points = triangulate_pixels(row_px, col_px, line, self.calibration.camera,
+                                    self.calibration.laser, z_max_m=self.z_range_m[1])
         xyz = points.xyz_m.reshape(-1, 3)
         vehicle = rows_where(self.mounting.camera_to_vehicle(xyz),
                              points.valid & (xyz[:, 2] >= z_min_m))
@@ -251,6 +252,18 @@ class SectorJudge:
         verdicts_kernels.least_per_sector(out, self.layout.index_of(x, y),
                                           self.layout.horizontal_range(x, y))
         return out
+
+
+class _Clean:
+    """The clean samples' values of per-sample (n,) arrays: ``array[clean]``, or the array
+    itself (not a copy) when every sample is clean (the arrays are only read)."""
+
+    def __init__(self, clean: BoolArray) -> None:
+        self.clean = clean
+        self.every = bool(clean.all())
+
+    def __call__(self, values: npt.NDArray[ScalarT]) -> npt.NDArray[ScalarT]:
+        return values if self.every else values[self.clean]
 
 
 def sectors_by_column(calibration: Calibration, mounting: Mounting, layout: SectorLayout

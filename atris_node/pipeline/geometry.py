@@ -134,6 +134,31 @@ def triangulate(u_px: npt.ArrayLike, v_px: npt.ArrayLike, line: npt.ArrayLike,
     pass (:func:`_eq1`) over the samples flattened (any matching shapes; ``xyz_m`` is
     their shape plus (3,)).
     """
+    return _triangulated(u_px, v_px, line, camera, laser, z_max_m, sigma_u_px, _UNDISTORTED)
+
+
+def triangulate_pixels(row_px: npt.ArrayLike, col_px: npt.ArrayLike, line: npt.ArrayLike,
+                       camera: CameraModel, laser: LaserCalibration, *, z_max_m: float,
+                       sigma_u_px: npt.ArrayLike = 0.0) -> Points:
+    """:func:`triangulate` of observed (distorted) pixel rows and columns, undistorted
+    first (:func:`undistort_pixels`); for a camera without distortion the two in one
+    compiled pass (the same numbers)."""
+    if any(camera.distortion):
+        u, v = undistort_pixels(row_px, col_px, camera)
+        return triangulate(u, v, line, camera, laser, z_max_m=z_max_m, sigma_u_px=sigma_u_px)
+    return _triangulated(row_px, col_px, line, camera, laser, z_max_m, sigma_u_px,
+                         np.array([camera.cy_px, camera.cx_px], dtype=np.float64))
+
+
+#: :func:`_eq1`'s ``centre`` for rows and columns already undistorted (u, v)
+_UNDISTORTED = np.zeros(0)
+
+
+def _triangulated(u_px: npt.ArrayLike, v_px: npt.ArrayLike, line: npt.ArrayLike,
+                  camera: CameraModel, laser: LaserCalibration, z_max_m: float,
+                  sigma_u_px: npt.ArrayLike, centre: FloatArray) -> Points:
+    """:func:`triangulate` (``centre`` empty) or :func:`triangulate_pixels` without
+    distortion (``centre`` (cy, cx) px)."""
     u, v = np.asarray(u_px, dtype=np.float64), np.asarray(v_px, dtype=np.float64)
     k, sigma = np.asarray(line, dtype=np.int64), np.asarray(sigma_u_px, dtype=np.float64)
     if not (u.shape == v.shape == k.shape and sigma.shape in ((), u.shape)):
@@ -143,22 +168,25 @@ def triangulate(u_px: npt.ArrayLike, v_px: npt.ArrayLike, line: npt.ArrayLike,
                                np.ascontiguousarray(v).reshape(-1),
                                np.ascontiguousarray(k).reshape(-1), sigma.reshape(-1),
                                singular_rows(camera, laser), float(camera.focal_px),
-                               float(laser.baseline_m), float(z_max_m))
+                               float(laser.baseline_m), float(z_max_m), centre)
     return Points(xyz_m=xyz.reshape(*shape, 3), valid=valid.reshape(shape),
                   sigma_z_m=sigma_z.reshape(shape))
 
 
 @kernel("Tuple((float64[:, ::1], boolean[::1], float64[::1]))(float64[::1], float64[::1], "
-        "int64[::1], float64[:], float64[::1], float64, float64, float64)")
+        "int64[::1], float64[:], float64[::1], float64, float64, float64, float64[::1])")
 def _eq1(u: FloatArray, v: FloatArray, line: IntArray, sigma_u: FloatArray,
-         singular: FloatArray, f: float, b: float, z_max_m: float
+         singular: FloatArray, f: float, b: float, z_max_m: float, centre: FloatArray
          ) -> tuple[FloatArray, BoolArray, FloatArray]:
     """(n, 3) points m, (n,) valid and (n,) σ_z m of Eq. 1 at (n,) u, v px, line (a
     negative one counted from the last, as numpy indexes; beyond the lines: IndexError)
     and σ_u px ((n,), or (1,) for every sample; any strides), with the (K,) ``singular``
     rows px: as the array steps, ``scale = b / (f·cot α - u)`` where that denominator
     exceeds MIN_DENOMINATOR_PX and ``scale·f <= z_max``, else ``z_max / f``;
-    ``[v, u, f]·scale``; ``σ_z = z·z·σ_u / (f·b)`` where valid, else 0."""
+    ``[v, u, f]·scale``; ``σ_z = z·z·σ_u / (f·b)`` where valid, else 0. With ``centre``
+    (cy, cx) px, ``u`` and ``v`` are observed rows and columns of a camera without
+    distortion, undistorted first as :func:`undistort_pixels` does (``(row - cy) / f ·
+    f``); empty: they are undistorted already."""
     n = u.size
     xyz = np.empty((n, 3))
     valid = np.empty(n, dtype=np.bool_)
@@ -166,18 +194,21 @@ def _eq1(u: FloatArray, v: FloatArray, line: IntArray, sigma_u: FloatArray,
     lines = singular.size
     fb = f * b
     far = z_max_m / f
+    pixels = centre.size == 2
     for i in range(n):
         k = line[i] + lines if line[i] < 0 else line[i]
         if k < 0 or k >= lines:
             raise IndexError("a line beyond the calibrated lines")
-        denominator = singular[k] - u[i]
+        ui = (u[i] - centre[0]) / f * f if pixels else u[i]
+        vi = (v[i] - centre[1]) / f * f if pixels else v[i]
+        denominator = singular[k] - ui
         ok = denominator > MIN_DENOMINATOR_PX
         scale = b / denominator if ok else 0.0
         good = ok and scale * f <= z_max_m
         if not good:
             scale = far
-        xyz[i, 0] = v[i] * scale
-        xyz[i, 1] = u[i] * scale
+        xyz[i, 0] = vi * scale
+        xyz[i, 1] = ui * scale
         z = f * scale
         xyz[i, 2] = z
         valid[i] = good
