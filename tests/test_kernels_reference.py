@@ -1511,3 +1511,30 @@ def test_triangulate_pixels_is_undistort_then_triangulate() -> None:
             want = (want.xyz_m, want.valid, want.sigma_z_m)
         for a, b in zip((got.xyz_m, got.valid, got.sigma_z_m), want, strict=True):
             assert a.tobytes() == b.tobytes(), trial
+
+
+def test_sector_counts_are_the_per_sector_sums() -> None:
+    """ColumnEvidence.sector_counts (verdicts_kernels.sector_counts, one pass) gives
+    per_sector of the ambiguous peaks and of doubtful + missing + unclean, on 400 random
+    column evidences (columns outside every sector, read-only sectors and masks, no noisy
+    mask, K up to 12)."""
+    from atris_node.pipeline.verdicts import ColumnEvidence
+
+    rng = np.random.default_rng(78)
+    for trial in range(400):
+        width, lines, count = int(rng.integers(1, 300)), int(rng.integers(1, 13)), int(
+            rng.integers(1, 17))
+        sector = rng.integers(-1, count, width)
+        sector.flags.writeable = False
+        seen, noisy, expected = (rng.random((lines, width)) < rng.random() for _ in range(3))
+        expected.flags.writeable = False
+        counts = [rng.integers(0, 4, width) for _ in range(3)]
+        evidence = ColumnEvidence(sector, counts[0], counts[1], counts[2], seen=seen,
+                                  noisy=None if trial % 4 == 0 else noisy, expected=expected)
+        ambiguous, doubtful = evidence.sector_counts(count)
+        want_ambiguous = evidence.per_sector(evidence.ambiguous, count)
+        want_doubtful = evidence.per_sector(
+            evidence.doubtful + evidence.missing + evidence.unclean, count)
+        assert ambiguous.dtype == want_ambiguous.dtype == np.int64
+        np.testing.assert_array_equal(ambiguous, want_ambiguous)
+        np.testing.assert_array_equal(doubtful, want_doubtful)

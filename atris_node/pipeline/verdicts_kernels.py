@@ -655,6 +655,38 @@ def lost_on_surface(range_m: FloatArray, snr: FloatArray, column: IntArray, dept
     return first, onto, bottom, shown, row[long], start[long], stop[long]
 
 
+def _read_only(dtype: Any, ndim: int) -> Any:
+    """A read-only C-contiguous array type (writable arrays convert to it)."""
+    return types.Array(dtype, ndim, "C", readonly=True)
+
+
+@kernel(types.UniTuple(types.int64[::1], 2)(
+    _read_only(types.int64, 1), _read_only(types.int64, 1), _read_only(types.int64, 1),
+    _read_only(types.int64, 1), _read_only(types.boolean, 2), _read_only(types.boolean, 2),
+    _read_only(types.boolean, 2), types.int64))
+def sector_counts(sector: IntArray, ambiguous: IntArray, doubtful: IntArray,
+                  missing: IntArray, seen: BoolArray, noisy: BoolArray, expected: BoolArray,
+                  count: int) -> tuple[IntArray, IntArray]:
+    """(S,) per sector 0 .. ``count`` - 1 the sums over its columns (``sector`` (W,), -1
+    outside) of ``ambiguous`` (W,), and of ``doubtful`` + ``missing`` (W,) + the lines
+    not ``seen``, not ``expected`` whose band is ``noisy`` in the column ((K, W) each;
+    ``noisy`` (0, 0): none), int64: one pass for what ``ColumnEvidence.per_sector`` of
+    each sum adds up (exactly: the float64 sums of ``np.bincount`` hold integers)."""
+    width = sector.size
+    unclean = np.zeros(width, dtype=np.int64)
+    for k in range(noisy.shape[0]):  # row by row: the (K, W) masks are read in order
+        for c in range(width):
+            unclean[c] += noisy[k, c] > (seen[k, c] | expected[k, c])
+    ambiguous_out = np.zeros(count, dtype=np.int64)
+    doubtful_out = np.zeros(count, dtype=np.int64)
+    for c in range(width):
+        s = sector[c]
+        if 0 <= s < count:
+            ambiguous_out[s] += ambiguous[c]
+            doubtful_out[s] += doubtful[c] + missing[c] + unclean[c]
+    return ambiguous_out, doubtful_out
+
+
 def warm_up() -> None:
     """Type the kernels' arguments once."""
     r = np.array([1.0, 1.0, 1.01, 1.02, 1.02, 1.03])
@@ -670,6 +702,8 @@ def warm_up() -> None:
     least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
     sector_index(np.zeros(1), 0.6, 0.15, 8)
     widened(np.ones(3, dtype=np.bool_), 1)
+    column = np.zeros(1, dtype=np.int64)
+    sector_counts(column, column, column, column, *(np.zeros((1, 1), dtype=np.bool_),) * 3, 1)
     two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
     pair = np.array([0, 1], dtype=np.int64)
     shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
