@@ -9,7 +9,7 @@ calibration and mounting. Counts are int64 (W,), ranges float64 m, inf where non
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TypeVar
 
 import numpy as np
@@ -21,7 +21,7 @@ from atris_node.pipeline import verdicts_kernels
 from atris_node.pipeline.geometry import Points, rows_where, triangulate_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
-from atris_node.pipeline.peaks import Extraction, per_column, seen_lines
+from atris_node.pipeline.peaks import Extraction
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.pipeline.tops import (
     GROUND_ROW_PX,
@@ -35,7 +35,6 @@ from atris_node.pipeline.verdicts import (
     ColumnEvidence,
     ObstaclePoints,
     SectorColumns,
-    lines_per_column,
     sector_verdicts,
 )
 from atris_node.types import SectorDistance
@@ -45,6 +44,8 @@ from atris_node.types import SectorDistance
 #: would show may be lost under more: a sun patch, the edge of a surface under flicker
 #: that the code does not cancel)
 CLEAN_NOISE = 2.0
+#: no flagged sample (:meth:`SectorJudge._evidence`)
+_NO_COLUMNS = np.zeros(0, dtype=np.int64)
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -122,18 +123,18 @@ class SectorJudge:
             data.obstacle, line, column, sheet)
         found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr,
                                points.xyz_m[:, 2][clean])
-        evidence = self._evidence(extraction, foreign, prior, points.valid)
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
+        flagged = _NO_COLUMNS  # samples that keep their columns from being free
         if sheet is not None:
             valid = pick(points.valid)
             tops = self._unseen_tops(found, valid, sheet)
             under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
-            evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
-                found.column[tops | under].astype(np.float64), self.column_sector.size))
+            flagged = found.column[tops | under]
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
                 pick(samples.row_px)[under], pick(samples.col_px)[under]))
             verdicts_kernels.least_per_sector(top_m, np.where(tops, sector, -1), range_m)
+        evidence = self._evidence(extraction, foreign, prior, points.valid, flagged)
         return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
                                self._columns)
 
@@ -187,13 +188,15 @@ class SectorJudge:
                            focal_baseline_px_m=sheet.focal_baseline)
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
-                  prior: VisibilityPrior, valid: BoolArray) -> ColumnEvidence:
+                  prior: VisibilityPrior, valid: BoolArray, flagged: IntArray
+                  ) -> ColumnEvidence:
         """The column evidence of one map; ``valid`` (n,) marks the samples of
-        ``extraction`` that triangulate within the operating range."""
-        samples, width = extraction.samples, self.column_sector.size
+        ``extraction`` that triangulate within the operating range, the columns
+        ``flagged`` (m,) hold samples that keep them from being free (unseen tops, below
+        the ground; counted among the doubtful). The per-column counts in one compiled
+        pass (:func:`atris_node.pipeline.verdicts_kernels.column_evidence`)."""
+        samples = extraction.samples
         expected = self._expected_on_ground(prior)
-        seen = seen_lines(samples, expected.shape[0], width)
-        saturated = per_column(samples.col_px[samples.saturated], width)
         noisy = None if extraction.band_noise_dn is None else (
             extraction.band_noise_dn > CLEAN_NOISE * extraction.tile_noise_dn)
         if noisy is not None and extraction.blinded is not None:
@@ -201,15 +204,15 @@ class SectorJudge:
         # where every line meets the ground within z_max and none is seen beyond the range
         # (no ground there), nothing beyond the farthest ground hit is looked at: free up
         # to z_max is not known there
-        beyond = per_column(samples.col_px[~valid], width) > 0
-        unprobed = ~prior.looks_beyond & ~beyond
-        return ColumnEvidence(
-            self.column_sector,
-            doubtful=(extraction.doubtful_columns + saturated + foreign.astype(np.int64)
-                      + unprobed.astype(np.int64)),
-            ambiguous=extraction.ambiguous_columns,
-            missing=lines_per_column(expected & ~seen), seen=seen,
-            noisy=noisy, expected=expected, prior=prior)
+        seen, doubtful, missing = verdicts_kernels.column_evidence(
+            np.ascontiguousarray(samples.line, dtype=np.int64),
+            samples.col_px.astype(np.int64), np.ascontiguousarray(samples.saturated),
+            np.ascontiguousarray(valid), expected, np.ascontiguousarray(prior.looks_beyond),
+            np.ascontiguousarray(extraction.doubtful_columns, dtype=np.int64),
+            np.ascontiguousarray(foreign, dtype=np.bool_), flagged)
+        return ColumnEvidence(self.column_sector, doubtful=doubtful,
+                              ambiguous=extraction.ambiguous_columns, missing=missing,
+                              seen=seen, noisy=noisy, expected=expected, prior=prior)
 
     def _expected_on_ground(self, prior: VisibilityPrior) -> BoolArray:
         """:func:`expected_on_ground` of ``prior``, kept while the prior is the same."""

@@ -687,6 +687,50 @@ def sector_counts(sector: IntArray, ambiguous: IntArray, doubtful: IntArray,
     return ambiguous_out, doubtful_out
 
 
+@kernel(types.Tuple((types.boolean[:, ::1], types.int64[::1], types.int64[::1]))(
+    _read_only(types.int64, 1), _read_only(types.int64, 1), _read_only(types.boolean, 1),
+    _read_only(types.boolean, 1), _read_only(types.boolean, 2), _read_only(types.boolean, 1),
+    _read_only(types.int64, 1), _read_only(types.boolean, 1), _read_only(types.int64, 1)))
+def column_evidence(line: IntArray, column: IntArray, saturated: BoolArray, valid: BoolArray,
+                    expected: BoolArray, looks_beyond: BoolArray, doubtful: IntArray,
+                    foreign: BoolArray, flagged: IntArray
+                    ) -> tuple[BoolArray, IntArray, IntArray]:
+    """What the samples (``line``, whole ``column``, ``saturated``, ``valid``; (n,) each)
+    say of each column, for :class:`atris_node.pipeline.verdicts.ColumnEvidence`:
+    (K, W) ``seen`` (line k has a sample in column c; a negative line counted from the
+    last, a line or column beyond the table: IndexError, as numpy's indexing), (W,)
+    ``doubtful``: the given ``doubtful`` (W,) counts + the saturated samples + 1 for
+    ``foreign`` light + 1 where no line ``looks_beyond`` the operating range and none is
+    seen beyond it (no invalid sample) + the ``flagged`` samples' columns (m,) (columns
+    at or beyond W not counted, as ``per_column``), and (W,) ``missing``: the lines
+    ``expected`` (K, W) on the ground there and not seen; int64 counts."""
+    lines, width = expected.shape
+    seen = np.zeros((lines, width), dtype=np.bool_)
+    out = np.empty(width, dtype=np.int64)
+    beyond = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        out[c] = doubtful[c] + foreign[c]
+    for i in range(line.size):
+        k, c = line[i] + lines if line[i] < 0 else line[i], column[i]
+        if k < 0 or k >= lines or c < 0 or c >= width:
+            raise IndexError("a sample outside the lines and columns")
+        seen[k, c] = True
+        out[c] += saturated[i]
+        beyond[c] |= not valid[i]
+    for i in range(flagged.size):
+        if flagged[i] < 0:
+            raise ValueError("a negative column")
+        if flagged[i] < width:
+            out[flagged[i]] += 1
+    missing = np.zeros(width, dtype=np.int64)
+    for k in range(lines):
+        for c in range(width):
+            missing[c] += expected[k, c] > seen[k, c]
+    for c in range(width):
+        out[c] += not (looks_beyond[c] or beyond[c])
+    return seen, out, missing
+
+
 def warm_up() -> None:
     """Type the kernels' arguments once."""
     r = np.array([1.0, 1.0, 1.01, 1.02, 1.02, 1.03])
@@ -704,6 +748,9 @@ def warm_up() -> None:
     widened(np.ones(3, dtype=np.bool_), 1)
     column = np.zeros(1, dtype=np.int64)
     sector_counts(column, column, column, column, *(np.zeros((1, 1), dtype=np.bool_),) * 3, 1)
+    flag = np.zeros(1, dtype=np.bool_)
+    column_evidence(column, column, flag, flag, np.zeros((1, 1), dtype=np.bool_), flag, column,
+                    flag, column)
     two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
     pair = np.array([0, 1], dtype=np.int64)
     shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
