@@ -1298,3 +1298,326 @@ def test_too_faint_kernel_is_the_numpy_form() -> None:
         np.testing.assert_array_equal(got, want)
         flagged += int(got.sum())
     assert flagged > 50
+
+
+# ------------------------------------------------------------- python glue (perf-glue)
+# (numpy steps of the chain, the judge and the temporal test folded into compiled passes)
+
+
+def _triangulate_numpy(u_px: Any, v_px: Any, line: Any, camera: Any, laser: Any, *,
+                       z_max_m: float, sigma_u_px: Any = 0.0) -> tuple[Any, Any, Any]:
+    """The numpy form geometry.triangulate had before its compiled pass: (xyz, valid,
+    sigma_z)."""
+    from atris_node.pipeline.geometry import MIN_DENOMINATOR_PX, singular_rows
+
+    u = np.asarray(u_px, dtype=np.float64)
+    v = np.asarray(v_px, dtype=np.float64)
+    f, b = camera.focal_px, laser.baseline_m
+    denominator = singular_rows(camera, laser)[np.asarray(line, dtype=np.int64)] - u
+    ok = denominator > MIN_DENOMINATOR_PX
+    scale = np.divide(b, denominator, out=np.zeros_like(u), where=ok)
+    valid = ok & (scale * f <= z_max_m)
+    scale = np.where(valid, scale, z_max_m / f)
+    xyz = np.stack([v * scale, u * scale, np.full_like(u, f) * scale], axis=-1)
+    z = xyz[:, 2] if xyz.ndim == 2 else xyz[..., 2]
+    sigma_z = np.where(valid, z * z * np.asarray(sigma_u_px, np.float64) / (f * b), 0.0)
+    return xyz, valid, sigma_z
+
+
+def test_triangulate_is_the_numpy_form() -> None:
+    """geometry.triangulate (one compiled pass) gives the numpy steps' points, validity and
+    σ_z bitwise on 400 random batches: rows up to and beyond the singular rows (zero and
+    negative denominators, ranges beyond z_max), NaN rows, negative line indices, σ_u
+    scalar or per sample, 1-D, 2-D and empty inputs; a line beyond the calibrated ones
+    raises IndexError as numpy's indexing does."""
+    from atris_node.calibration import CameraModel, LaserCalibration
+    from atris_node.pipeline.geometry import singular_rows, triangulate
+
+    rng = np.random.default_rng(71)
+    for trial in range(400):
+        focal = float(rng.uniform(200.0, 2000.0))
+        cam = CameraModel(640, 400, focal, 319.5, 199.5)
+        alphas = tuple(float(a) for a in rng.uniform(1.2, 1.9, int(rng.integers(1, 9))))
+        laser = LaserCalibration(float(rng.uniform(0.02, 0.3)), alphas)
+        shape = (0,) if trial % 50 == 0 else (
+            (int(rng.integers(1, 30)), int(rng.integers(1, 5))) if trial % 7 == 0
+            else (int(rng.integers(1, 400)),))
+        lines = len(alphas)
+        line = rng.integers(-lines, lines, shape)
+        singular = singular_rows(cam, laser)[line]
+        u = singular - rng.choice([-5.0, 0.0, 1e-7, 1.0, 50.0, 400.0], shape) * rng.random(
+            shape)
+        u[rng.random(shape) < 0.05] = np.nan
+        v = rng.uniform(-320.0, 320.0, shape)
+        sigma: Any = (float(rng.uniform(0.0, 1.0)) if trial % 3 == 0
+                      else rng.uniform(0.0, 1.0, shape))
+        z_max = float(rng.uniform(1.0, 20.0))
+        got = triangulate(u, v, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma)
+        want = _triangulate_numpy(u, v, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma)
+        for a, b in zip((got.xyz_m, got.valid, got.sigma_z_m), want, strict=True):
+            assert a.shape == b.shape and a.dtype == b.dtype
+            assert a.tobytes() == b.tobytes()
+    with pytest.raises(IndexError):
+        triangulate(np.zeros(2), np.zeros(2), np.array([0, 3]), cam,
+                    LaserCalibration(0.1, (1.5, 1.6)), z_max_m=10.0)
+
+
+def test_temporal_series_is_the_take_per_frame() -> None:
+    """temporal._series (one compiled gather per uint8 or uint16 frame, take for other
+    dtypes) gives the take of each frame as float64 rows, bitwise, on 200 random windows:
+    uint8, uint16 (full range), read-only and non-contiguous frames, int16 and float32
+    frames, negative and repeated indices, no index at all."""
+    from atris_node.pipeline.temporal import _series
+
+    rng = np.random.default_rng(72)
+    for trial in range(200):
+        height, width = int(rng.integers(1, 40)), int(rng.integers(1, 40))
+        dtype = [np.uint8, np.uint16, np.int16, np.float32][trial % 4]
+        top = 255 if dtype == np.uint8 else 1023 if dtype == np.int16 else 65535
+        frames = []
+        for _ in range(int(rng.integers(1, 18))):
+            frame = rng.integers(0, top + 1, (height, width)).astype(dtype)
+            if rng.random() < 0.3:
+                frame = frame.T  # a non-contiguous view: ravel copies it
+            if rng.random() < 0.3:
+                frame.setflags(write=False)
+            frames.append(frame)
+        size = height * width
+        flat = rng.integers(-size, size, int(rng.integers(0, 300)))
+        want = np.empty((len(frames), flat.size))
+        for i, frame in enumerate(frames):
+            want[i] = np.ravel(frame).take(flat)
+        got = _series(tuple(frames), flat)
+        assert got.dtype == np.float64 and got.tobytes() == want.tobytes()
+
+
+def test_mark_not_own_is_the_numpy_form() -> None:
+    """temporal._mark_not_own gives the numpy steps' marks (σ the square root of the
+    largest of the tile's variance over N, the rounding's and gain·level; marked where the
+    statistic lies under -LOCAL_SIGMAS·σ·norm) on 500 random batches: statistics around
+    the limit, equal terms, a NaN gain (np.quantile's answer when a ratio is NaN), zero
+    and huge levels."""
+    from atris_node.pipeline import temporal
+
+    rng = np.random.default_rng(73)
+    for trial in range(500):
+        slots, width, n = int(rng.integers(1, 12)), int(rng.integers(1, 60)), 0
+        present = rng.random((slots, width)) < rng.random()
+        m, c = np.nonzero(present)
+        n = m.size
+        tile = rng.choice([0.5, 1.0, 2.5, rng.uniform(0.1, 50.0)], n).astype(np.float32)
+        level = rng.choice([1.0, 0.0, 1e9, rng.uniform(1.0, 300.0)], n)
+        gain = float(rng.choice([0.0, np.nan, rng.uniform(0.0, 3.0)]))
+        root_n, norm = float(np.sqrt(rng.integers(2, 33))), float(rng.uniform(0.5, 5.0))
+        sigma = np.sqrt(np.maximum(np.maximum(np.square(tile.astype(np.float64) / root_n),
+                                              temporal.QUANTIZATION_DN ** 2), gain * level))
+        limit = -temporal.LOCAL_SIGMAS * sigma * norm
+        statistic = np.where(rng.random(n) < 0.3, limit, limit * rng.uniform(0.5, 1.5, n))
+        want = np.zeros((slots, width), dtype=bool)
+        want[m, c] = statistic < -temporal.LOCAL_SIGMAS * sigma * norm
+        got = np.zeros((slots, width), dtype=bool)
+        temporal._mark_not_own(got, m.astype(np.int64), c.astype(np.int64), statistic, tile,
+                               level, gain, root_n, norm)
+        assert np.array_equal(got, want), trial
+
+
+def test_median_of_is_numpys_median() -> None:
+    """noise.median_of (one partition) gives float(np.median(...)), bitwise, on 4000 random
+    float32 and float64 arrays of one and two dimensions (odd and even sizes, ties, NaN,
+    signed zeros)."""
+    from atris_node.pipeline.noise import median_of
+
+    rng = np.random.default_rng(74)
+    for trial in range(4000):
+        shape = tuple(int(k) for k in rng.integers(1, 14, int(rng.integers(1, 3))))
+        dtype = (np.float32, np.float64)[trial % 2]
+        values = rng.gamma(2.0, float(rng.uniform(0.1, 30.0)), shape).astype(dtype)
+        if rng.random() < 0.4:
+            values = np.round(values, int(rng.integers(0, 2))).astype(dtype)
+        if rng.random() < 0.1:
+            values.reshape(-1)[: values.size // 2] = rng.choice([0.0, -0.0])
+        if rng.random() < 0.03:
+            values.reshape(-1)[int(rng.integers(0, values.size))] = np.nan
+        got, want = median_of(values), float(np.median(values))
+        assert np.float64(got).tobytes() == np.float64(want).tobytes(), (values, got, want)
+
+
+def test_present_per_column_is_the_sum_over_rows() -> None:
+    """peaks._present_per_column equals (rows >= 0).sum(axis=0) as int64 for 300 random
+    (K, W) tables (K up to 300, past the bytes' range)."""
+    from atris_node.pipeline.peaks import _present_per_column
+
+    rng = np.random.default_rng(75)
+    for trial in range(300):
+        rows = rng.integers(-1, 50, (int(rng.integers(1, 300 if trial % 10 == 0 else 20)),
+                                     int(rng.integers(1, 100))))
+        got, want = _present_per_column(rows), (rows >= 0).sum(axis=0)
+        assert got.dtype == np.int64 and np.array_equal(got, want)
+
+
+def _former_fit_front() -> Any:
+    """The front of a straight fit as verdicts_kernels computed it on gathered points
+    before its fits took the points' indices (its former _fit_front), compiled as it was
+    (Python's own ``** 2`` is libm's pow, which may differ from x·x in the last bit)."""
+    import numba
+
+    from atris_node.pipeline import verdicts_kernels
+
+    fit, sloped = verdicts_kernels._fit, verdicts_kernels._sloped
+
+    def former(cols: Any, ranges: Any, noise: float) -> tuple[float, float]:
+        c_mean, r_mean, slope, residual, sxx = fit(cols, ranges)
+        n = ranges.size
+        if sxx == 0.0:
+            return np.inf, np.inf
+        scatter = max(residual, noise)
+        if not sloped(slope, residual, sxx):
+            return r_mean, scatter / np.sqrt(n)
+        end = cols.min() if slope > 0 else cols.max()
+        return (r_mean + slope * (end - c_mean),
+                scatter * np.sqrt(1.0 / n + (end - c_mean) ** 2 / sxx))
+
+    return numba.njit(former)
+
+
+def test_fits_at_indices_are_the_fits_of_the_gathered_points() -> None:
+    """verdicts_kernels._fit_at and _front_of on 3000 random index sets (none, one, equal
+    columns, slanted and flat surfaces, outliers) give the fit and the front of the
+    gathered points, bitwise; _followed's points are _follow's and its fit, when it says
+    it made one, is that of its points."""
+    from atris_node.pipeline import verdicts_kernels
+
+    former_front = _former_fit_front()
+    rng = np.random.default_rng(76)
+    for trial in range(3000):
+        n = int(rng.integers(1, 120))
+        cols = np.sort(rng.integers(0, int(rng.integers(1, 300)), n)).astype(np.float64)
+        r = 3.0 + rng.normal(0.0, 0.02) * cols * (trial % 2) + rng.normal(0.0, 0.01, n)
+        r[rng.random(n) < 0.1] += rng.uniform(-1.0, 1.0)
+        keep = rng.random(n) < rng.uniform(0.0, 1.0)
+        idx = np.flatnonzero(keep)
+        fit = verdicts_kernels._fit_at(cols, r, idx)
+        want = verdicts_kernels._fit(cols[idx], r[idx])
+        assert np.array(fit).tobytes() == np.array(want).tobytes(), trial
+        noise = float(rng.uniform(0.001, 0.05))
+        got_front = verdicts_kernels._front_of(fit, cols, idx, noise)
+        if idx.size:
+            assert (np.array(got_front).tobytes()
+                    == np.array(former_front(cols[idx], r[idx], noise)).tobytes())
+        first, spread = int(rng.integers(0, max(n // 3, 1))), float(rng.choice([2.0, 3.0]))
+        followed, at, fitted_on, fitted = verdicts_kernels._followed(
+            r, cols, keep.copy(), first, noise, spread)
+        np.testing.assert_array_equal(
+            followed, verdicts_kernels._follow(r, cols, keep.copy(), first, noise, spread))
+        np.testing.assert_array_equal(at, np.flatnonzero(followed))
+        if fitted:
+            assert (np.array(fitted_on).tobytes()
+                    == np.array(verdicts_kernels._fit(cols[at], r[at])).tobytes())
+
+
+def test_triangulate_pixels_is_undistort_then_triangulate() -> None:
+    """geometry.triangulate_pixels (the undistortion folded into the compiled pass for a
+    camera without distortion) gives undistort_pixels then the numpy form of Eq. 1,
+    bitwise, on 300 random batches of observed rows and columns (off-centre principal
+    points, odd focal lengths, rows beyond the singular rows, NaN); with distortion it is
+    undistort_pixels then triangulate."""
+    from atris_node.calibration import CameraModel, LaserCalibration
+    from atris_node.pipeline.geometry import (
+        triangulate,
+        triangulate_pixels,
+        undistort_pixels,
+    )
+
+    rng = np.random.default_rng(77)
+    for trial in range(300):
+        distortion = ((float(rng.uniform(-0.05, 0.05)), float(rng.uniform(-0.01, 0.01)))
+                      if trial % 5 == 0 else ())
+        cam = CameraModel(1280, 800, float(rng.uniform(600.0, 1500.0)),
+                          float(rng.uniform(500.0, 780.0)), float(rng.uniform(300.0, 500.0)),
+                          distortion=distortion)
+        alphas = tuple(float(a) for a in rng.uniform(1.2, 1.9, int(rng.integers(1, 9))))
+        laser = LaserCalibration(float(rng.uniform(0.02, 0.3)), alphas)
+        n = int(rng.integers(0, 500))
+        row = rng.uniform(-50.0, 850.0, n)
+        row[rng.random(n) < 0.03] = np.nan
+        col = rng.uniform(0.0, 1280.0, n)
+        line = rng.integers(0, len(alphas), n)
+        sigma = rng.uniform(0.0, 1.0, n)
+        z_max = float(rng.uniform(1.0, 20.0))
+        got = triangulate_pixels(row, col, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma)
+        u, v = undistort_pixels(row, col, cam)
+        want = (triangulate(u, v, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma)
+                if distortion else
+                _triangulate_numpy(u, v, line, cam, laser, z_max_m=z_max, sigma_u_px=sigma))
+        if distortion:
+            want = (want.xyz_m, want.valid, want.sigma_z_m)
+        for a, b in zip((got.xyz_m, got.valid, got.sigma_z_m), want, strict=True):
+            assert a.tobytes() == b.tobytes(), trial
+
+
+def test_sector_counts_are_the_per_sector_sums() -> None:
+    """ColumnEvidence.sector_counts (verdicts_kernels.sector_counts, one pass) gives
+    per_sector of the ambiguous peaks and of doubtful + missing + unclean, on 400 random
+    column evidences (columns outside every sector, read-only sectors and masks, no noisy
+    mask, K up to 12)."""
+    from atris_node.pipeline.verdicts import ColumnEvidence
+
+    rng = np.random.default_rng(78)
+    for trial in range(400):
+        width, lines, count = int(rng.integers(1, 300)), int(rng.integers(1, 13)), int(
+            rng.integers(1, 17))
+        sector = rng.integers(-1, count, width)
+        sector.flags.writeable = False
+        seen, noisy, expected = (rng.random((lines, width)) < rng.random() for _ in range(3))
+        expected.flags.writeable = False
+        counts = [rng.integers(0, 4, width) for _ in range(3)]
+        evidence = ColumnEvidence(sector, counts[0], counts[1], counts[2], seen=seen,
+                                  noisy=None if trial % 4 == 0 else noisy, expected=expected)
+        ambiguous, doubtful = evidence.sector_counts(count)
+        want_ambiguous = evidence.per_sector(evidence.ambiguous, count)
+        want_doubtful = evidence.per_sector(
+            evidence.doubtful + evidence.missing + evidence.unclean, count)
+        assert ambiguous.dtype == want_ambiguous.dtype == np.int64
+        np.testing.assert_array_equal(ambiguous, want_ambiguous)
+        np.testing.assert_array_equal(doubtful, want_doubtful)
+
+
+def test_column_evidence_is_the_numpy_form() -> None:
+    """verdicts_kernels.column_evidence gives the numpy steps of the judge's column
+    evidence (seen lines by fancy assignment, saturated and invalid samples counted by
+    bincount, the unprobed columns, the flagged samples' columns, the expected lines not
+    seen summed over lines) on 400 random maps' samples (negative lines, flagged columns
+    beyond the image, read-only masks, no sample at all)."""
+    from atris_node.pipeline import verdicts_kernels
+    from atris_node.pipeline.peaks import per_column
+    from atris_node.pipeline.verdicts import lines_per_column
+
+    rng = np.random.default_rng(79)
+    for trial in range(400):
+        lines, width = int(rng.integers(1, 10)), int(rng.integers(1, 200))
+        n = 0 if trial % 25 == 0 else int(rng.integers(1, 600))
+        line = rng.integers(-lines, lines, n)
+        column = rng.integers(0, width, n)
+        saturated, valid = rng.random(n) < 0.1, rng.random(n) < 0.8
+        expected = rng.random((lines, width)) < rng.random()
+        expected.flags.writeable = False
+        looks_beyond, foreign = rng.random(width) < 0.5, rng.random(width) < 0.1
+        doubtful = rng.integers(0, 3, width)
+        flagged = rng.integers(0, width + 5, int(rng.integers(0, 20)))
+        seen_want = np.zeros((lines, width), dtype=np.bool_)
+        seen_want[line, column] = True
+        beyond = per_column(column[~valid].astype(np.float64), width) > 0
+        doubtful_want = (doubtful + per_column(column[saturated].astype(np.float64), width)
+                         + foreign.astype(np.int64) + (~looks_beyond & ~beyond).astype(np.int64)
+                         + per_column(flagged.astype(np.float64), width))
+        seen, got_doubtful, missing = verdicts_kernels.column_evidence(
+            line, column, saturated, valid, expected, looks_beyond, doubtful, foreign, flagged)
+        np.testing.assert_array_equal(seen, seen_want)
+        np.testing.assert_array_equal(got_doubtful, doubtful_want)
+        np.testing.assert_array_equal(missing, lines_per_column(expected & ~seen_want))
+    with pytest.raises(IndexError):
+        verdicts_kernels.column_evidence(
+            np.array([0]), np.array([5]), np.zeros(1, dtype=np.bool_),
+            np.ones(1, dtype=np.bool_), np.zeros((1, 5), dtype=np.bool_),
+            np.zeros(5, dtype=np.bool_), np.zeros(5, dtype=np.int64),
+            np.zeros(5, dtype=np.bool_), np.zeros(0, dtype=np.int64))

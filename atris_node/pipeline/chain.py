@@ -36,7 +36,7 @@ from atris_node.pipeline import objects as objects_mod
 from atris_node.pipeline.bands import Band, line_bands
 from atris_node.pipeline.evidence import SectorJudge
 from atris_node.pipeline.faint import faint_sectors
-from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
+from atris_node.pipeline.geometry import Points, rows_where, triangulate_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import (
     ClosingTracker,
@@ -291,6 +291,8 @@ class Pipeline:
         self._prior = visibility_prior(calibration, mounting, self._ground, config)
         self._counter = 0
         self._width = cam.width_px
+        self._no_samples = np.zeros(cam.width_px, dtype=np.int64)  # (W,), read-only
+        self._no_samples.flags.writeable = False
         self._judge = SectorJudge(calibration, mounting, layout, self._sectors,
                                   (config.z_min_m, config.z_max_m), config.ground_clearance_m)
         self.roi = (RoiTracker(self.bands, RoiSettings(
@@ -316,9 +318,7 @@ class Pipeline:
         start = time.perf_counter()
         extraction, whole = self._extract(dmap)
         timings["lines"] = _lap(start)
-        samples = self._clean_samples(extraction.samples)
-        removed = (per_column(extraction.samples.col_px, self._width)
-                   - per_column(samples.col_px, self._width))
+        samples, removed = self._clean_samples(extraction.samples)
         points, vehicle = self._triangulate(samples)
         faint = radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
                                      self.calibration.laser, dmap.exposure_us or None,
@@ -329,7 +329,8 @@ class Pipeline:
             removed = removed + per_column(samples.col_px[faint], self._width)
             samples, points, vehicle = _kept(samples, points, vehicle, ~faint)
         timings["triangulate"] = _lap(start)
-        self._update_ground(vehicle[points.valid])
+        if self._ground_due():
+            self._update_ground(rows_where(vehicle, points.valid))
         # the samples dropped by the cleaning count as doubtful in their columns
         result = self._assemble(dmap, replace(
             extraction, samples=samples, dropped=extraction.dropped + int(removed.sum()),
@@ -353,12 +354,16 @@ class Pipeline:
                                    search=search, window=dmap.window)
         return extraction, not extraction.narrowed
 
-    def _clean_samples(self, samples: LineSamples) -> LineSamples:
-        """Lone samples (no neighbour on their line) dropped, then the median along lines."""
+    def _clean_samples(self, samples: LineSamples) -> tuple[LineSamples, IntArray]:
+        """Lone samples (no neighbour on their line) dropped, then the median along lines;
+        and (W,) int64 how many samples were dropped in each column."""
         width, lines = self.calibration.camera.width_px, len(self.bands)
+        removed = self._no_samples
         if self.config.drop_lone_samples:
-            samples = select(samples, supported_along_lines(samples, lines, width))
-        return smooth_along_lines(samples, lines, width, self.config.smooth_columns)
+            keep = supported_along_lines(samples, lines, width)
+            removed = per_column(samples.col_px[~keep], width)
+            samples = select(samples, keep)
+        return smooth_along_lines(samples, lines, width, self.config.smooth_columns), removed
 
     def _check_shape(self, dmap: DistortionMap) -> None:
         cam = self.calibration.camera
@@ -369,17 +374,21 @@ class Pipeline:
 
     def _triangulate(self, samples: LineSamples) -> tuple[Points, FloatArray]:
         """Eq. 1 on undistorted samples; vehicle-frame points (n, 3) of every sample."""
-        cam = self.calibration.camera
-        u, v = undistort_pixels(samples.row_px, samples.col_px, cam)
         sigma_u = np.hypot(samples.sigma_u_px, self.config.sigma_u_px)
-        points = triangulate(u, v, samples.line, cam, self.calibration.laser,
-                             z_max_m=self.config.z_max_m, sigma_u_px=sigma_u)
+        points = triangulate_pixels(samples.row_px, samples.col_px, samples.line,
+                                    self.calibration.camera, self.calibration.laser,
+                                    z_max_m=self.config.z_max_m, sigma_u_px=sigma_u)
         return points, self.mounting.camera_to_vehicle(points.xyz_m.reshape(-1, 3))
 
-    def _update_ground(self, vehicle: FloatArray) -> None:
+    def _ground_due(self) -> bool:
+        """True when this map's valid points are to refit the ground plane."""
         cfg = self.config
-        if cfg.ground_plane != "estimate" or self._counter % cfg.ground_estimate_every:
-            return
+        return cfg.ground_plane == "estimate" and not self._counter % cfg.ground_estimate_every
+
+    def _update_ground(self, vehicle: FloatArray) -> None:
+        """Refit the ground plane to the (n, 3) vehicle-frame valid points (m) and, when a
+        plane is found, the visibility prior over it."""
+        cfg = self.config
         plane = estimate_ground(vehicle, self._ground)
         if plane is not None:
             self._ground = plane
@@ -401,9 +410,10 @@ class Pipeline:
         elif flagged:
             clean = ~foreign[samples.col_px.astype(np.int64)]
             blanked = self._judge.sectors_of(foreign)
-        obstacle = valid & (self._ground.height(vehicle) > self.config.ground_clearance_m)
-        data = (SectorInput(vehicle, obstacle, samples.snr) if clean.all() else
-                SectorInput(vehicle[clean], obstacle[clean], samples.snr[clean]))
+        height = self._ground.height(vehicle)
+        obstacle = valid & (height > self.config.ground_clearance_m)
+        data = (SectorInput(vehicle, obstacle, samples.snr, height) if clean.all() else
+                SectorInput(rows_where(vehicle, clean), obstacle[clean], samples.snr[clean]))
         sectors = _blank(self._judge.judge(extraction, points, data, clean, foreign,
                                            self._prior, self._ground), blanked)
         sectors = _blank(sectors, faint_sectors(
@@ -417,11 +427,14 @@ class Pipeline:
             0.0 if nearest is None else nearest.sigma_m)
         measurement = Measurement(self._counter, sectors, dmap.last_time_s,
                                   dmap.last_sequence, nearest, closing, ttc)
-        found = self._objects(vehicle[obstacle & clean]) if self.config.objects else None
+        found = (self._objects(rows_where(vehicle, obstacle & clean)) if self.config.objects
+                 else None)
         diagnostics = self._diagnostics(extraction, valid, (energy, int(foreign.sum())),
                                         timings)
-        return PipelineResult(measurement, samples, valid, points.xyz_m[valid], vehicle[valid],
-                              points.sigma_z_m[valid], diagnostics, found)
+        kept = np.flatnonzero(valid)  # by index: boolean indexing of (n, 3) is slow
+        return PipelineResult(measurement, samples, valid, points.xyz_m.take(kept, axis=0),
+                              vehicle.take(kept, axis=0), points.sigma_z_m.take(kept),
+                              diagnostics, found)
 
     def _diagnostics(self, extraction: Extraction, valid: npt.NDArray[np.bool_],
                      foreign: tuple[float, int], timings: dict[str, float]) -> Diagnostics:

@@ -9,7 +9,8 @@ calibration and mounting. Counts are int64 (W,), ranges float64 m, inf where non
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -17,10 +18,10 @@ import numpy.typing as npt
 from atris_node.calibration import Calibration
 from atris_node.mounting import Mounting
 from atris_node.pipeline import verdicts_kernels
-from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
+from atris_node.pipeline.geometry import Points, rows_where, triangulate_pixels
 from atris_node.pipeline.identity import VisibilityPrior
 from atris_node.pipeline.obstacles import GroundPlane, SectorInput, SectorSettings
-from atris_node.pipeline.peaks import Extraction, per_column, seen_lines
+from atris_node.pipeline.peaks import Extraction
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.pipeline.tops import (
     GROUND_ROW_PX,
@@ -34,7 +35,6 @@ from atris_node.pipeline.verdicts import (
     ColumnEvidence,
     ObstaclePoints,
     SectorColumns,
-    lines_per_column,
     sector_verdicts,
 )
 from atris_node.types import SectorDistance
@@ -44,10 +44,13 @@ from atris_node.types import SectorDistance
 #: would show may be lost under more: a sun patch, the edge of a surface under flicker
 #: that the code does not cancel)
 CLEAN_NOISE = 2.0
+#: no flagged sample (:meth:`SectorJudge._evidence`)
+_NO_COLUMNS = np.zeros(0, dtype=np.int64)
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
+ScalarT = TypeVar("ScalarT", bound=np.generic)
 
 
 @dataclass(frozen=True)
@@ -93,6 +96,8 @@ class SectorJudge:
         #: the last prior and its lines expected on the ground (the prior changes only
         #: with the ground plane)
         self._expected: tuple[VisibilityPrior, BoolArray] | None = None
+        #: the last ground plane and the camera's and projector's heights above it, m
+        self._heights: tuple[GroundPlane, float, float] | None = None
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
@@ -110,25 +115,26 @@ class SectorJudge:
         columns from being free (:mod:`atris_node.pipeline.tops`)."""
         samples = extraction.samples
         sector, range_m = data.placed(self.layout)
-        sigma_m = points.sigma_z_m[clean]
+        pick = _Clean(clean)
+        sigma_m = pick(points.sigma_z_m)
         sheet = None if ground is None else self._sheet(data, ground, sigma_m)
-        line, column = samples.line[clean], samples.col_px[clean].astype(np.int64)
+        line, column = pick(samples.line), pick(samples.col_px).astype(np.int64)
         obstacle = data.obstacle if sheet is None else self._credible_obstacle(
             data.obstacle, line, column, sheet)
         found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr,
-                               points.xyz_m[clean, 2])
-        evidence = self._evidence(extraction, foreign, prior, points.valid)
+                               points.xyz_m[:, 2][clean])
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
+        flagged = _NO_COLUMNS  # samples that keep their columns from being free
         if sheet is not None:
-            valid = points.valid[clean]
+            valid = pick(points.valid)
             tops = self._unseen_tops(found, valid, sheet)
             under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
-            evidence = replace(evidence, doubtful=evidence.doubtful + per_column(
-                found.column[tops | under].astype(np.float64), self.column_sector.size))
+            flagged = found.column[tops | under]
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
-                samples.row_px[clean][under], samples.col_px[clean][under]))
+                pick(samples.row_px)[under], pick(samples.col_px)[under]))
             verdicts_kernels.least_per_sector(top_m, np.where(tops, sector, -1), range_m)
+        evidence = self._evidence(extraction, foreign, prior, points.valid, flagged)
         return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
                                self._columns)
 
@@ -147,18 +153,27 @@ class SectorJudge:
 
     def _sheet(self, data: SectorInput, ground: GroundPlane, sigma_m: FloatArray) -> Sheet:
         """Where each sample (range σ ``sigma_m``) lies on its sheet, measured from the
-        ``ground`` plane."""
-        height = ground.height(data.points)
+        ``ground`` plane (``data.height_m`` when given: the heights above it)."""
+        height = ground.height(data.points) if data.height_m is None else data.height_m
         origin = self.projector_m
         distance = np.hypot(data.points[:, 0] - origin[0], data.points[:, 1] - origin[1])
         camera = self.mounting.translation
+        camera_h, projector_h = self._unit_heights(ground)
         sigma_h = height_sigma_m(
-            sigma_m, height, float(ground.height(camera[None, :])[0]),
+            sigma_m, height, camera_h,
             np.hypot(data.points[:, 0] - camera[0], data.points[:, 1] - camera[1]))
-        projector_h = float(ground.height(origin[None, :])[0])
         fb = self.calibration.camera.focal_px * self.calibration.laser.baseline_m
         return Sheet(height, sigma_h, distance, projector_h, fb,
                      rows_off_ground(distance, height, projector_h, fb))
+
+    def _unit_heights(self, ground: GroundPlane) -> tuple[float, float]:
+        """The camera's and the projector's height (m) above ``ground``, kept while the
+        plane is the same (it changes only with a new ground fit)."""
+        if self._heights is None or self._heights[0] is not ground:
+            camera = self.mounting.translation
+            self._heights = (ground, float(ground.height(camera[None, :])[0]),
+                             float(ground.height(self.projector_m[None, :])[0]))
+        return self._heights[1], self._heights[2]
 
     def _unseen_tops(self, found: ObstaclePoints, valid: BoolArray, sheet: Sheet
                      ) -> BoolArray:
@@ -173,13 +188,15 @@ class SectorJudge:
                            focal_baseline_px_m=sheet.focal_baseline)
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
-                  prior: VisibilityPrior, valid: BoolArray) -> ColumnEvidence:
+                  prior: VisibilityPrior, valid: BoolArray, flagged: IntArray
+                  ) -> ColumnEvidence:
         """The column evidence of one map; ``valid`` (n,) marks the samples of
-        ``extraction`` that triangulate within the operating range."""
-        samples, width = extraction.samples, self.column_sector.size
+        ``extraction`` that triangulate within the operating range, the columns
+        ``flagged`` (m,) hold samples that keep them from being free (unseen tops, below
+        the ground; counted among the doubtful). The per-column counts in one compiled
+        pass (:func:`atris_node.pipeline.verdicts_kernels.column_evidence`)."""
+        samples = extraction.samples
         expected = self._expected_on_ground(prior)
-        seen = seen_lines(samples, expected.shape[0], width)
-        saturated = per_column(samples.col_px[samples.saturated], width)
         noisy = None if extraction.band_noise_dn is None else (
             extraction.band_noise_dn > CLEAN_NOISE * extraction.tile_noise_dn)
         if noisy is not None and extraction.blinded is not None:
@@ -187,15 +204,15 @@ class SectorJudge:
         # where every line meets the ground within z_max and none is seen beyond the range
         # (no ground there), nothing beyond the farthest ground hit is looked at: free up
         # to z_max is not known there
-        beyond = per_column(samples.col_px[~valid], width) > 0
-        unprobed = ~prior.looks_beyond & ~beyond
-        return ColumnEvidence(
-            self.column_sector,
-            doubtful=(extraction.doubtful_columns + saturated + foreign.astype(np.int64)
-                      + unprobed.astype(np.int64)),
-            ambiguous=extraction.ambiguous_columns,
-            missing=lines_per_column(expected & ~seen), seen=seen,
-            noisy=noisy, expected=expected, prior=prior)
+        seen, doubtful, missing = verdicts_kernels.column_evidence(
+            np.ascontiguousarray(samples.line, dtype=np.int64),
+            samples.col_px.astype(np.int64), np.ascontiguousarray(samples.saturated),
+            np.ascontiguousarray(valid), expected, np.ascontiguousarray(prior.looks_beyond),
+            np.ascontiguousarray(extraction.doubtful_columns, dtype=np.int64),
+            np.ascontiguousarray(foreign, dtype=np.bool_), flagged)
+        return ColumnEvidence(self.column_sector, doubtful=doubtful,
+                              ambiguous=extraction.ambiguous_columns, missing=missing,
+                              seen=seen, noisy=noisy, expected=expected, prior=prior)
 
     def _expected_on_ground(self, prior: VisibilityPrior) -> BoolArray:
         """:func:`expected_on_ground` of ``prior``, kept while the prior is the same."""
@@ -229,16 +246,27 @@ class SectorJudge:
         out = np.full(self.layout.count, np.inf)
         if row_px.size == 0:
             return out
-        cam = self.calibration.camera
-        u, v = undistort_pixels(row_px, col_px, cam)
-        points = triangulate(u, v, line, cam, self.calibration.laser,
-                             z_max_m=self.z_range_m[1], sigma_u_px=np.zeros(line.size))
+        points = triangulate_pixels(row_px, col_px, line, self.calibration.camera,
+                                    self.calibration.laser, z_max_m=self.z_range_m[1])
         xyz = points.xyz_m.reshape(-1, 3)
-        vehicle = self.mounting.camera_to_vehicle(xyz)[points.valid & (xyz[:, 2] >= z_min_m)]
+        vehicle = rows_where(self.mounting.camera_to_vehicle(xyz),
+                             points.valid & (xyz[:, 2] >= z_min_m))
         x, y = vehicle[:, 0], vehicle[:, 1]
         verdicts_kernels.least_per_sector(out, self.layout.index_of(x, y),
                                           self.layout.horizontal_range(x, y))
         return out
+
+
+class _Clean:
+    """The clean samples' values of per-sample (n,) arrays: ``array[clean]``, or the array
+    itself (not a copy) when every sample is clean (the arrays are only read)."""
+
+    def __init__(self, clean: BoolArray) -> None:
+        self.clean = clean
+        self.every = bool(clean.all())
+
+    def __call__(self, values: npt.NDArray[ScalarT]) -> npt.NDArray[ScalarT]:
+        return values if self.every else values[self.clean]
 
 
 def sectors_by_column(calibration: Calibration, mounting: Mounting, layout: SectorLayout

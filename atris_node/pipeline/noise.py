@@ -134,6 +134,24 @@ def _quartile_and_median(a: npt.NDArray[Any]) -> tuple[Any, Any]:
     return at(int(lo25), f25), at(int(lo50), f50)
 
 
+def median_of(values: npt.NDArray[Any]) -> float:
+    """``float(np.median(values))`` of a non-empty float array of any shape, as np.median
+    computes it (the mean of the middle value, or of the middle two, in the array's dtype),
+    by one partition at the upper middle (the lower is the greatest value before it)
+    without np.median's overhead (12 against 3 µs at 640 tiles). NaN is left to
+    np.median."""
+    flat = values.reshape(-1)
+    n = flat.size
+    if n == 0 or np.isnan(flat).any():
+        return float(np.median(values))
+    half = n // 2
+    part = np.partition(flat, half)
+    zero = flat.dtype.type(0.0)  # np.mean adds to +0 (a median of -0 values is +0)
+    if n % 2:
+        return float(zero + part[half])
+    return float((zero + part[:half].max() + part[half]) / 2)
+
+
 @dataclass(frozen=True)
 class NoiseMap:
     """Local background and noise σ (DN) per NOISE_TILE_PX square tile of the rows read.

@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.errors import ConfigError
+from atris_node.pipeline.geometry import rows_where
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.types import SectorDistance, SectorState
 
@@ -50,7 +51,7 @@ def estimate_ground(points: FloatArray, previous: GroundPlane, threshold_m: floa
     """Ground plane fitted by open3d ``segment_plane`` (RANSAC) to the points within
     ``GROUND_SEARCH_M`` of ``previous``; None when no near-level plane of at least
     ``min_inliers`` points is found. ``points`` is (n, 3) float64, vehicle frame, m."""
-    near = points[np.abs(previous.height(points)) < GROUND_SEARCH_M]
+    near = rows_where(points, np.abs(previous.height(points)) < GROUND_SEARCH_M)
     if near.shape[0] < min_inliers:
         return None
     import open3d as o3d
@@ -99,12 +100,15 @@ class SectorInput:
 
     ``points`` (n, 3) vehicle frame (for a no-return sample: a point on its ray, used
     for the bearing only); ``obstacle`` True for valid returns above the ground clearance;
-    ``snr`` the line-peak SNR of each sample.
+    ``snr`` the line-peak SNR of each sample; ``height_m`` their height (m) above the
+    ground plane the sector stage judges with, when already computed (None: computed
+    from ``points`` where needed).
     """
 
     points: FloatArray
     obstacle: BoolArray
     snr: FloatArray
+    height_m: FloatArray | None = None
     _placed: dict[SectorLayout, tuple[npt.NDArray[np.int64], FloatArray]] = field(
         default_factory=dict, init=False, repr=False, compare=False)
 
@@ -129,7 +133,7 @@ def nearest_obstacle(sectors: tuple[SectorDistance, ...], data: SectorInput,
     idx, rng = data.placed(layout)
     near = data.obstacle & (idx == best.index) & (rng <= best.distance_m + 1e-9)
     if near.any():
-        p = data.points[near]
+        p = rows_where(data.points, near)
         bearing = float(np.arctan2(p[:, 1], p[:, 0]).mean())
         return SectorDistance(best.index, bearing, best.state, best.distance_m,
                               best.confidence, best.point_count)

@@ -43,7 +43,9 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from numba import types
 
+from atris_node.jit import kernel
 from atris_node.pipeline import peaks_kernels
 from atris_node.pipeline.noise import NOISE_TILE_PX, NoiseMap
 from atris_node.types import WindowFrames
@@ -92,9 +94,10 @@ def _interpolation(i: int, left: int | None, right: int | None) -> list[tuple[in
 def not_own_light(peaks: IntArray, window: WindowFrames | None, local: NoiseMap) -> BoolArray:
     """(M, W) True for the peaks (rows, -1 padding) whose time course is not own light
     (module docstring). All False when the map has no window (read back from a
-    recording) or the code has no OFF sub-frame. The peak pixels and the OFF sub-frames'
-    statistics come from compiled passes (:func:`atris_node.pipeline.peaks_kernels.peak_pixels`,
-    :func:`atris_node.pipeline.peaks_kernels.ambient_level`)."""
+    recording) or the code has no OFF sub-frame. The peak pixels, the OFF sub-frames'
+    statistics and the test come from compiled passes
+    (:func:`atris_node.pipeline.peaks_kernels.peak_pixels`, :func:`_series`,
+    :func:`atris_node.pipeline.peaks_kernels.ambient_level`, :func:`_mark_not_own`)."""
     out = np.zeros(peaks.shape, dtype=bool)
     if window is None or len(window.pixels) != len(window.signs) or not peaks.size:
         return out
@@ -107,8 +110,9 @@ def not_own_light(peaks: IntArray, window: WindowFrames | None, local: NoiseMap)
     test, norm = _test_weights(tuple(window.signs), None if before is None else before[0])
     frames = ((before[1],) if before is not None else ()) + window.pixels
     series = _series(frames, flat)  # (n, P), DN
-    sigma = _pixel_sigma(series, window, tile_sigma)
-    out[m, c] = test @ series < -LOCAL_SIGMAS * sigma * norm
+    level, gain = _ambient(series, window)
+    _mark_not_own(out, m, c, test @ series, tile_sigma, level, gain,
+                  math.sqrt(len(window.signs)), norm)
     return out
 
 
@@ -127,34 +131,92 @@ def _test_weights(signs: tuple[int, ...], before: int | None) -> tuple[FloatArra
 
 
 def _series(frames: tuple[npt.NDArray[Any], ...], flat: IntArray) -> FloatArray:
-    """(n, P) float64 the value of each frame at the flat pixel indices ``flat``, DN (one
-    ``take`` per frame: several times faster than 2-D fancy indexing)."""
+    """(n, P) float64 the value of each frame at the flat pixel indices ``flat``, DN: one
+    compiled gather per uint8 or uint16 frame (:func:`_gather`, straight into the float64
+    row: no gathered copy in the frame's dtype to convert), ``take`` for other dtypes."""
     out = np.empty((len(frames), flat.size), dtype=np.float64)
+    index = np.ascontiguousarray(flat, dtype=np.int64)
     for i, frame in enumerate(frames):
-        out[i] = np.ravel(frame).take(flat)
+        pixels = np.ravel(frame)
+        if pixels.dtype in (np.uint8, np.uint16):
+            _gather(pixels, index, out[i])
+        else:
+            out[i] = pixels.take(index)
     return out
 
 
-def _pixel_sigma(series: FloatArray, window: WindowFrames,
-                 sigma_tiles: npt.NDArray[np.float32]) -> FloatArray:
-    """(P,) each peak pixel's σ per sub-frame, DN: the largest of the tile's, the
-    rounding's and the shot noise of its level (the map's photon-transfer gain). The
-    level and the OFF variance over it in one compiled pass
+def _gather_signatures() -> list[Any]:
+    """Signatures of :func:`_gather`: a uint8 or uint16 frame, writable or read-only (a
+    driver's buffer), contiguous (as ``np.ravel`` gives it)."""
+    return [types.void(types.Array(dtype, 1, "C", readonly=readonly),
+                       types.Array(types.int64, 1, "C"), types.Array(types.float64, 1, "C"))
+            for dtype in (types.uint8, types.uint16) for readonly in (False, True)]
+
+
+@kernel(_gather_signatures())
+def _gather(pixels: npt.NDArray[Any], flat: IntArray, out: FloatArray) -> None:
+    """``out[p] = pixels[flat[p]]`` (P,) as float64, DN, for the (H·W,) ``pixels`` of one
+    frame (an index out of the frame raises IndexError, a negative one counts from the
+    end, as ``take`` does)."""
+    size = pixels.size
+    for p in range(flat.size):
+        i = flat[p] + size if flat[p] < 0 else flat[p]
+        if i < 0 or i >= size:
+            raise IndexError("a pixel index beyond the frame")
+        out[p] = pixels[i]
+
+
+def _ambient(series: FloatArray, window: WindowFrames) -> tuple[FloatArray, float]:
+    """(P,) each peak pixel's ambient level, DN (at least 1), and the map's
+    photon-transfer gain, DN² per DN (the SHOT_QUANTILE quantile of the OFF variance over
+    the level): the level and the OFF variance over it in one compiled pass
     (:func:`atris_node.pipeline.peaks_kernels.ambient_level`)."""
-    offs = np.flatnonzero(np.asarray(window.signs) < 0) + (window.before is not None)
-    level, ratio = peaks_kernels.ambient_level(series, offs.astype(np.int64))
-    gain = quantile(ratio, SHOT_QUANTILE)
-    tile = sigma_tiles.astype(np.float64) / math.sqrt(len(window.signs))
-    # the largest of the three, as np.maximum.reduce over them (maximum is exact)
-    return np.sqrt(np.maximum(np.maximum(np.square(tile), QUANTIZATION_DN ** 2),
-                              gain * level))
+    offs = np.array(_off_rows(tuple(window.signs), window.before is not None), dtype=np.int64)
+    level, ratio = peaks_kernels.ambient_level(series, offs)
+    return level, quantile(ratio, SHOT_QUANTILE)
+
+
+#: the rounding's variance, DN² (computed here, in Python's arithmetic)
+_QUANTIZATION_VAR = QUANTIZATION_DN ** 2
+
+
+@kernel("float64(float64, float64)")
+def _maximum(a: float, b: float) -> float:
+    """``np.maximum`` of two floats: the first NaN, else the larger (``a`` when equal)."""
+    return a if (a >= b or np.isnan(a)) else b
+
+
+@kernel("void(boolean[:, ::1], int64[:], int64[:], float64[:], float32[:], float64[:], "
+        "float64, float64, float64)")
+def _mark_not_own(out: BoolArray, slot: IntArray, col: IntArray, statistic: FloatArray,
+                  tile_sigma: npt.NDArray[np.float32], level: FloatArray, gain: float,
+                  root_n: float, norm: float) -> None:
+    """``out[slot[p], col[p]]`` (M, W) True where the peak pixel p's test ``statistic``
+    (P,) lies under -LOCAL_SIGMAS·σ·``norm``. σ, DN per sub-frame, is the largest of the
+    tile's (``tile_sigma`` (P,), σ of the map, over √N ``root_n``), the rounding's and
+    the shot noise of the pixel's ``level`` (P,) at the map's ``gain``: the square root
+    of ``np.maximum(np.maximum(tile², QUANTIZATION_DN²), gain·level)``, NaN kept as
+    numpy's maximum keeps it."""
+    for p in range(slot.size):
+        tile = np.float64(tile_sigma[p]) / root_n
+        sigma = np.sqrt(_maximum(_maximum(tile * tile, _QUANTIZATION_VAR), gain * level[p]))
+        out[slot[p], col[p]] = statistic[p] < -LOCAL_SIGMAS * sigma * norm
+
+
+@functools.lru_cache(maxsize=64)
+def _off_rows(signs: tuple[int, ...], before: bool) -> tuple[int, ...]:
+    """The rows of the series read (with the sub-frame ``before`` the window first, when
+    read) that hold the window's OFF sub-frames. Kept per code and lag, as
+    :func:`_test_weights`."""
+    return tuple(i + int(before) for i, sign in enumerate(signs) if sign < 0)
 
 
 def quantile(values: FloatArray, q: float) -> float:
     """``float(np.quantile(values, q))`` of a non-empty (n,) float64 array (numpy's
     default, linear interpolation between the order statistics at (n - 1)·q, computed
-    as numpy computes it) without np.quantile's overhead: one partition at the two
-    order statistics. NaN in ``values`` is left to np.quantile."""
+    as numpy computes it) without np.quantile's overhead: one partition at the upper of
+    the two order statistics (the lower is the greatest value before it; a partition at
+    both costs twice that at 4000 values). NaN in ``values`` is left to np.quantile."""
     n = values.size
     position = (n - 1) * q
     if position >= n - 1:
@@ -164,8 +226,10 @@ def quantile(values: FloatArray, q: float) -> float:
         high = low + 1
     if np.isnan(values).any():
         return float(np.quantile(values, q))
-    ordered = np.partition(values, (low, high))
-    a, b = float(ordered[low]), float(ordered[high])
+    # one selection, at the upper statistic: the lower one is the greatest before it
+    ordered = np.partition(values, high)
+    b = float(ordered[high])
+    a = b if low == high else float(ordered[:high].max())
     gamma = position - low
     diff = b - a
     return b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma

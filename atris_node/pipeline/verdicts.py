@@ -234,6 +234,19 @@ class ColumnEvidence:
             return np.zeros(self.sector.size, dtype=np.int64)
         return lines_per_column(self.noisy & ~self.seen & ~self.expected)
 
+    def sector_counts(self, sectors: int) -> tuple[IntArray, IntArray]:
+        """(S,) ``per_sector`` of ``ambiguous`` and of ``doubtful`` + ``missing`` +
+        ``unclean``, int64, in one compiled pass
+        (:func:`atris_node.pipeline.verdicts_kernels.sector_counts`)."""
+        masks = ((_NOWHERE,) * 3 if self.noisy is None or self.seen is None
+                 or self.expected is None else (self.seen, self.noisy, self.expected))
+        seen, noisy, expected = (np.ascontiguousarray(m, dtype=np.bool_) for m in masks)
+        sector, ambiguous, doubtful, missing = (
+            np.ascontiguousarray(a, dtype=np.int64)
+            for a in (self.sector, self.ambiguous, self.doubtful, self.missing))
+        return verdicts_kernels.sector_counts(sector, ambiguous, doubtful, missing, seen,
+                                              noisy, expected, sectors)
+
     def per_sector(self, counts: IntArray, sectors: int) -> IntArray:
         """(S,) sums of a (W,) per-column count over each sector's columns."""
         inside = self.sector >= 0
@@ -299,9 +312,7 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
     samples are in ``evidence.doubtful`` too); ``columns`` the :class:`SectorColumns` of
     ``evidence.sector`` (None: made here)."""
     count = layout.count
-    ambiguous = evidence.per_sector(evidence.ambiguous, count)
-    doubtful = evidence.per_sector(evidence.doubtful + evidence.missing + evidence.unclean,
-                                   count)
+    ambiguous, doubtful = evidence.sector_counts(count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
     if top_m is None:

@@ -83,37 +83,72 @@ def _sloped(slope: float, scatter: float, sxx: float) -> bool:
 
 
 @kernel()
-def _fit_front(cols: FloatArray, ranges: FloatArray, noise: float) -> tuple[float, float]:
-    """(front m, its standard error m): the least range of a straight fit over the
-    columns' span, or the mean when the slope is within SLOPE_SIGMAS standard errors of
-    zero; (inf, inf) when the columns do not spread. The error's scatter is the
-    residual's or ``noise`` (one sample's triangulation σ), whichever is larger:
-    smoothing along the lines makes neighbouring samples share their noise, so the
-    residual alone would claim more independent samples than there are."""
-    c_mean, r_mean, slope, residual, sxx = _fit(cols, ranges)
-    n = ranges.size
+def _fit_at(cols: FloatArray, ranges: FloatArray, idx: IntArray
+            ) -> tuple[float, float, float, float, float]:
+    """:func:`_fit` of the points ``idx`` (m,) (``_fit(cols[idx], ranges[idx])``, the
+    same sums in the same order) without gathering them."""
+    m = idx.size
+    if m == 0:
+        return np.nan, np.nan, 0.0, 0.0, 0.0
+    c_total = r_total = 0.0
+    for i in idx:
+        c_total += cols[i]
+    for i in idx:
+        r_total += ranges[i]
+    c_mean, r_mean = c_total / m, r_total / m
+    sxx = sxy = 0.0
+    for i in idx:
+        sxx += (cols[i] - c_mean) ** 2
+        sxy += (cols[i] - c_mean) * (ranges[i] - r_mean)
+    if sxx == 0.0:
+        return c_mean, r_mean, 0.0, 0.0, 0.0
+    slope = sxy / sxx
+    rss = 0.0
+    for i in idx:
+        rss += (ranges[i] - r_mean - slope * (cols[i] - c_mean)) ** 2
+    return c_mean, r_mean, slope, np.sqrt(rss / max(m - 2, 1)), sxx
+
+
+@kernel()
+def _front_of(fit: tuple[float, float, float, float, float], cols: FloatArray, idx: IntArray,
+              noise: float) -> tuple[float, float]:
+    """(front m, its standard error m) of the points ``idx`` from their straight ``fit``
+    (:func:`_fit_at`): the least range of the fit over the columns' span, or the mean
+    when the slope is within SLOPE_SIGMAS standard errors of zero; (inf, inf) when the
+    columns do not spread. The error's scatter is the residual's or ``noise`` (one
+    sample's triangulation σ), whichever is larger: smoothing along the lines makes
+    neighbouring samples share their noise, so the residual alone would claim more
+    independent samples than there are."""
+    c_mean, r_mean, slope, residual, sxx = fit
+    n = idx.size
     if sxx == 0.0:
         return np.inf, np.inf
     scatter = max(residual, noise)
     if not _sloped(slope, residual, sxx):
         return r_mean, scatter / np.sqrt(n)
-    end = cols.min() if slope > 0 else cols.max()
+    end = cols[idx[0]]
+    for i in idx:
+        end = min(end, cols[i]) if slope > 0 else max(end, cols[i])
     return (r_mean + slope * (end - c_mean),
             scatter * np.sqrt(1.0 / n + (end - c_mean) ** 2 / sxx))
 
 
 @kernel()
-def _follow(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise: float,
-            spread: float) -> BoolArray:
-    """The points of a slanted surface: those (from index ``first`` on) within
-    ``spread``·``noise`` of the straight fit of the kept ones, fitted again, FOLLOW_PASSES
-    times. A window in range cuts a slanted surface short and flattens its fit; the
-    surface's own points do not. ``keep`` itself when the fit has no slope."""
+def _followed(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise: float,
+              spread: float) -> tuple[BoolArray, IntArray,
+                                      tuple[float, float, float, float, float], bool]:
+    """:func:`_follow`'s points, their indices and, when made on them, their straight
+    fit (and True; False: not fitted)."""
     limit = spread * noise
+    idx = np.flatnonzero(keep)
+    fit = (0.0, 0.0, 0.0, 0.0, 0.0)
+    fitted = False
     for _ in range(FOLLOW_PASSES):
-        if keep.sum() < 3:
+        if idx.size < 3:
             break
-        c_mean, r_mean, slope, scatter, sxx = _fit(cols[keep], r[keep])
+        fit = _fit_at(cols, r, idx)
+        fitted = True
+        c_mean, r_mean, slope, scatter, sxx = fit
         if not _sloped(slope, scatter, sxx):
             break
         along = np.zeros(r.size, dtype=np.bool_)
@@ -126,7 +161,20 @@ def _follow(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise:
         if count < 3 or same:
             break
         keep = along
-    return keep
+        idx = np.flatnonzero(keep)
+        fitted = False
+    return keep, idx, fit, fitted
+
+
+@kernel()
+def _follow(r: FloatArray, cols: FloatArray, keep: BoolArray, first: int, noise: float,
+            spread: float) -> BoolArray:
+    """The points of a slanted surface: those (from index ``first`` on) within
+    ``spread``·``noise`` of the straight fit of the kept ones, fitted again, FOLLOW_PASSES
+    times. A window in range cuts a slanted surface short and flattens its fit; the
+    surface's own points do not. ``keep`` itself when the fit has no slope
+    (:func:`_followed`, without its indices and fit)."""
+    return _followed(r, cols, keep, first, noise, spread)[0]
 
 
 @kernel()
@@ -174,9 +222,11 @@ def _front(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
     quantile of the ranges when the points do not spread over columns."""
     cols = column.astype(np.float64)
     noise = np.median(sigma[keep])
-    keep = _follow(r, cols, keep, first, noise, params[2])
-    best, error = _fit_front(cols[keep], r[keep], noise)
-    count = keep.sum()
+    keep, idx, fit, fitted = _followed(r, cols, keep, first, noise, params[2])
+    if not fitted:
+        fit = _fit_at(cols, r, idx)
+    best, error = _front_of(fit, cols, idx, noise)
+    count = idx.size
     if not np.isfinite(best):
         return np.quantile(r[keep], params[4]), QUANTILE_SE * noise / np.sqrt(count), count
     grouped, lines, bounds = _by_line(line, keep)
@@ -184,7 +234,7 @@ def _front(r: FloatArray, sigma: FloatArray, line: IntArray, column: IntArray,
         mine = grouped[bounds[j]:bounds[j + 1]]
         if mine.size < min_points:
             continue
-        front, se = _fit_front(cols[mine], r[mine], np.median(sigma[mine]))
+        front, se = _front_of(_fit_at(cols, r, mine), cols, mine, np.median(sigma[mine]))
         if front < best - NEARER_SIGMAS * np.sqrt(se * se + error * error):
             best, error = front, se
     return best, error, count
@@ -605,6 +655,82 @@ def lost_on_surface(range_m: FloatArray, snr: FloatArray, column: IntArray, dept
     return first, onto, bottom, shown, row[long], start[long], stop[long]
 
 
+def _read_only(dtype: Any, ndim: int) -> Any:
+    """A read-only C-contiguous array type (writable arrays convert to it)."""
+    return types.Array(dtype, ndim, "C", readonly=True)
+
+
+@kernel(types.UniTuple(types.int64[::1], 2)(
+    _read_only(types.int64, 1), _read_only(types.int64, 1), _read_only(types.int64, 1),
+    _read_only(types.int64, 1), _read_only(types.boolean, 2), _read_only(types.boolean, 2),
+    _read_only(types.boolean, 2), types.int64))
+def sector_counts(sector: IntArray, ambiguous: IntArray, doubtful: IntArray,
+                  missing: IntArray, seen: BoolArray, noisy: BoolArray, expected: BoolArray,
+                  count: int) -> tuple[IntArray, IntArray]:
+    """(S,) per sector 0 .. ``count`` - 1 the sums over its columns (``sector`` (W,), -1
+    outside) of ``ambiguous`` (W,), and of ``doubtful`` + ``missing`` (W,) + the lines
+    not ``seen``, not ``expected`` whose band is ``noisy`` in the column ((K, W) each;
+    ``noisy`` (0, 0): none), int64: one pass for what ``ColumnEvidence.per_sector`` of
+    each sum adds up (exactly: the float64 sums of ``np.bincount`` hold integers)."""
+    width = sector.size
+    unclean = np.zeros(width, dtype=np.int64)
+    for k in range(noisy.shape[0]):  # row by row: the (K, W) masks are read in order
+        for c in range(width):
+            unclean[c] += noisy[k, c] > (seen[k, c] | expected[k, c])
+    ambiguous_out = np.zeros(count, dtype=np.int64)
+    doubtful_out = np.zeros(count, dtype=np.int64)
+    for c in range(width):
+        s = sector[c]
+        if 0 <= s < count:
+            ambiguous_out[s] += ambiguous[c]
+            doubtful_out[s] += doubtful[c] + missing[c] + unclean[c]
+    return ambiguous_out, doubtful_out
+
+
+@kernel(types.Tuple((types.boolean[:, ::1], types.int64[::1], types.int64[::1]))(
+    _read_only(types.int64, 1), _read_only(types.int64, 1), _read_only(types.boolean, 1),
+    _read_only(types.boolean, 1), _read_only(types.boolean, 2), _read_only(types.boolean, 1),
+    _read_only(types.int64, 1), _read_only(types.boolean, 1), _read_only(types.int64, 1)))
+def column_evidence(line: IntArray, column: IntArray, saturated: BoolArray, valid: BoolArray,
+                    expected: BoolArray, looks_beyond: BoolArray, doubtful: IntArray,
+                    foreign: BoolArray, flagged: IntArray
+                    ) -> tuple[BoolArray, IntArray, IntArray]:
+    """What the samples (``line``, whole ``column``, ``saturated``, ``valid``; (n,) each)
+    say of each column, for :class:`atris_node.pipeline.verdicts.ColumnEvidence`:
+    (K, W) ``seen`` (line k has a sample in column c; a negative line counted from the
+    last, a line or column beyond the table: IndexError, as numpy's indexing), (W,)
+    ``doubtful``: the given ``doubtful`` (W,) counts + the saturated samples + 1 for
+    ``foreign`` light + 1 where no line ``looks_beyond`` the operating range and none is
+    seen beyond it (no invalid sample) + the ``flagged`` samples' columns (m,) (columns
+    at or beyond W not counted, as ``per_column``), and (W,) ``missing``: the lines
+    ``expected`` (K, W) on the ground there and not seen; int64 counts."""
+    lines, width = expected.shape
+    seen = np.zeros((lines, width), dtype=np.bool_)
+    out = np.empty(width, dtype=np.int64)
+    beyond = np.zeros(width, dtype=np.bool_)
+    for c in range(width):
+        out[c] = doubtful[c] + foreign[c]
+    for i in range(line.size):
+        k, c = line[i] + lines if line[i] < 0 else line[i], column[i]
+        if k < 0 or k >= lines or c < 0 or c >= width:
+            raise IndexError("a sample outside the lines and columns")
+        seen[k, c] = True
+        out[c] += saturated[i]
+        beyond[c] |= not valid[i]
+    for i in range(flagged.size):
+        if flagged[i] < 0:
+            raise ValueError("a negative column")
+        if flagged[i] < width:
+            out[flagged[i]] += 1
+    missing = np.zeros(width, dtype=np.int64)
+    for k in range(lines):
+        for c in range(width):
+            missing[c] += expected[k, c] > seen[k, c]
+    for c in range(width):
+        out[c] += not (looks_beyond[c] or beyond[c])
+    return seen, out, missing
+
+
 def warm_up() -> None:
     """Type the kernels' arguments once."""
     r = np.array([1.0, 1.0, 1.01, 1.02, 1.02, 1.03])
@@ -620,6 +746,11 @@ def warm_up() -> None:
     least_per_sector(np.full(2, np.inf), np.array([1, -1], dtype=np.int64), np.ones(2))
     sector_index(np.zeros(1), 0.6, 0.15, 8)
     widened(np.ones(3, dtype=np.bool_), 1)
+    column = np.zeros(1, dtype=np.int64)
+    sector_counts(column, column, column, column, *(np.zeros((1, 1), dtype=np.bool_),) * 3, 1)
+    flag = np.zeros(1, dtype=np.bool_)
+    column_evidence(column, column, flag, flag, np.zeros((1, 1), dtype=np.bool_), flag, column,
+                    flag, column)
     two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
     pair = np.array([0, 1], dtype=np.int64)
     shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
