@@ -1256,3 +1256,32 @@ def test_flank_floor_is_numpys_median_of_the_flank() -> None:
     for _ in range(2000):
         seven = rng.integers(-5, int(rng.integers(2, 50)), 7).astype(np.float64)
         assert peaks_kernels._median_of_7(seven.copy()) == float(np.median(seven))
+
+
+# ------------------------------------------------- rival test: rounds (perf-rivals)
+# (the continuity rounds keep their block and line medians while the anchors grow)
+
+
+def test_continuity_rounds_with_kept_medians_are_the_reference_of_each_round() -> None:
+    """The rounds of the rival test carry one memo of block and line medians from round to
+    round (the rows fixed, the anchored columns only growing): on 150 random tables and
+    growing anchor sets the reference of every round equals the one taken afresh there,
+    bitwise."""
+    from atris_node.pipeline import rivals_kernels
+    from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
+    from atris_node.pipeline.rivals import BRIDGE_PX, CONTINUITY_REACH, MEDIAN_PX, _reference
+
+    rng = np.random.default_rng(41)
+    for _ in range(150):
+        k_count, width = int(rng.integers(1, 9)), int(rng.integers(1, 300))
+        rows = _random_rows(rng, k_count, width)
+        held, n_held = rivals_kernels._held_columns(rows)
+        medians, taken = rivals_kernels._medians_memo(k_count, width, CONTINUITY_BLOCK)
+        anchored = rng.random(width) < 0.5 * rng.random()
+        for _ in range(int(rng.integers(1, 6))):
+            columns = np.flatnonzero(~anchored).astype(np.int64)
+            got = rivals_kernels._continuity_columns(
+                rows, anchored, held, n_held, medians, taken, columns, CONTINUITY_REACH,
+                CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES, BRIDGE_PX, MEDIAN_PX)
+            np.testing.assert_array_equal(got, _reference(rows, anchored)[:, columns])
+            anchored = anchored | (rng.random(width) < 0.3 * rng.random())
