@@ -1285,3 +1285,21 @@ def test_continuity_rounds_with_kept_medians_are_the_reference_of_each_round() -
                 CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES, BRIDGE_PX, MEDIAN_PX)
             np.testing.assert_array_equal(got, _reference(rows, anchored)[:, columns])
             anchored = anchored | (rng.random(width) < 0.3 * rng.random())
+
+
+def test_medians_of_whole_values_are_numpys() -> None:
+    """identity_kernels._median_of_whole (counted over a short span, selected over a wide
+    one) equals np.median, and _upper_middle_of_whole the value of rank n // 2, on 20000
+    random sets of whole values (1 to 600 of them, spans from 1 to past the counted
+    limit), bitwise."""
+    from atris_node.pipeline.identity_kernels import _median_of_whole, _upper_middle_of_whole
+
+    rng = np.random.default_rng(42)
+    for _ in range(20000):
+        n = int(rng.integers(1, 600 if rng.random() < 0.1 else 40))
+        values = rng.integers(0, int(rng.integers(1, 3000)), n).astype(np.float64)
+        if rng.random() < 0.1:
+            values[int(rng.integers(0, n))] += 10 * n + 100  # one far row: a wide span
+        want = float(np.median(values))
+        assert np.float64(_median_of_whole(values)).tobytes() == np.float64(want).tobytes()
+        assert _upper_middle_of_whole(values) == np.sort(values)[n // 2]

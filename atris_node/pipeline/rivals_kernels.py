@@ -29,9 +29,10 @@ from atris_node.pipeline.alignment_kernels import _missing
 from atris_node.pipeline.identity_kernels import (
     _sorted_column,
     _unexplained_column,
+    _upper_middle_of_whole,
     uncounted,
 )
-from atris_node.pipeline.selection import insert_sorted, kth
+from atris_node.pipeline.selection import insert_sorted
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -369,7 +370,7 @@ def _line_median(row: IntArray, goods: IntArray, n_good: int, min_line: int,
     fewer than ``min_line``; ``values`` (W,) work space."""
     for s in range(n_good):
         values[s] = row[goods[s]]
-    return kth(values[:n_good], n_good // 2) if n_good >= min_line else np.inf
+    return _upper_middle_of_whole(values[:n_good]) if n_good >= min_line else np.inf
 
 
 @uncounted
