@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.alignment_kernels import _missing
+from atris_node.pipeline.alignment_kernels import _in_bands, _inside, _missing
 from atris_node.pipeline.identity_kernels import (
     _sorted_column,
     _unexplained_column,
@@ -138,21 +138,6 @@ def _read_backward(j: int, i: int, m: int, column: IntArray, g: FloatArray,
             j += 1
         else:
             i += 1
-
-
-@kernel()
-def _in_bands(lo: IntArray, hi: IntArray) -> BoolArray:
-    """(max hi,) True on the rows >= 0 that lie in one of the bands ``[lo, hi)``."""
-    inside = np.zeros(max(hi.max(), 0) if hi.size else 0, dtype=np.bool_)
-    for k in range(lo.size):
-        inside[max(lo[k], 0):max(hi[k], 0)] = True
-    return inside
-
-
-@uncounted
-def _inside(p: int, inside: BoolArray) -> bool:
-    """True when row ``p`` >= 0 lies in a band (``inside`` of :func:`_in_bands`)."""
-    return p < inside.size and inside[p]
 
 
 @uncounted
