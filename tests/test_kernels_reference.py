@@ -1303,3 +1303,22 @@ def test_medians_of_whole_values_are_numpys() -> None:
         want = float(np.median(values))
         assert np.float64(_median_of_whole(values)).tobytes() == np.float64(want).tobytes()
         assert _upper_middle_of_whole(values) == np.sort(values)[n // 2]
+
+
+def test_strong_rows_are_the_rows_not_weak() -> None:
+    """rivals_kernels.strong_rows, the peaks' weak flags looked up for the rows that hold
+    them, equals the rows >= 0 whose own flag is not weak (the flag a function of row and
+    column, as the SNR of the map there), on 300 random peak tables and identities."""
+    from atris_node.pipeline import rivals_kernels
+
+    rng = np.random.default_rng(43)
+    for _ in range(300):
+        k_count = int(rng.integers(1, 9))
+        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
+        rows = _random_identity(rng, peaks, k_count)
+        flag = rng.random((400, peaks.shape[1])) < rng.random()  # weak per (row, column)
+        cols = np.arange(peaks.shape[1])[None, :]
+        weak_peaks = np.ascontiguousarray(flag[np.maximum(peaks, 0), cols] & (peaks >= 0))
+        want = (rows >= 0) & ~flag[np.maximum(rows, 0), cols]
+        got = rivals_kernels.strong_rows(peaks, weak_peaks, rows)
+        np.testing.assert_array_equal(got, want)

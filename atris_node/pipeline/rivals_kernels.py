@@ -712,19 +712,18 @@ def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
     the lowest band ``[lo, hi)`` (image ``order``) that holds it (none: left out)."""
     k_count, width = rows.shape
     m_count = peaks.shape[0]
-    out = np.empty(width, dtype=np.int64)
+    removed = np.zeros(width, dtype=np.int64)
     unsure_at = np.empty(width, dtype=np.int64)
     n_rival, n_unsure = 0, 0
-    for c in range(width):
-        before, after = 0, 0
-        for k in range(k_count):
-            before += first[k, c] >= 0
-            after += rows[k, c] >= 0
+    for k in range(k_count):  # along the rows of the (K, W) tables
+        for c in range(width):
+            removed[c] += int(first[k, c] >= 0) - int(rows[k, c] >= 0)
             n_rival += nearest[k, c] >= 0
-        out[c] = unsure[c] + max(before - after, 0)
-        if unsure[c] > 0:
-            unsure_at[n_unsure] = c
-            n_unsure += 1
+    out = np.empty(width, dtype=np.int64)
+    for c in range(width):
+        out[c] = unsure[c] + max(removed[c], 0)
+        unsure_at[n_unsure] = c  # without a branch: written always, kept when unsure
+        n_unsure += unsure[c] > 0
     lone = np.full((m_count, n_unsure), -1, dtype=np.int64)
     n_lone = 0
     for i in range(m_count):
@@ -749,6 +748,26 @@ def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
                 row[n], col[n], line[n] = peaks[i, unsure_at[u]], unsure_at[u], lone[i, u]
                 n += 1
     return out, row, col, line
+
+
+@kernel("boolean[:, :](int64[:, :], boolean[:, :], int64[:, :])")
+def strong_rows(peaks: IntArray, weak: BoolArray, rows: IntArray) -> BoolArray:
+    """(K, W) True where a line of ``rows`` (K, W) holds a peak of ``peaks`` (M, W) that
+    is not ``weak`` (M, W): the peak's own flag, looked up (each row >= 0 is one of its
+    column's peaks)."""
+    m_count = peaks.shape[0]
+    k_count, width = rows.shape
+    out = np.zeros((k_count, width), dtype=np.bool_)
+    for k in range(k_count):
+        for c in range(width):
+            row = rows[k, c]
+            if row < 0:
+                continue
+            for i in range(m_count):
+                if peaks[i, c] == row:
+                    out[k, c] = not weak[i, c]
+                    break
+    return out
 
 
 @kernel("Tuple((int64[:, :], int64[:], int64[:], int64[:], int64[:]))(int64[:, :], "
@@ -835,6 +854,7 @@ def warm_up() -> None:
            np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior, np.full(1, -1, dtype=i64))
     doubts(peaks, rows, rows, none, one, one, hi, one)
     stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
+    strong_rows(peaks, np.zeros((2, 1), dtype=np.bool_), rows)
     set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
     isolated(peaks, 2, 2)
     continuity(rows, np.ones(1, dtype=np.bool_), one, 4, 2, 1, 1, 4.0, 6.0)
