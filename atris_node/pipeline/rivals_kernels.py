@@ -297,7 +297,9 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                             missing = _unexplained_column(line_rows, c, cot_alpha, geometry,
                                                           ground_range_m, image_order, z)
                             if n_seen < SEEN_PATHS:
-                                seen[n_seen], seen_count[n_seen] = other, missing
+                                for k in range(k_count):  # (a row of ``seen`` is counted)
+                                    seen[n_seen, k] = other[k]
+                                seen_count[n_seen] = missing
                                 n_seen += 1
                         through += costs[3] * missing
                 if through < best + margin:
