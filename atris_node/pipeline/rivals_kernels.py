@@ -624,7 +624,8 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     n = 0
     for c in range(width):
         if reuse[c]:
-            ambiguous[:, c] = passed[:, c]
+            for k in range(k_count):  # (columns as views would be counted)
+                ambiguous[k, c] = passed[k, c]
             continue
         outranked[c] = False
         for k in range(k_count):
