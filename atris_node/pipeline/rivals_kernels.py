@@ -816,12 +816,33 @@ def stable(rows: IntArray, alone: IntArray, held: BoolArray, position: IntArray
     return kept, lost, row, col, line
 
 
+@uncounted
+def _as_they_are(peaks: IntArray, drop: BoolArray) -> bool:
+    """True when nothing is to be dropped and every column of ``peaks`` (M, W) is sorted
+    down with the -1 padding last already (passes along the rows, without a branch)."""
+    m_count, width = peaks.shape
+    dropped = False
+    for i in range(m_count):
+        for c in range(width):
+            dropped |= drop[i, c]
+    if dropped:
+        return False
+    unsorted = False
+    for i in range(1, m_count):
+        for c in range(width):
+            p, above = peaks[i, c], peaks[i - 1, c]
+            unsorted |= (p >= 0) & ((above < 0) | (above > p))
+    return not unsorted
+
+
 @kernel("Tuple((int64[:, :], int64[:]))(int64[:, :], boolean[:, :])")
 def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
     """``peaks`` (M, W) without the ``drop`` ones and the -1 padding, each column sorted
     down (insertion: the columns mostly are) with -1 padding last, and the (W,) count of
     ``drop``."""
     m_count, width = peaks.shape
+    if _as_they_are(peaks, drop):
+        return peaks.copy(), np.zeros(width, dtype=np.int64)
     out = np.full((m_count, width), -1, dtype=np.int64)
     count = np.zeros(width, dtype=np.int64)
     for c in range(width):
