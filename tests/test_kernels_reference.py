@@ -1258,8 +1258,9 @@ def test_flank_floor_is_numpys_median_of_the_flank() -> None:
         assert peaks_kernels._median_of_7(seven.copy()) == float(np.median(seven))
 
 
-# ------------------------------------------------- rival test: rounds (perf-rivals)
-# (the continuity rounds keep their block and line medians while the anchors grow)
+# ------------------------------------ line identity and rival test kernels (perf-rivals)
+# (the rounds' kept medians, medians of whole rows by counting, the rows' weak flags
+# looked up, set_aside without drops)
 
 
 def test_continuity_rounds_with_kept_medians_are_the_reference_of_each_round() -> None:
