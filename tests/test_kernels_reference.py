@@ -1621,3 +1621,89 @@ def test_column_evidence_is_the_numpy_form() -> None:
             np.ones(1, dtype=np.bool_), np.zeros((1, 5), dtype=np.bool_),
             np.zeros(5, dtype=np.bool_), np.zeros(5, dtype=np.int64),
             np.zeros(5, dtype=np.bool_), np.zeros(0, dtype=np.int64))
+
+
+# ------------------------------------ line identity and rival test kernels (perf-rivals)
+# (the rounds' kept medians, medians of whole rows by counting, the rows' weak flags
+# looked up, set_aside without drops)
+
+
+def test_continuity_rounds_with_kept_medians_are_the_reference_of_each_round() -> None:
+    """The rounds of the rival test carry one memo of block and line medians from round to
+    round (the rows fixed, the anchored columns only growing): on 150 random tables and
+    growing anchor sets the reference of every round equals the one taken afresh there,
+    bitwise."""
+    from atris_node.pipeline import rivals_kernels
+    from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
+    from atris_node.pipeline.rivals import BRIDGE_PX, CONTINUITY_REACH, MEDIAN_PX, _reference
+
+    rng = np.random.default_rng(41)
+    for _ in range(150):
+        k_count, width = int(rng.integers(1, 9)), int(rng.integers(1, 300))
+        rows = _random_rows(rng, k_count, width)
+        held, n_held = rivals_kernels._held_columns(rows)
+        medians, taken = rivals_kernels._medians_memo(k_count, width, CONTINUITY_BLOCK)
+        anchored = rng.random(width) < 0.5 * rng.random()
+        for _ in range(int(rng.integers(1, 6))):
+            columns = np.flatnonzero(~anchored).astype(np.int64)
+            got = rivals_kernels._continuity_columns(
+                rows, anchored, held, n_held, medians, taken, columns, CONTINUITY_REACH,
+                CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES, BRIDGE_PX, MEDIAN_PX)
+            np.testing.assert_array_equal(got, _reference(rows, anchored)[:, columns])
+            anchored = anchored | (rng.random(width) < 0.3 * rng.random())
+
+
+def test_medians_of_whole_values_are_numpys() -> None:
+    """identity_kernels._median_of_whole (counted over a short span, selected over a wide
+    one) equals np.median, and _upper_middle_of_whole the value of rank n // 2, on 20000
+    random sets of whole values (1 to 600 of them, spans from 1 to past the counted
+    limit), bitwise."""
+    from atris_node.pipeline.identity_kernels import _median_of_whole, _upper_middle_of_whole
+
+    rng = np.random.default_rng(42)
+    for _ in range(20000):
+        n = int(rng.integers(1, 600 if rng.random() < 0.1 else 40))
+        values = rng.integers(0, int(rng.integers(1, 3000)), n).astype(np.float64)
+        if rng.random() < 0.1:
+            values[int(rng.integers(0, n))] += 10 * n + 100  # one far row: a wide span
+        want = float(np.median(values))
+        assert np.float64(_median_of_whole(values)).tobytes() == np.float64(want).tobytes()
+        assert _upper_middle_of_whole(values) == np.sort(values)[n // 2]
+
+
+def test_strong_rows_are_the_rows_not_weak() -> None:
+    """rivals_kernels.strong_rows, the peaks' weak flags looked up for the rows that hold
+    them, equals the rows >= 0 whose own flag is not weak (the flag a function of row and
+    column, as the SNR of the map there), on 300 random peak tables and identities."""
+    from atris_node.pipeline import rivals_kernels
+
+    rng = np.random.default_rng(43)
+    for _ in range(300):
+        k_count = int(rng.integers(1, 9))
+        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
+        rows = _random_identity(rng, peaks, k_count)
+        flag = rng.random((400, peaks.shape[1])) < rng.random()  # weak per (row, column)
+        cols = np.arange(peaks.shape[1])[None, :]
+        weak_peaks = np.ascontiguousarray(flag[np.maximum(peaks, 0), cols] & (peaks >= 0))
+        want = (rows >= 0) & ~flag[np.maximum(rows, 0), cols]
+        got = rivals_kernels.strong_rows(peaks, weak_peaks, rows)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_set_aside_without_drops_is_the_numpy_sort() -> None:
+    """set_aside with nothing to drop (taken as it is where the columns are sorted with the
+    padding last already) equals the numpy sort on 300 random tables: sorted columns,
+    columns in any order or with padding between peaks, equal rows, bitwise."""
+    from atris_node.pipeline.rivals import set_aside
+
+    rng = np.random.default_rng(45)
+    for _ in range(300):
+        peaks = _random_peaks(rng, int(rng.integers(1, 14)), int(rng.integers(1, 80)))
+        if rng.random() < 0.3 and peaks.shape[0] > 1:  # a peak repeated below itself
+            c = int(rng.integers(0, peaks.shape[1]))
+            peaks[1, c] = peaks[0, c]
+        drop = np.zeros(peaks.shape, dtype=np.bool_)
+        got, want = set_aside(peaks, drop), _set_aside_numpy(peaks, drop)
+        for g, w in zip(got, want, strict=True):
+            assert g.dtype == w.dtype and g.shape == w.shape
+            np.testing.assert_array_equal(g, w)

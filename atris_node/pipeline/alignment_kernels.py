@@ -19,6 +19,7 @@ from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_col
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 
 _I1 = "int64[:]"
 _I2 = "int64[:, :]"
@@ -26,13 +27,19 @@ _F1 = "float64[:]"
 _F2 = "float64[:, :]"
 
 
+@kernel()
+def _in_bands(lo: IntArray, hi: IntArray) -> BoolArray:
+    """(max hi,) True on the rows >= 0 that lie in one of the bands ``[lo, hi)``."""
+    inside = np.zeros(max(hi.max(), 0) if hi.size else 0, dtype=np.bool_)
+    for k in range(lo.size):
+        inside[max(lo[k], 0):max(hi[k], 0)] = True
+    return inside
+
+
 @uncounted
-def _in_any(p: int, lo: IntArray, hi: IntArray) -> bool:
-    """True when row ``p`` lies in one of the bands ``[lo, hi)``."""
-    for k in range(lo.size):  # noqa: SIM110 (a generator does not compile)
-        if lo[k] <= p < hi[k]:
-            return True
-    return False
+def _inside(p: int, inside: BoolArray) -> bool:
+    """True when row ``p`` >= 0 lies in a band (``inside`` of :func:`_in_bands`)."""
+    return p < inside.size and inside[p]
 
 
 @uncounted
@@ -87,18 +94,19 @@ def _backtrack(choice: npt.NDArray[np.int8], column: IntArray, m: int, out: IntA
 
 
 @uncounted
-def _align_column(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray,
-                  beyond: FloatArray, costs: FloatArray, scratch: FloatArray,
+def _align_column(peaks: IntArray, lo: IntArray, hi: IntArray, inside: BoolArray,
+                  ref: FloatArray, beyond: FloatArray, costs: FloatArray, scratch: FloatArray,
                   column: IntArray, choice: npt.NDArray[np.int8], out: IntArray) -> float:
     """The cheapest alignment of one column: rows into ``out`` (K,) (-1 = none), the cost
-    returned. ``costs`` (skip, spare, beyond) px; ``scratch`` (2, M + 1), ``column``
-    (M,) and ``choice`` (K, M + 1) work space."""
+    returned. ``inside`` the rows in a band (:func:`_in_bands`); ``costs`` (skip, spare,
+    beyond) px; ``scratch`` (2, M + 1), ``column`` (M,) and ``choice`` (K, M + 1) work
+    space."""
     skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
     m = _sorted_peaks(peaks, column)
     spare, d = scratch[0], scratch[1]
     d[0] = 0.0
     for i in range(m):
-        spare[i] = spare_px if _in_any(column[i], lo, hi) else 0.0
+        spare[i] = spare_px if _inside(column[i], inside) else 0.0
         d[i + 1] = d[i] + spare[i]
     for j in range(lo.size):
         _align_line(j, column, m, lo, hi, ref[j], beyond[j], spare, skip_px, beyond_px,
@@ -122,21 +130,22 @@ def align(peaks: IntArray, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
     column = np.empty(m_count, dtype=np.int64)
     choice = np.zeros((k_count, m_count + 1), dtype=np.int8)
     out = np.empty(k_count, dtype=np.int64)
+    inside = _in_bands(lo, hi)
     for c in range(n):
-        total[c] = _align_column(peaks[:, c], lo, hi, ref[:, c], beyond, costs, scratch,
-                                 column, choice, out)
+        total[c] = _align_column(peaks[:, c], lo, hi, inside, ref[:, c], beyond, costs,
+                                 scratch, column, choice, out)
         rows[:, c] = out
     return rows, total
 
 
 @uncounted
-def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntArray,
-                     hi: IntArray, ref: FloatArray, beyond: FloatArray,
+def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, inside: BoolArray,
+                     ref: FloatArray, beyond: FloatArray,
                      costs: FloatArray) -> tuple[float, float, int]:
     """Of one column's assignment ``rows`` (K,) by line: (the match cost beyond what no
     alignment avoids: distances to known references and BEYOND past z_max; the floor of
-    skips and spares; the lines assigned). ``ref`` (K,) by line; ``lo``, ``hi``,
-    ``beyond`` (K,) in image order, ``order`` the line of each."""
+    skips and spares; the lines assigned). ``ref`` (K,) by line; ``beyond`` (K,) in image
+    order, ``order`` the line of each; ``inside`` the rows in a band (:func:`_in_bands`)."""
     skip_px, spare_px, beyond_px = costs[0], costs[1], costs[2]
     excess, assigned = 0.0, 0
     for k in range(order.size):
@@ -150,7 +159,7 @@ def _assignment_cost(rows: IntArray, order: IntArray, peaks: IntArray, lo: IntAr
             excess += beyond_px
     in_bands = 0
     for p in peaks:
-        in_bands += p >= 0 and _in_any(p, lo, hi)
+        in_bands += p >= 0 and _inside(p, inside)
     floor = skip_px * (order.size - assigned) + spare_px * (in_bands - assigned)
     return excess, floor, assigned
 
@@ -181,6 +190,7 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
     old = np.empty(k_count, dtype=np.int64)  # column c copied, not viewed (no count)
     peaks_c = np.empty(m_count, dtype=np.int64)
     ref_c = np.empty(k_count)
+    inside = _in_bands(lo, hi)
     for c in columns:
         for k in range(k_count):
             old[k], ref_c[k] = rows[k, c], ref[k, c]
@@ -192,15 +202,15 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
                 known[c] = _unexplained_column(old, c, cot_alpha, geometry, ground_range_m,
                                                image_order, z)
             missing = unexplained_px * known[c]
-        excess, floor, assigned = _assignment_cost(old, order, peaks_c, lo, hi, ref_c, beyond,
+        excess, floor, assigned = _assignment_cost(old, order, peaks_c, inside, ref_c, beyond,
                                                    costs)
         if excess + missing < margin:
             continue  # no alignment can save the margin here
         old_total = excess + floor + missing
         for k in range(k_count):
             ref_image[k] = ref[order[k], c]
-        total = _align_column(peaks_c, lo, hi, ref_image, beyond, costs, scratch, column,
-                              choice, aligned)
+        total = _align_column(peaks_c, lo, hi, inside, ref_image, beyond, costs, scratch,
+                              column, choice, aligned)
         if total + margin > old_total:
             continue
         for k in range(k_count):
@@ -229,9 +239,10 @@ def rows_cost(rows: IntArray, peaks: IntArray, lo: IntArray, hi: IntArray, ref: 
     in the terms :func:`align` minimises (``ref`` (K, n), ``beyond`` (K,) image order)."""
     order = np.arange(lo.size)
     out = np.empty(rows.shape[1])
+    inside = _in_bands(lo, hi)
     for c in range(rows.shape[1]):
-        excess, floor, _ = _assignment_cost(rows[:, c], order, peaks[:, c], lo, hi,
-                                            ref[:, c], beyond, costs)
+        excess, floor, _ = _assignment_cost(rows[:, c], order, peaks[:, c], inside, ref[:, c],
+                                            beyond, costs)
         out[c] = excess + floor
     return out
 

@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel, uncounted
-from atris_node.pipeline.selection import insert_sorted, median
+from atris_node.pipeline.selection import insert_sorted, kth, median
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -46,6 +46,8 @@ def assign_down(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> 
     k_count, (m_count, width) = lo.size, peaks.shape
     out = np.full((k_count, width), -1, dtype=np.int64)
     for c in range(width):
+        if peaks[0, c] < 0:
+            continue  # no peak (the padding is last): no line takes one
         last, start = -1, 0
         for k in range(k_count):
             for m in range(start, m_count):
@@ -62,18 +64,20 @@ def assign_down(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> 
 @kernel(f"{_I2}({_I2}, {_I1}, {_I1}, {_I1})")
 def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> IntArray:
     """(K, W) by line: as :func:`assign_down` from the bottom line up, each line taking
-    the lowest peak above the next line's."""
+    the lowest peak above the next line's. The last peak is the one before the padding
+    (found from the top: a column holds a few peaks, the padding most of ``M``)."""
     k_count, (m_count, width) = lo.size, peaks.shape
     out = np.full((k_count, width), -1, dtype=np.int64)
     for c in range(width):
-        below, end = np.iinfo(np.int64).max, m_count - 1
-        while end >= 0 and peaks[end, c] < 0:
-            end -= 1  # the padding
+        below, end = np.iinfo(np.int64).max, 0
+        while end < m_count and peaks[end, c] >= 0:
+            end += 1
+        end -= 1  # the last peak before the padding
+        if end < 0:
+            continue  # no peak: no line takes one
         for k in range(k_count - 1, -1, -1):
             for m in range(end, -1, -1):
                 p = peaks[m, c]
-                if p < 0:
-                    continue  # the padding
                 if p < lo[k]:
                     break  # above the band: no earlier peak fits
                 if p < below and p < hi[k]:
@@ -179,6 +183,66 @@ def _sorted_peaks(peaks: IntArray, out: IntArray) -> int:
     return m
 
 
+#: a span of whole values at most this many times their count (plus a few) is counted
+#: over; a wider one is selected from (:func:`_median_of_whole`)
+_SPAN_PER_VALUE = 4
+
+
+@kernel()
+def _short_span(values: FloatArray) -> tuple[float, int]:
+    """The least of (n,) whole-number values (n > 0) and their span in whole numbers, 0
+    when it is too wide to count over."""
+    low, high = values[0], values[0]
+    for v in values:
+        low, high = min(low, v), max(high, v)
+    span = int(high - low) + 1
+    return low, (span if span <= _SPAN_PER_VALUE * values.size + 64 else 0)
+
+
+@kernel()
+def _counted_middle(values: FloatArray, low: float, span: int) -> tuple[float, float]:
+    """The values of rank n // 2 - 1 (NaN for n = 1) and n // 2 (0-based) of (n,)
+    whole-number values from ``low`` over ``span`` whole numbers, by counting them."""
+    counts = np.zeros(span, dtype=np.int64)
+    for v in values:
+        counts[int(v - low)] += 1
+    upper_rank = values.size // 2
+    lower, upper = np.nan, np.nan
+    seen = 0
+    for i in range(span):
+        seen += counts[i]
+        if np.isnan(lower) and upper_rank > 0 and seen >= upper_rank:
+            lower = low + i
+        if seen > upper_rank:
+            upper = low + i
+            break
+    return lower, upper
+
+
+@kernel()
+def _median_of_whole(values: FloatArray) -> float:
+    """``np.median`` of (n,) whole-number values (rows; n > 0), to the bit: by counting
+    them over their span where it is short (a line's rows across the image lie within a
+    few hundred rows: O(n + span), without a selection's data-dependent branches), else
+    by :func:`atris_node.pipeline.selection.median`. The mean of the middle two (even n)
+    is numpy's (a + b) / 2."""
+    low, span = _short_span(values)
+    if span == 0:
+        return median(values)
+    lower, upper = _counted_middle(values, low, span)
+    return upper if values.size % 2 else (lower + upper) / 2
+
+
+@kernel()
+def _upper_middle_of_whole(values: FloatArray) -> float:
+    """The upper median (rank n // 2) of (n,) whole-number values (n > 0), as
+    :func:`_median_of_whole` takes it (else :func:`atris_node.pipeline.selection.kth`)."""
+    low, span = _short_span(values)
+    if span == 0:
+        return kth(values, values.size // 2)
+    return _counted_middle(values, low, span)[1]
+
+
 @kernel(f"float64[:, :]({_I2}, boolean[:, :], int64, int64, int64)")
 def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int,
                          min_block: int, min_line: int) -> FloatArray:
@@ -213,7 +277,7 @@ def continuity_reference(rows: IntArray, good: npt.NDArray[np.bool_], block: int
                 kept[i] = p
                 m += 1
             if m < min_block and np.isnan(line):
-                line = median(values[:n]) if n >= min_line else np.inf
+                line = _median_of_whole(values[:n]) if n >= min_line else np.inf
             out[k, lo:hi] = kept[m // 2] if m >= min_block else line
     return out
 

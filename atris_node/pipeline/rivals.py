@@ -165,10 +165,11 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
     A noise maximum just above the threshold (in a tile whose σ comes from its quiet part)
     can complete a comb shifted by one line, and a complete comb has no rival. So the
     identity is made twice: with every peak, and without the ``weak`` ones
-    (``weak(rows)`` says which of the given (., W) rows are weak). A column where a strong
-    peak gets another line (or none) without the weak peaks depends on them: there only the
-    samples both identities agree on are kept, the others count as ambiguous, with the
-    nearer of their two lines as their doubt.
+    (``weak(rows)`` says which of the given (., W) rows are weak, each by its own row and
+    column: the identity's rows, peaks of ``peaks``, take their peaks' flags). A column
+    where a strong peak gets another line (or none) without the weak peaks depends on them:
+    there only the samples both identities agree on are kept, the others count as
+    ambiguous, with the nearer of their two lines as their doubt.
     """
     edges = in_image_order(bands)
     full, first, passed = _unique(peaks, bands, edges, sep, prior, aligned, None)
@@ -180,9 +181,11 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
     # rows again, their rival test without continuity is the one just made
     alone, _, _ = _unique(strong, bands, edges, sep, prior, aligned,
                           (first, passed, np.asarray(~weak_peaks.any(axis=0))))
-    rows = full.rows
+    rows = full.rows  # each row one of ``peaks``: whether it is weak is looked up
     kept, lost, row, col, line = rivals_kernels.stable(
-        rows, alone.rows, np.ascontiguousarray((rows >= 0) & ~weak(rows)),
+        rows, alone.rows,
+        rivals_kernels.strong_rows(np.ascontiguousarray(peaks, dtype=np.int64), weak_peaks,
+                                   np.ascontiguousarray(rows, dtype=np.int64)),
         image_positions(edges[2]))
     doubts = [np.concatenate(parts) for parts in zip(
         (full.doubt_row, full.doubt_col, full.doubt_line), (row, col, line),

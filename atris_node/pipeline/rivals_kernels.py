@@ -25,13 +25,14 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.alignment_kernels import _missing
+from atris_node.pipeline.alignment_kernels import _in_bands, _inside, _missing
 from atris_node.pipeline.identity_kernels import (
     _sorted_column,
     _unexplained_column,
+    _upper_middle_of_whole,
     uncounted,
 )
-from atris_node.pipeline.selection import insert_sorted, kth
+from atris_node.pipeline.selection import insert_sorted
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -137,21 +138,6 @@ def _read_backward(j: int, i: int, m: int, column: IntArray, g: FloatArray,
             j += 1
         else:
             i += 1
-
-
-@kernel()
-def _in_bands(lo: IntArray, hi: IntArray) -> BoolArray:
-    """(max hi,) True on the rows >= 0 that lie in one of the bands ``[lo, hi)``."""
-    inside = np.zeros(max(hi.max(), 0) if hi.size else 0, dtype=np.bool_)
-    for k in range(lo.size):
-        inside[max(lo[k], 0):max(hi[k], 0)] = True
-    return inside
-
-
-@uncounted
-def _inside(p: int, inside: BoolArray) -> bool:
-    """True when row ``p`` >= 0 lies in a band (``inside`` of :func:`_in_bands`)."""
-    return p < inside.size and inside[p]
 
 
 @uncounted
@@ -311,7 +297,9 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                             missing = _unexplained_column(line_rows, c, cot_alpha, geometry,
                                                           ground_range_m, image_order, z)
                             if n_seen < SEEN_PATHS:
-                                seen[n_seen], seen_count[n_seen] = other, missing
+                                for k in range(k_count):  # (a row of ``seen`` is counted)
+                                    seen[n_seen, k] = other[k]
+                                seen_count[n_seen] = missing
                                 n_seen += 1
                         through += costs[3] * missing
                 if through < best + margin:
@@ -369,7 +357,20 @@ def _line_median(row: IntArray, goods: IntArray, n_good: int, min_line: int,
     fewer than ``min_line``; ``values`` (W,) work space."""
     for s in range(n_good):
         values[s] = row[goods[s]]
-    return kth(values[:n_good], n_good // 2) if n_good >= min_line else np.inf
+    return _upper_middle_of_whole(values[:n_good]) if n_good >= min_line else np.inf
+
+
+@uncounted
+def _bisect(goods: IntArray, n_good: int, c: int) -> int:
+    """The first index of ``goods[:n_good]`` (ascending) whose column is >= c."""
+    start, end = 0, n_good
+    while start < end:
+        mid = (start + end) // 2
+        if goods[mid] < c:
+            start = mid + 1
+        else:
+            end = mid
+    return start
 
 
 @uncounted
@@ -378,15 +379,7 @@ def _first_from(goods: IntArray, n_good: int, c: int, start: int) -> int:
     ``start`` on when ``goods[start - 1]`` < c (columns taken in ascending order),
     else by bisection."""
     if start > 0 and goods[start - 1] >= c:
-        start = 0
-        end = n_good
-        while start < end:
-            mid = (start + end) // 2
-            if goods[mid] < c:
-                start = mid + 1
-            else:
-                end = mid
-        return start
+        return _bisect(goods, n_good, c)
     while start < n_good and goods[start] < c:
         start += 1
     return start
@@ -406,34 +399,70 @@ def _far_or_bridged(row: IntArray, c: int, left: int, right: int, bridge_px: flo
 
 
 @kernel()
-def _continuity_columns(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: int,
-                        block: int, min_block: int, min_line: int, bridge_px: float,
-                        median_px: float) -> FloatArray:
+def _held_columns(rows: IntArray) -> tuple[IntArray, IntArray]:
+    """Per line of ``rows`` (K, W), the columns where it holds a row (>= 0), ascending:
+    (K, W) with line k's in ``[k, :count[k]]``, and the (K,) ``count``."""
+    k_count, width = rows.shape
+    held = np.empty((k_count, width), dtype=np.int64)
+    count = np.zeros(k_count, dtype=np.int64)
+    for k in range(k_count):
+        n = 0
+        for c in range(width):  # without a branch: written always, kept when held
+            held[k, n] = c
+            n += rows[k, c] >= 0
+        count[k] = n
+    return held, count
+
+
+@kernel()
+def _medians_memo(k_count: int, width: int, block: int) -> tuple[FloatArray, IntArray]:
+    """An empty memo of :func:`_continuity_columns`' medians for (K, W) rows: (K, B + 1)
+    values and (K, B + 1) counts of the good rows each was taken from (-1: none yet), B
+    the blocks of ``block`` columns."""
+    n_blocks = (width + block - 1) // block
+    return (np.full((k_count, n_blocks + 1), np.nan),
+            np.full((k_count, n_blocks + 1), -1, dtype=np.int64))
+
+
+@kernel()
+def _continuity_columns(rows: IntArray, anchored: BoolArray, held: IntArray,
+                        n_held: IntArray, medians: FloatArray, taken: IntArray,
+                        columns: IntArray, reach: int, block: int, min_block: int,
+                        min_line: int, bridge_px: float, median_px: float) -> FloatArray:
     """:func:`continuity` as (K, n): the reference of each line in each of the (n,)
-    ``columns``. Each line's good columns (anchored, a row >= 0) are listed once; a
-    column's nearest good ones on both sides are found in that list."""
+    ``columns``; ``held``, ``n_held`` the columns where each line holds a row
+    (:func:`_held_columns`). Each line's good columns (anchored, a row >= 0) are listed
+    once, from those it holds; a column's nearest good ones on both sides are found in
+    that list.
+
+    ``medians``, ``taken``: the memo of :func:`_medians_memo`, in place: per line each
+    block's median (B blocks) and the line's median (last), and the count of good rows
+    each was taken from. Between calls on one memo the rows are the same and the
+    anchored columns only grow, so a line or a block with as many good rows as when
+    its median was taken has the same ones: the median is not taken again."""
     k_count, width = rows.shape
     n = columns.size
+    n_blocks = medians.shape[1] - 1
     out = np.full((k_count, n), np.inf)
     far = np.zeros((k_count, n), dtype=np.bool_)
     off = np.zeros(n, dtype=np.bool_)
     goods = np.empty(width, dtype=np.int64)
-    medians = np.empty((width + block - 1) // block)
+    checked = np.empty(n_blocks, dtype=np.bool_)  # the blocks counted in this call
     values = np.empty(width)
     kept = np.empty(block)
     for k in range(k_count):
         row = rows[k]
         n_good = 0
-        for c in range(width):  # without a branch: written always, kept when good
+        for s in range(n_held[k]):  # without a branch: written always, kept when good
+            c = held[k, s]
             goods[n_good] = c
-            n_good += anchored[c] & (row[c] >= 0)
+            n_good += anchored[c]
         if n_good == 0 and min_block > 0 and min_line > 0:  # no anchored row: no reference
             for i in range(n):
                 far[k, i] = True
                 off[i] |= row[columns[i]] >= 0
             continue
-        medians[:] = np.nan
-        line = np.nan
+        checked[:] = False
         s = 0
         for i in range(n):
             c = columns[i]
@@ -449,18 +478,23 @@ def _continuity_columns(rows: IntArray, anchored: BoolArray, columns: IntArray, 
                 out[k, i] = row[after]
             else:
                 b = c // block
-                if np.isnan(medians[b]):
-                    medians[b] = _block_median(
-                        row, goods, _first_from(goods, n_good, b * block, 0),
-                        _first_from(goods, n_good, min(b * block + block, width), 0),
-                        min_block, kept)
-                ref = medians[b]
+                if not checked[b]:
+                    start = _bisect(goods, n_good, b * block)
+                    end = _bisect(goods, n_good, min(b * block + block, width))
+                    if taken[k, b] != end - start:
+                        medians[k, b] = _block_median(row, goods, start, end, min_block, kept)
+                        taken[k, b] = end - start
+                    checked[b] = True
+                ref = medians[k, b]
                 if not np.isfinite(ref):
                     ref = _far_or_bridged(row, c, c if good else before, c if good else after,
                                           bridge_px)
                 if np.isnan(ref):
-                    if np.isnan(line):
-                        line = _line_median(row, goods, n_good, min_line, values)
+                    if taken[k, n_blocks] != n_good:
+                        medians[k, n_blocks] = _line_median(row, goods, n_good, min_line,
+                                                            values)
+                        taken[k, n_blocks] = n_good
+                    line = medians[k, n_blocks]
                     ref = line
                     far[k, i] = True
                     off[i] |= row[c] >= 0 and abs(row[c] - line) > median_px
@@ -495,8 +529,10 @@ def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: in
     inf in the other columns. The block and line medians are taken only where they are
     needed."""
     out = np.full(rows.shape, np.inf)
-    at = _continuity_columns(rows, anchored, columns, reach, block, min_block, min_line,
-                             bridge_px, median_px)
+    held, n_held = _held_columns(rows)
+    medians, taken = _medians_memo(rows.shape[0], rows.shape[1], block)
+    at = _continuity_columns(rows, anchored, held, n_held, medians, taken, columns, reach,
+                             block, min_block, min_line, bridge_px, median_px)
     for i in range(columns.size):
         for k in range(rows.shape[0]):
             out[k, columns[i]] = at[k, i]
@@ -508,17 +544,36 @@ def _anchored(ambiguous: IntArray, anchored: BoolArray, again: IntArray) -> int:
     """Columns without an ambiguous line into ``anchored`` (W,), the others' indices into
     ``again`` (W,); their count."""
     k_count, width = ambiguous.shape
+    anchored[:] = True
+    for k in range(k_count):  # along the rows of ``ambiguous``
+        for c in range(width):
+            anchored[c] &= ambiguous[k, c] < 0
     n = 0
-    for c in range(width):
-        anchored[c] = True
-        for k in range(k_count):
-            if ambiguous[k, c] >= 0:
-                anchored[c] = False
-                break
-        if not anchored[c]:
-            again[n] = c
-            n += 1
+    for c in range(width):  # without a branch: written always, kept when not anchored
+        again[n] = c
+        n += not anchored[c]
     return n
+
+
+@uncounted
+def _still_open(ambiguous: IntArray, anchored: BoolArray, tested: IntArray, n_tested: int,
+                columns: IntArray, n: int) -> int:
+    """After a round: the ``tested`` columns (``[:n_tested]``) without an ambiguous line
+    anchored (``anchored`` (W,)), and the first ``n`` of ``columns`` (ascending, not
+    anchored before the round) kept in place where still not anchored; their count."""
+    for i in range(n_tested):
+        c = tested[i]
+        for k in range(ambiguous.shape[0]):
+            if ambiguous[k, c] >= 0:
+                break
+        else:
+            anchored[c] = True
+    kept = 0
+    for i in range(n):  # without a branch: written always, kept when not anchored
+        c = columns[i]
+        columns[kept] = c
+        kept += not anchored[c]
+    return kept
 
 
 @uncounted
@@ -569,7 +624,8 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     n = 0
     for c in range(width):
         if reuse[c]:
-            ambiguous[:, c] = passed[:, c]
+            for k in range(k_count):  # (columns as views would be counted)
+                ambiguous[k, c] = passed[k, c]
             continue
         outranked[c] = False
         for k in range(k_count):
@@ -584,14 +640,19 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     no_rank = np.zeros(0, dtype=np.bool_)
     anchored = np.empty(width, dtype=np.bool_)
     again = np.empty(width, dtype=np.int64)
+    # the columns not anchored (ascending), kept up to date by each round: a round tests
+    # only such columns, and only its tested ones change (an anchored one stays anchored)
+    n = _anchored(ambiguous, anchored, columns)
+    held, n_held = _held_columns(rows)  # rows do not change in the rounds
+    medians, taken = _medians_memo(k_count, width, block)
     left = -1
     for _ in range(rounds):
-        n = _anchored(ambiguous, anchored, columns)
         if n in (0, left):
             break  # all anchored, or the last round anchored nothing new
         left = n
-        by_line = _continuity_columns(rows, anchored, columns[:n], reach, block, min_block,
-                                      min_line, bridge_px, median_px)
+        by_line = _continuity_columns(rows, anchored, held, n_held, medians, taken,
+                                      columns[:n], reach, block, min_block, min_line,
+                                      bridge_px, median_px)
         n_again = 0
         for i in range(n):  # each was tested in the last round (or pass 1)
             c = columns[i]
@@ -605,6 +666,7 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         rivals(peaks, lo, hi, order, rows, ambiguous, again[:n_again], ref, beyond, margin,
                costs, has_prior, cot_alpha, geometry, ground_range_m, image_order, counted,
                no_rank)
+        n = _still_open(ambiguous, anchored, again, n_again, columns, n)
     for k in range(k_count):
         for c in range(width):
             if ambiguous[k, c] >= 0:
@@ -653,19 +715,18 @@ def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
     the lowest band ``[lo, hi)`` (image ``order``) that holds it (none: left out)."""
     k_count, width = rows.shape
     m_count = peaks.shape[0]
-    out = np.empty(width, dtype=np.int64)
+    removed = np.zeros(width, dtype=np.int64)
     unsure_at = np.empty(width, dtype=np.int64)
     n_rival, n_unsure = 0, 0
-    for c in range(width):
-        before, after = 0, 0
-        for k in range(k_count):
-            before += first[k, c] >= 0
-            after += rows[k, c] >= 0
+    for k in range(k_count):  # along the rows of the (K, W) tables
+        for c in range(width):
+            removed[c] += int(first[k, c] >= 0) - int(rows[k, c] >= 0)
             n_rival += nearest[k, c] >= 0
-        out[c] = unsure[c] + max(before - after, 0)
-        if unsure[c] > 0:
-            unsure_at[n_unsure] = c
-            n_unsure += 1
+    out = np.empty(width, dtype=np.int64)
+    for c in range(width):
+        out[c] = unsure[c] + max(removed[c], 0)
+        unsure_at[n_unsure] = c  # without a branch: written always, kept when unsure
+        n_unsure += unsure[c] > 0
     lone = np.full((m_count, n_unsure), -1, dtype=np.int64)
     n_lone = 0
     for i in range(m_count):
@@ -690,6 +751,26 @@ def doubts(peaks: IntArray, first: IntArray, rows: IntArray, nearest: IntArray,
                 row[n], col[n], line[n] = peaks[i, unsure_at[u]], unsure_at[u], lone[i, u]
                 n += 1
     return out, row, col, line
+
+
+@kernel("boolean[:, :](int64[:, :], boolean[:, :], int64[:, :])")
+def strong_rows(peaks: IntArray, weak: BoolArray, rows: IntArray) -> BoolArray:
+    """(K, W) True where a line of ``rows`` (K, W) holds a peak of ``peaks`` (M, W) that
+    is not ``weak`` (M, W): the peak's own flag, looked up (each row >= 0 is one of its
+    column's peaks)."""
+    m_count = peaks.shape[0]
+    k_count, width = rows.shape
+    out = np.zeros((k_count, width), dtype=np.bool_)
+    for k in range(k_count):
+        for c in range(width):
+            row = rows[k, c]
+            if row < 0:
+                continue
+            for i in range(m_count):
+                if peaks[i, c] == row:
+                    out[k, c] = not weak[i, c]
+                    break
+    return out
 
 
 @kernel("Tuple((int64[:, :], int64[:], int64[:], int64[:], int64[:]))(int64[:, :], "
@@ -735,12 +816,33 @@ def stable(rows: IntArray, alone: IntArray, held: BoolArray, position: IntArray
     return kept, lost, row, col, line
 
 
+@uncounted
+def _as_they_are(peaks: IntArray, drop: BoolArray) -> bool:
+    """True when nothing is to be dropped and every column of ``peaks`` (M, W) is sorted
+    down with the -1 padding last already (passes along the rows, without a branch)."""
+    m_count, width = peaks.shape
+    dropped = False
+    for i in range(m_count):
+        for c in range(width):
+            dropped |= drop[i, c]
+    if dropped:
+        return False
+    unsorted = False
+    for i in range(1, m_count):
+        for c in range(width):
+            p, above = peaks[i, c], peaks[i - 1, c]
+            unsorted |= (p >= 0) & ((above < 0) | (above > p))
+    return not unsorted
+
+
 @kernel("Tuple((int64[:, :], int64[:]))(int64[:, :], boolean[:, :])")
 def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
     """``peaks`` (M, W) without the ``drop`` ones and the -1 padding, each column sorted
     down (insertion: the columns mostly are) with -1 padding last, and the (W,) count of
     ``drop``."""
     m_count, width = peaks.shape
+    if _as_they_are(peaks, drop):
+        return peaks.copy(), np.zeros(width, dtype=np.int64)
     out = np.full((m_count, width), -1, dtype=np.int64)
     count = np.zeros(width, dtype=np.int64)
     for c in range(width):
@@ -776,6 +878,7 @@ def warm_up() -> None:
            np.array([4, 2, 1, 1, 3], dtype=i64), costs, *prior, np.full(1, -1, dtype=i64))
     doubts(peaks, rows, rows, none, one, one, hi, one)
     stable(rows, none, np.ones((1, 1), dtype=np.bool_), one)
+    strong_rows(peaks, np.zeros((2, 1), dtype=np.bool_), rows)
     set_aside(peaks, np.zeros((2, 1), dtype=np.bool_))
     isolated(peaks, 2, 2)
     continuity(rows, np.ones(1, dtype=np.bool_), one, 4, 2, 1, 1, 4.0, 6.0)
