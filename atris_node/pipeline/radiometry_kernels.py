@@ -37,8 +37,12 @@ def too_faint(values: npt.NDArray[Any], row_px: FloatArray, col_px: FloatArray,
 
 
 def warm_up() -> None:
-    """Type the kernel's arguments once, for the map dtypes the demodulators make."""
+    """Type the kernel's arguments once, for the map dtypes the demodulators make (their
+    maps are read-only; a recording's may not be)."""
     one = np.ones(1)
     for dtype in (np.int16, np.int32):
-        too_faint(np.ones((2, 2), dtype), one, one, np.ones(1, np.bool_), np.ones((1, 3)),
-                  0.1, 1.0, 0.002, np.zeros(1, np.bool_))
+        for writable in (True, False):
+            values = np.ones((2, 2), dtype)
+            values.setflags(write=writable)
+            too_faint(values, one, one, np.ones(1, np.bool_), np.ones((1, 3)), 0.1, 1.0,
+                      0.002, np.zeros(1, np.bool_))
