@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_calib_live import WALL_SCENE
 
 from atris_node.bench import safety
 from atris_node.calibration import LaserCalibration
@@ -22,29 +23,9 @@ from atris_node.pipeline.peaks import LineSamples, select
 from atris_node.sim import load_scene
 from atris_node.types import SectorState
 
-WALL = """
-[scene]
-description = "white wall facing the unit"
-[camera]
-width_px = 320
-height_px = 200
-focal_px = 190.0
-rate_hz = 240.0
-exposure_us = 1000.0
-[projector]
-baseline_m = 0.075
-alpha_deg = [86.0, 90.0, 94.0]
-power_w = 0.08
-[ground]
-enabled = false
-[[plane]]
-name = "wall"
-point_m = [DISTANCE, 0.0, 0.0]
-normal = [-1.0, 0.0, 0.0]
-albedo = ALBEDO
-[noise]
-enabled = false
-"""
+#: the calibration wall of tests/test_calib_live.py, at any distance and albedo, without noise
+WALL = (WALL_SCENE.replace("point_m = [1.2, 0.0, 0.0]", "point_m = [DISTANCE, 0.0, 0.0]")
+        .replace("albedo = 0.7", "albedo = ALBEDO") + "[noise]\nenabled = false\n")
 
 LASER = LaserCalibration(0.075, (1.5, 1.6), return_dn_m2=500.0, return_exposure_us=1000.0)
 
