@@ -302,6 +302,9 @@ class Pipeline:
                         verdicts_kernels, radiometry_kernels):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
+        if config.min_reflectance > 0.0 and not radiometry.calibrated(calibration.laser):
+            logger.info("no radiometric calibration (return_dn_m2): a return too faint for "
+                        "its range is not looked for; 'atris calib radiometry' measures it")
         if self.bands and not self._prior.looks_beyond.any():
             # every sheet meets the ground within z_max in every column: nothing beyond
             # the farthest ground hit is looked at, so no sector can be free (NO_RETURN)
