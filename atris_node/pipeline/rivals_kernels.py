@@ -27,6 +27,7 @@ import numpy.typing as npt
 from atris_node.jit import kernel
 from atris_node.pipeline.alignment_kernels import _in_bands, _inside, _missing
 from atris_node.pipeline.identity_kernels import (
+    _line_terms,
     _sorted_column,
     _unexplained_column,
     _upper_middle_of_whole,
@@ -228,6 +229,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     spare_tables = np.zeros(m_count)  # the costs of the tables last filled
     m_tables = -1
     inside = _in_bands(lo, hi)
+    terms = _line_terms(cot_alpha, geometry, image_order)
     for c in columns:
         n_seen = 0
         m = _sorted_column(peaks, c, column)
@@ -276,7 +278,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 if not priced:
                     if counted[c] < 0:
                         _by_line(image, order, line_rows)
-                        counted[c] = _unexplained_column(line_rows, c, cot_alpha, geometry,
+                        counted[c] = _unexplained_column(line_rows, c, terms, geometry,
                                                          ground_range_m, image_order, z)
                     best += costs[3] * counted[c]
                     bound, priced = best, True
@@ -294,7 +296,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         missing = _known_count(seen, seen_count, n_seen, other)
                         if missing < 0:  # a path not yet priced in this column
                             _by_line(other, order, line_rows)
-                            missing = _unexplained_column(line_rows, c, cot_alpha, geometry,
+                            missing = _unexplained_column(line_rows, c, terms, geometry,
                                                           ground_range_m, image_order, z)
                             if n_seen < SEEN_PATHS:
                                 for k in range(k_count):  # (a row of ``seen`` is counted)
