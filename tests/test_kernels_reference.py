@@ -1756,3 +1756,26 @@ def test_unexplained_in_one_pass_is_its_definition() -> None:
         rows[:, :1] = -1
         got = prior.unexplained(rows)
         np.testing.assert_array_equal(got, _unexplained_as_defined(prior, rows))
+
+
+def test_match_costs_from_band_bits_are_those_of_match() -> None:
+    """rivals_kernels._plain_match (a column's match costs from its peaks' band bits, where
+    no line has a reference or a z_max row) equals _match peak by peak on 300 random band
+    sets (overlapping, empty, starting above the image) and columns, bitwise."""
+    from atris_node.pipeline import rivals_kernels as rk
+
+    rng = np.random.default_rng(47)
+    for _ in range(300):
+        k_count, m = int(rng.integers(1, 17)), int(rng.integers(0, 14))
+        lo = np.sort(rng.integers(-20, 380, k_count)).astype(np.int64)
+        hi = (lo + rng.integers(0, 120, k_count)).astype(np.int64)
+        column = np.sort(rng.integers(0, 520, m)).astype(np.int64)
+        ref, beyond = np.full(k_count, np.inf), np.full(k_count, np.inf)
+        assert rk._unbounded(beyond) and rk._unreferenced(ref)
+        band_bits = rk._band_bits(lo, hi)
+        bits = np.array([rk._bits_of(p, band_bits) for p in column], dtype=np.int64)
+        got = np.full((k_count, max(m, 1)), -7.0)
+        rk._plain_match(m, k_count, bits, got)
+        want = np.array([[rk._match(j, p, lo, hi, ref, beyond, 10.0) for p in column]
+                         for j in range(k_count)]).reshape(k_count, m)
+        assert got[:, :m].tobytes() == want.tobytes()

@@ -167,7 +167,7 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
     return out
 
 
-@kernel()
+@uncounted
 def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
     """:func:`_sorted_peaks` of column c of ``peaks`` (M, W)."""
     m = 0
