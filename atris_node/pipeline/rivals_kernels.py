@@ -352,8 +352,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         continue
                 # outranking is judged on the exact price (pass 1, until the column is)
                 ranking = outranked.size > 0 and not outranked[c]
-                if has_prior:
-                    other[:] = -1
+                if has_prior:  # (the reads write every line's row)
                     _read_forward(j, i, column, f, match, costs[0], other)
                     other[j] = column[i]
                     _read_backward(j + 1, i + 1, m, column, g, match, costs[0], other)
