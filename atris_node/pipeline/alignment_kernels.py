@@ -15,7 +15,12 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.jit import kernel
-from atris_node.pipeline.identity_kernels import _sorted_peaks, _unexplained_column, uncounted
+from atris_node.pipeline.identity_kernels import (
+    _line_terms,
+    _sorted_peaks,
+    _unexplained_column,
+    uncounted,
+)
 
 IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
@@ -191,6 +196,7 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
     peaks_c = np.empty(m_count, dtype=np.int64)
     ref_c = np.empty(k_count)
     inside = _in_bands(lo, hi)
+    terms = _line_terms(cot_alpha, geometry, image_order)
     for c in columns:
         for k in range(k_count):
             old[k], ref_c[k] = rows[k, c], ref[k, c]
@@ -199,7 +205,7 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
         missing = 0.0
         if has_prior:
             if known[c] < 0:
-                known[c] = _unexplained_column(old, c, cot_alpha, geometry, ground_range_m,
+                known[c] = _unexplained_column(old, c, terms, geometry, ground_range_m,
                                                image_order, z)
             missing = unexplained_px * known[c]
         excess, floor, assigned = _assignment_cost(old, order, peaks_c, inside, ref_c, beyond,
@@ -219,7 +225,7 @@ def improve(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: 
         # missing lines: taken only when that could undo the switch
         count = -1  # of the new rows, where taken
         if has_prior and total + unexplained_px * _missing(new) + margin > old_total:
-            count = _unexplained_column(new, c, cot_alpha, geometry, ground_range_m,
+            count = _unexplained_column(new, c, terms, geometry, ground_range_m,
                                         image_order, z)
             total += unexplained_px * count
             if total + margin > old_total:

@@ -88,60 +88,67 @@ def assign_up(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray) -> In
 
 
 @kernel()
-def _next_finite(z: FloatArray, k: int) -> int:
-    """The first position from k down whose range is finite (``z.size`` when none)."""
-    while k < z.size and not np.isfinite(z[k]):
-        k += 1
-    return k
+def _line_terms(cot_alpha: FloatArray, geometry: FloatArray, order: IntArray) -> FloatArray:
+    """(2, K) per line in image ``order``: f·cot α and the row at infinite range,
+    cy + f·cot α (px), the terms of :func:`_unexplained_column` that do not depend on the
+    column (taken once per call of a kernel, the same sums to the bit)."""
+    out = np.empty((2, order.size))
+    for k in range(order.size):
+        out[0, k] = geometry[0] * cot_alpha[order[k]]
+        out[1, k] = geometry[1] + out[0, k]
+    return out
 
 
 @uncounted
-def _unexplained_column(rows: IntArray, c: int, cot_alpha: FloatArray, geometry: FloatArray,
+def _unexplained_column(rows: IntArray, c: int, terms: FloatArray, geometry: FloatArray,
                         ground_range_m: FloatArray, order: IntArray, z: FloatArray) -> int:
     """:func:`unexplained` of one column: ``rows`` (K,) by line, ``c`` its column of
-    ``ground_range_m``; ``z`` (K,) scratch. One pass down the lines: each missing line
-    takes the finite range of the nearest line above (``up``) or below (``down``) it, the
-    nearer range on a tie of the distance in lines."""
+    ``ground_range_m``; ``terms`` of :func:`_line_terms`; ``z`` (K,) scratch. One pass down
+    the lines: at each line with a finite range, the missing lines since the one before
+    (``up``) take the range of the nearer of the two in lines (the nearer range on a tie);
+    the missing lines after the last one take its range."""
     k_count = order.size
-    focal_px, cy_px, height_px = geometry[0], geometry[1], geometry[2]
-    baseline_m, z_max_m = geometry[3], geometry[4]
-    missing = False
+    cy_px, height_px, z_max_m = geometry[1], geometry[2], geometry[4]
+    range_px = geometry[0] * geometry[3]  # f·b: z = f·b / disparity
+    count, up, pending = 0, -1, False
     for k in range(k_count):
-        line = order[k]
-        if rows[line] >= 0:
-            den = focal_px * cot_alpha[line] - (rows[line] - cy_px)
-            z[k] = focal_px * baseline_m / den if den > 0 else np.inf
-        else:
-            z[k] = np.inf
-            missing = True
-    if not missing:
-        return 0
-    count, up, down = 0, -1, _next_finite(z, 0)
-    for k in range(k_count):
-        if down <= k:
-            down = _next_finite(z, k + 1)
-        line = order[k]
-        if rows[line] < 0 and (up >= 0 or down < k_count):
-            near = _nearer(z, k, up, down)
-            if np.isfinite(near) and near <= z_max_m and near < ground_range_m[line, c]:
-                row = cy_px + focal_px * cot_alpha[line] - focal_px * baseline_m / near
-                count += 0 <= row < height_px
-        if np.isfinite(z[k]):
-            up = k
+        row = rows[order[k]]
+        if row < 0:
+            pending = True
+            continue
+        den = terms[0, k] - (row - cy_px)
+        z[k] = range_px / den if den > 0 else np.inf
+        if not np.isfinite(z[k]):
+            continue
+        if pending:
+            for q in range(up + 1, k):
+                line = order[q]
+                if rows[line] >= 0:
+                    continue
+                gap_up = q - up if up >= 0 else 3 * k_count
+                near = z[up] if gap_up < k - q or (gap_up == k - q and z[up] <= z[k]) else z[k]
+                count += _seen_at(near, q, line, c, terms, range_px, height_px, z_max_m,
+                                  ground_range_m)
+            pending = False
+        up = k
+    if pending and up >= 0:
+        for q in range(up + 1, k_count):
+            line = order[q]
+            if rows[line] < 0:
+                count += _seen_at(z[up], q, line, c, terms, range_px, height_px, z_max_m,
+                                  ground_range_m)
     return count
 
 
-@kernel()
-def _nearer(z: FloatArray, k: int, up: int, down: int) -> float:
-    """Of the finite ranges at positions ``up`` < k < ``down`` (-1 / ``z.size``: none), the
-    one nearer to k in lines; on a tie the nearer range."""
-    z_up = z[up] if up >= 0 else np.inf
-    z_down = z[down] if down < z.size else np.inf
-    gap_up = k - up if up >= 0 else 3 * z.size
-    gap_down = down - k if down < z.size else 3 * z.size
-    if gap_up < gap_down or (gap_up == gap_down and z_up <= z_down):
-        return z_up
-    return z_down
+@uncounted
+def _seen_at(near: float, q: int, line: int, c: int, terms: FloatArray, range_px: float,
+             height_px: float, z_max_m: float, ground_range_m: FloatArray) -> bool:
+    """True when ``line`` (image position q) would be seen at range ``near`` (m) in
+    column c: within z_max, above the ground and inside the image."""
+    if near <= z_max_m and near < ground_range_m[line, c]:
+        row = terms[1, q] - range_px / near
+        return 0 <= row < height_px
+    return False
 
 
 @kernel(f"int64[:]({_I2}, {_F1}, {_F1}, {_F2}, {_I1})")
@@ -154,13 +161,13 @@ def unexplained(rows: IntArray, cot_alpha: FloatArray, geometry: FloatArray,
     z_max m)."""
     out = np.zeros(rows.shape[1], dtype=np.int64)
     z = np.empty(order.size)
+    terms = _line_terms(cot_alpha, geometry, order)
     for c in range(rows.shape[1]):
-        out[c] = _unexplained_column(rows[:, c], c, cot_alpha, geometry, ground_range_m,
-                                     order, z)
+        out[c] = _unexplained_column(rows[:, c], c, terms, geometry, ground_range_m, order, z)
     return out
 
 
-@kernel()
+@uncounted
 def _sorted_column(peaks: IntArray, c: int, out: IntArray) -> int:
     """:func:`_sorted_peaks` of column c of ``peaks`` (M, W)."""
     m = 0
@@ -326,15 +333,16 @@ def greedy_identity(peaks: IntArray, lo: IntArray, hi: IntArray, line: IntArray,
     miss_down = np.full(width, -1, dtype=np.int64)
     miss_up = np.full(width, -1, dtype=np.int64)
     z = np.empty(k_count)
+    terms = _line_terms(cot_alpha, geometry, image_order)
     down_c = np.empty(k_count, dtype=np.int64)  # columns copied, not viewed (no count)
     up_c = np.empty(k_count, dtype=np.int64)
     for c in range(width):
         if unsettled[c] and has_prior:
             for k in range(k_count):
                 down_c[k], up_c[k] = down[k, c], up[k, c]
-            miss_down[c] = _unexplained_column(down_c, c, cot_alpha, geometry, ground_range_m,
+            miss_down[c] = _unexplained_column(down_c, c, terms, geometry, ground_range_m,
                                                image_order, z)
-            miss_up[c] = _unexplained_column(up_c, c, cot_alpha, geometry, ground_range_m,
+            miss_up[c] = _unexplained_column(up_c, c, terms, geometry, ground_range_m,
                                              image_order, z)
             pick_up[c], pick_down[c] = miss_up[c] < miss_down[c], miss_down[c] < miss_up[c]
     settled = ~unsettled | pick_up | pick_down

@@ -27,6 +27,7 @@ import numpy.typing as npt
 from atris_node.jit import kernel
 from atris_node.pipeline.alignment_kernels import _in_bands, _inside, _missing
 from atris_node.pipeline.identity_kernels import (
+    _line_terms,
     _sorted_column,
     _unexplained_column,
     _upper_middle_of_whole,
@@ -45,7 +46,7 @@ SEEN_PATHS = 16
 TAKE, SKIP, SPARE = 1, 2, 0
 
 
-@kernel()
+@uncounted
 def _match(j: int, p: int, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: FloatArray,
            beyond_px: float) -> float:
     """Cost (px) of line j (image order) taking the peak on row p; inf outside its band."""
@@ -53,6 +54,55 @@ def _match(j: int, p: int, lo: IntArray, hi: IntArray, ref: FloatArray, beyond: 
         return np.inf
     cost = abs(p - ref[j]) if np.isfinite(ref[j]) else 0.0
     return cost + (beyond_px if p >= beyond[j] else 0.0)
+
+
+#: lines whose bands a row's bits can hold (:func:`_band_bits`)
+_MAX_BITS = 63
+
+
+@kernel()
+def _band_bits(lo: IntArray, hi: IntArray) -> IntArray:
+    """(max hi,) int64 per row >= 0 the bands ``[lo, hi)`` (image order) that hold it, as
+    bits (bit j: band j; at most :data:`_MAX_BITS` bands)."""
+    bits = np.zeros(max(hi.max(), 0) if hi.size else 0, dtype=np.int64)
+    for j in range(lo.size):
+        for p in range(max(lo[j], 0), max(hi[j], 0)):
+            bits[p] |= np.int64(1) << j
+    return bits
+
+
+@uncounted
+def _bits_of(p: int, band_bits: IntArray) -> int:
+    """The bands that hold row ``p`` >= 0 as bits (:func:`_band_bits`)."""
+    return band_bits[p] if p < band_bits.size else 0
+
+
+@uncounted
+def _unbounded(beyond: FloatArray) -> bool:
+    """True when no line has a z_max row (``beyond`` all +inf): no match pays BEYOND."""
+    for b in beyond:  # noqa: SIM110 (a generator does not compile)
+        if b != np.inf:
+            return False
+    return True
+
+
+@uncounted
+def _unreferenced(ref: FloatArray) -> bool:
+    """True when no line has a finite continuity reference in ``ref`` (K,)."""
+    for r in ref:  # noqa: SIM110 (a generator does not compile)
+        if np.isfinite(r):
+            return False
+    return True
+
+
+@uncounted
+def _plain_match(m: int, k_count: int, bits: IntArray, match: FloatArray) -> None:
+    """The match costs (K, M) of :func:`_match` of the first ``m`` peaks, whose bands are
+    ``bits`` (M,), where no line has a reference or a z_max row: 0 in the line's band,
+    inf outside it."""
+    for j in range(k_count):
+        for i in range(m):
+            match[j, i] = 0.0 if (bits[i] >> j) & 1 else np.inf
 
 
 @uncounted
@@ -160,7 +210,7 @@ def _chosen_cost(rows: IntArray, column: IntArray, m: int, lo: IntArray, hi: Int
     return total - taken
 
 
-@kernel()
+@uncounted
 def _known_count(seen: IntArray, seen_count: IntArray, n_seen: int, path: IntArray) -> int:
     """The count stored with ``path`` (K,) among the first ``n_seen`` rows of ``seen``, -1
     when it is not there."""
@@ -182,7 +232,7 @@ def _by_line(rows_image: IntArray, order: IntArray, out: IntArray) -> None:
         out[order[k]] = rows_image[k]
 
 
-@kernel()
+@uncounted
 def _peak_index(column: IntArray, m: int, row: int) -> int:
     """Index of ``row`` among the sorted peaks (-1 when absent)."""
     for i in range(m):
@@ -228,6 +278,13 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
     spare_tables = np.zeros(m_count)  # the costs of the tables last filled
     m_tables = -1
     inside = _in_bands(lo, hi)
+    terms = _line_terms(cot_alpha, geometry, image_order)
+    # without a reference or a z_max row a match costs 0 in the line's band, inf outside
+    # it: a column's match costs are its peaks' bands (as bits, for up to 63 lines)
+    bitwise = k_count <= _MAX_BITS and _unbounded(beyond)
+    band_bits = _band_bits(lo, hi) if bitwise else np.zeros(0, dtype=np.int64)
+    bits_tables = np.zeros(m_count, dtype=np.int64)  # the peaks' bands of the last tables
+    plain_tables = False  # whether the last tables' match costs were bands only
     for c in columns:
         n_seen = 0
         m = _sorted_column(peaks, c, column)
@@ -252,11 +309,22 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
         for i in range(m):
             same &= spare[i] == spare_tables[i]
             spare_tables[i] = spare[i]
-        for j in range(k_count):
+        plain = bitwise and _unreferenced(ref_c)
+        if plain:  # the match costs are the peaks' bands: compared as bits
+            same &= plain_tables
             for i in range(m):
-                cost = _match(j, column[i], lo, hi, ref_c, beyond, costs[2])
-                same &= cost == match[j, i]
-                match[j, i] = cost
+                bits = _bits_of(column[i], band_bits)
+                same &= bits == bits_tables[i]
+                bits_tables[i] = bits
+            if not same:
+                _plain_match(m, k_count, bits_tables, match)
+        else:
+            for j in range(k_count):
+                for i in range(m):
+                    cost = _match(j, column[i], lo, hi, ref_c, beyond, costs[2])
+                    same &= cost == match[j, i]
+                    match[j, i] = cost
+        plain_tables = plain
         if not same:
             _tables(m, k_count, match, costs, spare, f, g)
             m_tables = m
@@ -276,7 +344,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                 if not priced:
                     if counted[c] < 0:
                         _by_line(image, order, line_rows)
-                        counted[c] = _unexplained_column(line_rows, c, cot_alpha, geometry,
+                        counted[c] = _unexplained_column(line_rows, c, terms, geometry,
                                                          ground_range_m, image_order, z)
                     best += costs[3] * counted[c]
                     bound, priced = best, True
@@ -284,8 +352,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         continue
                 # outranking is judged on the exact price (pass 1, until the column is)
                 ranking = outranked.size > 0 and not outranked[c]
-                if has_prior:
-                    other[:] = -1
+                if has_prior:  # (the reads write every line's row)
                     _read_forward(j, i, column, f, match, costs[0], other)
                     other[j] = column[i]
                     _read_backward(j + 1, i + 1, m, column, g, match, costs[0], other)
@@ -294,7 +361,7 @@ def rivals(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
                         missing = _known_count(seen, seen_count, n_seen, other)
                         if missing < 0:  # a path not yet priced in this column
                             _by_line(other, order, line_rows)
-                            missing = _unexplained_column(line_rows, c, cot_alpha, geometry,
+                            missing = _unexplained_column(line_rows, c, terms, geometry,
                                                           ground_range_m, image_order, z)
                             if n_seen < SEEN_PATHS:
                                 for k in range(k_count):  # (a row of ``seen`` is counted)
