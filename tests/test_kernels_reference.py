@@ -1707,3 +1707,75 @@ def test_set_aside_without_drops_is_the_numpy_sort() -> None:
         for g, w in zip(got, want, strict=True):
             assert g.dtype == w.dtype and g.shape == w.shape
             np.testing.assert_array_equal(g, w)
+
+
+
+# ------------------------------------------------ step test and sector verdicts (perf-peaks2)
+# (the step test's flanks of seven rows in registers and both next maxima in one pass)
+
+
+def _one_sided_numpy(values: npt.NDArray[Any], peaks_: npt.NDArray[np.int64],
+                     saturated: npt.NDArray[np.bool_], tile_row: npt.NDArray[np.int64],
+                     sigma_tiles: npt.NDArray[np.float32], near: int, far: int
+                     ) -> npt.NDArray[np.bool_]:
+    """peaks_kernels.one_sided by its definition: per maximum not next to a saturated
+    pixel, the np.median of each flank's rows (cut ``near`` rows before the next maximum),
+    the smaller drop against EDGE_RATIO times the larger and EDGE_SIGMAS tile σ."""
+    height = values.shape[0]
+    out = np.zeros(peaks_.shape, dtype=np.bool_)
+    for m, c in zip(*np.nonzero(peaks_ >= 0), strict=True):
+        row = int(peaks_[m, c])
+        if saturated[max(row - 1, 0):row + 2, c].any():
+            continue
+        column = peaks_[:, c]
+        column = column[:int(np.argmax(np.append(column, -1) < 0))]  # up to the padding
+        drops = []
+        for step in (-1, 1):
+            gaps = (column - row) * step
+            stop = int(gaps[gaps > 0].min()) if (gaps > 0).any() else 1 << 30
+            last, first = min(far, stop - near), near
+            if last < first:
+                first = last = stop // 2
+            rows = [row + step * d for d in range(first, last + 1)
+                    if d > 0 and 0 <= row + step * d < height]
+            floor = float(np.median(values[rows, c].astype(np.float64))) if rows else np.inf
+            drops.append(float(values[row, c]) - floor)
+        low, high = min(drops), max(drops)
+        if np.isinf(low):
+            low = high
+        if np.isinf(high):
+            continue
+        noise = float(sigma_tiles[tile_row[row], c // NOISE_TILE_PX])
+        out[m, c] = low < peaks.EDGE_RATIO * high or low < peaks.EDGE_SIGMAS * noise
+    return out
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_one_sided_is_the_numpy_form(dtype: type) -> None:
+    """peaks_kernels.one_sided on 200 random maps (stripes, steps, ties, fractional
+    values) with random peak tables (columns unsorted, neighbours closer than a flank,
+    rows at the image's edges, -1 padding) and saturated pixels, flanks of 7 rows and of
+    other lengths, equals its definition with np.median, bitwise."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(47)
+    for _ in range(200):
+        height, width = int(rng.integers(3, 60)), int(rng.integers(1, 70))
+        values = _pixel_map(rng, np.float64, height, width)
+        values[np.isnan(values)] = 3.0
+        values = values.astype(dtype)
+        peaks_ = np.full((int(rng.integers(1, 9)), width), -1, dtype=np.int64)
+        for c in range(width):
+            n = int(rng.integers(0, peaks_.shape[0] + 1))
+            peaks_[:n, c] = rng.integers(0, height, n)  # equal rows too
+        saturated = rng.random((height, width)) < rng.choice([0.0, 0.02])
+        tiles = -(-height // NOISE_TILE_PX)
+        tile_row = np.minimum(np.arange(height) // NOISE_TILE_PX, tiles).astype(np.int64)
+        sigma = rng.uniform(0.5, 40.0, (tiles + 1, -(-width // NOISE_TILE_PX)))
+        sigma = sigma.astype(np.float32)
+        near, far = 2, int(rng.choice([8, 8, 8, 5, 11]))
+        got = peaks_kernels.one_sided(values, peaks_, saturated, bool(saturated.any()),
+                                      tile_row, sigma, NOISE_TILE_PX, near, far,
+                                      peaks.EDGE_RATIO, peaks.EDGE_SIGMAS)
+        want = _one_sided_numpy(values, peaks_, saturated, tile_row, sigma, near, far)
+        np.testing.assert_array_equal(got, want)
