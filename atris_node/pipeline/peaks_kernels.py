@@ -994,23 +994,27 @@ def ambient_level(series: FloatArray, rows: IntArray) -> tuple[FloatArray, Float
     """Per column p of ``series`` (n, P) float64 (DN) over its ``rows`` (k,) (the OFF
     sub-frames, k >= 1): the level ``max(mean, 1)`` and the ratio of the variance (ddof
     1; 0 for k = 1) to it, (P,) each, computed as numpy's ``mean``, ``var`` (the rows
-    added one after another) and ``maximum`` do."""
+    added one after another) and ``maximum`` do. The sums run along the rows (contiguous)
+    and add each column's values in row order, as a loop per column would."""
     k, size = rows.size, series.shape[1]
+    total, squares = np.zeros(size), np.zeros(size)
+    for i in range(k):  # row by row: contiguous passes, each column's sum in row order
+        row = series[rows[i]]
+        for p in range(size):
+            total[p] += row[p]
+    mean = np.empty(size)
     level, ratio = np.empty(size), np.empty(size)
     for p in range(size):
-        total = 0.0
+        mean[p] = total[p] / k
+        level[p] = mean[p] if (mean[p] >= 1.0 or np.isnan(mean[p])) else 1.0
+    if k > 1:
         for i in range(k):
-            total += series[rows[i], p]
-        mean = total / k
-        level[p] = mean if (mean >= 1.0 or np.isnan(mean)) else 1.0
-        spread = 0.0
-        if k > 1:
-            squares = 0.0
-            for i in range(k):
-                d = series[rows[i], p] - mean
-                squares += d * d
-            spread = squares / (k - 1)
-        ratio[p] = spread / level[p]
+            row = series[rows[i]]
+            for p in range(size):
+                d = row[p] - mean[p]
+                squares[p] += d * d
+    for p in range(size):
+        ratio[p] = (squares[p] / (k - 1) if k > 1 else 0.0) / level[p]
     return level, ratio
 
 
