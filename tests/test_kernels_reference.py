@@ -1779,3 +1779,142 @@ def test_match_costs_from_band_bits_are_those_of_match() -> None:
         want = np.array([[rk._match(j, p, lo, hi, ref, beyond, 10.0) for p in column]
                          for j in range(k_count)]).reshape(k_count, m)
         assert got[:, :m].tobytes() == want.tobytes()
+
+
+
+# ------------------------------- step test, smoothing and sector range order (perf-peaks2)
+# (selection networks in registers for the step test's flanks and the smoothing window, the
+# sectors' points put in range order by buckets)
+
+
+def _one_sided_numpy(values: npt.NDArray[Any], peaks_: npt.NDArray[np.int64],
+                     saturated: npt.NDArray[np.bool_], tile_row: npt.NDArray[np.int64],
+                     sigma_tiles: npt.NDArray[np.float32], near: int, far: int
+                     ) -> npt.NDArray[np.bool_]:
+    """peaks_kernels.one_sided by its definition: per maximum not next to a saturated
+    pixel, the np.median of each flank's rows (cut ``near`` rows before the next maximum),
+    the smaller drop against EDGE_RATIO times the larger and EDGE_SIGMAS tile σ."""
+    height = values.shape[0]
+    out = np.zeros(peaks_.shape, dtype=np.bool_)
+    for m, c in zip(*np.nonzero(peaks_ >= 0), strict=True):
+        row = int(peaks_[m, c])
+        if saturated[max(row - 1, 0):row + 2, c].any():
+            continue
+        column = peaks_[:, c]
+        column = column[:int(np.argmax(np.append(column, -1) < 0))]  # up to the padding
+        drops = []
+        for step in (-1, 1):
+            gaps = (column - row) * step
+            stop = int(gaps[gaps > 0].min()) if (gaps > 0).any() else 1 << 30
+            last, first = min(far, stop - near), near
+            if last < first:
+                first = last = stop // 2
+            rows = [row + step * d for d in range(first, last + 1)
+                    if d > 0 and 0 <= row + step * d < height]
+            floor = float(np.median(values[rows, c].astype(np.float64))) if rows else np.inf
+            drops.append(float(values[row, c]) - floor)
+        low, high = min(drops), max(drops)
+        if np.isinf(low):
+            low = high
+        if np.isinf(high):
+            continue
+        noise = float(sigma_tiles[tile_row[row], c // NOISE_TILE_PX])
+        out[m, c] = low < peaks.EDGE_RATIO * high or low < peaks.EDGE_SIGMAS * noise
+    return out
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_one_sided_is_the_numpy_form(dtype: type) -> None:
+    """peaks_kernels.one_sided on 200 random maps (stripes, steps, ties, fractional
+    values) with random peak tables (columns unsorted, neighbours closer than a flank,
+    rows at the image's edges, -1 padding) and saturated pixels, flanks of 7 rows and of
+    other lengths, equals its definition with np.median, bitwise."""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(47)
+    for _ in range(200):
+        height, width = int(rng.integers(3, 60)), int(rng.integers(1, 70))
+        values = _pixel_map(rng, np.float64, height, width)
+        values[np.isnan(values)] = 3.0
+        values = values.astype(dtype)
+        peaks_ = np.full((int(rng.integers(1, 9)), width), -1, dtype=np.int64)
+        for c in range(width):
+            n = int(rng.integers(0, peaks_.shape[0] + 1))
+            peaks_[:n, c] = rng.integers(0, height, n)  # equal rows too
+        saturated = rng.random((height, width)) < rng.choice([0.0, 0.02])
+        tiles = -(-height // NOISE_TILE_PX)
+        tile_row = np.minimum(np.arange(height) // NOISE_TILE_PX, tiles).astype(np.int64)
+        sigma = rng.uniform(0.5, 40.0, (tiles + 1, -(-width // NOISE_TILE_PX)))
+        sigma = sigma.astype(np.float32)
+        near, far = 2, int(rng.choice([8, 8, 8, 5, 11]))
+        got = peaks_kernels.one_sided(values, peaks_, saturated, bool(saturated.any()),
+                                      tile_row, sigma, NOISE_TILE_PX, near, far,
+                                      peaks.EDGE_RATIO, peaks.EDGE_SIGMAS)
+        want = _one_sided_numpy(values, peaks_, saturated, tile_row, sigma, near, far)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_range_order_is_numpys_stable_argsort() -> None:
+    """verdicts_kernels.range_order on 5000 random range sets (uniform, rounded to ties, a
+    wall crowding a few buckets with one far point, skewed, signed zeros, NaN, inf and
+    ranges whose spread overflows) equals np.argsort(kind="stable") and the ranges in
+    that order, bitwise."""
+    from atris_node.pipeline import verdicts_kernels
+
+    rng = np.random.default_rng(49)
+    for t in range(5000):
+        n = int(rng.integers(0, 400))
+        kind = t % 5
+        if kind == 0:
+            r = rng.uniform(0.3, 10.0, n)
+        elif kind == 1:
+            r = np.round(rng.uniform(0.3, 10.0, n), int(rng.integers(0, 3)))
+        elif kind == 2:
+            r = rng.permutation(np.append(rng.uniform(1.0, 1.0 + rng.choice([0.01, 0.3]), n),
+                                          9.0))
+        elif kind == 3:
+            r = rng.exponential(1.0, n)
+        else:
+            r = rng.uniform(-1.0, 1.0, n)
+            r[rng.random(n) < 0.3] = -0.0
+            r[rng.random(n) < 0.3] = 0.0
+            if rng.random() < 0.3:
+                r[rng.random(n) < 0.1] = rng.choice([np.nan, np.inf, -np.inf])
+            if rng.random() < 0.2:
+                r[:] = 1.5
+            if rng.random() < 0.1:
+                r[rng.random(n) < 0.2] = rng.choice([1e308, -1e308])
+        order, ranges = verdicts_kernels.range_order(r)
+        want = np.argsort(r, kind="stable")
+        np.testing.assert_array_equal(order, want)
+        assert ranges.tobytes() == r[want].tobytes()
+
+
+@pytest.mark.parametrize("taps", [5, 3, 7])
+def test_smooth_is_the_median_of_the_window(taps: int) -> None:
+    """peaks_kernels.smooth on 300 random line sets (rows with ties, rows of 0 px, gaps,
+    steps past max_step_px, samples at the image's edges) equals the np.median of the
+    ``taps`` rows around each sample on its line where all exist within max_step_px, the
+    sample's row elsewhere, bitwise; five taps take the sorting network. (Checked to fail
+    with one exchange of the network dropped.)"""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(51)
+    half = taps // 2
+    for _ in range(300):
+        lines, width = int(rng.integers(1, 5)), int(rng.integers(1, 60))
+        taken = rng.random((lines, width)) < rng.choice([0.6, 0.95])
+        line, col = (a.astype(np.int64) for a in np.nonzero(taken))
+        row = rng.uniform(0.0, 40.0, lines)[line] + rng.uniform(0.0, 1.2, line.size)
+        row = np.round(row, int(rng.integers(0, 3)))  # ties
+        row[rng.random(line.size) < 0.05] = 0.0
+        row[rng.random(line.size) < 0.05] += 3.0  # steps
+        grid = np.full((lines, width + 2 * half), np.inf)
+        grid[line, col + half] = row
+        want = row.copy()
+        for i in range(line.size):
+            window = grid[line[i], col[i]:col[i] + taps]
+            if np.isfinite(window).all() and window.max() - window.min() <= 2.0:
+                want[i] = np.median(window)
+        got = peaks_kernels.smooth(line, col, row, lines, width, taps, 2.0)
+        assert got.tobytes() == want.tobytes()

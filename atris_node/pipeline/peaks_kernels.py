@@ -207,16 +207,50 @@ def supported(line: IntArray, col: IntArray, row: FloatArray, lines: int, width:
     return out
 
 
+@uncounted
+def _ordered(a: float, b: float) -> tuple[float, float]:
+    """(min, max) of a and b."""
+    return min(a, b), max(a, b)
+
+
+@uncounted
+def _spread_of_five(p0: float, p1: float, p2: float, p3: float, p4: float
+                    ) -> tuple[float, float, float]:
+    """(least, median, greatest) of five values (no NaN) by a sorting network of nine
+    exchanges (Knuth's), in registers: no branch per value as an insertion sort takes."""
+    p0, p1 = _ordered(p0, p1)
+    p3, p4 = _ordered(p3, p4)
+    p2, p4 = _ordered(p2, p4)
+    p2, p3 = _ordered(p2, p3)
+    p1, p4 = _ordered(p1, p4)
+    p0, p3 = _ordered(p0, p3)
+    p0, p2 = _ordered(p0, p2)
+    p1, p3 = _ordered(p1, p3)
+    p1, p2 = _ordered(p1, p2)
+    return p0, p2, p4
+
+
 @kernel(f"float64[:]({_I1}, {_I1}, {_F1}, int64, int64, int64, float64)")
 def smooth(line: IntArray, col: IntArray, row: FloatArray, lines: int, width: int,
            taps: int, max_step_px: float) -> FloatArray:
     """(n,) the median of the ``taps`` columns around each sample on its line where all
-    exist and span at most ``max_step_px`` rows; elsewhere the sample's own row."""
+    exist and span at most ``max_step_px`` rows; elsewhere the sample's own row. Five
+    taps of positive rows (or none, inf) go through a sorting network in registers
+    (:func:`_spread_of_five`); others (a zero or NaN row, whose order an insertion sort
+    keeps) and other tap counts through an insertion sort of the window."""
     half = taps // 2
     grid = _line_grid(line, col, row, lines, width, half)
     out = row.copy()
     window = np.empty(taps)
     for i in range(line.size):
+        if taps == 5:
+            at, c = grid[line[i]], col[i]
+            p0, p1, p2, p3, p4 = at[c], at[c + 1], at[c + 2], at[c + 3], at[c + 4]
+            if p0 > 0.0 and p1 > 0.0 and p2 > 0.0 and p3 > 0.0 and p4 > 0.0:
+                low, middle, high = _spread_of_five(p0, p1, p2, p3, p4)
+                if np.isfinite(high) and high - low <= max_step_px:
+                    out[i] = middle
+                continue
         for j in range(taps):  # insertion sort of the window
             v = grid[line[i], col[i] + j]
             k = j
@@ -602,10 +636,20 @@ def _flank_floor(values: npt.NDArray[np.generic], row: int, c: int, step: int, n
     when they are closer than that); inf when no row is. The median, not the lowest: the
     lowest of a few noisy values lies over a σ under its side's level, and a step's bright
     side then looks like a drop; the next maximum is another stripe's, not a flank.
-    ``kept`` (at least far - near + 1,) work space; the median as np.median takes it."""
+    ``kept`` (at least far - near + 1,) work space; the median as np.median takes it.
+    Seven rows inside the image (the default flank, far - near = 6) are read into
+    registers and go through :func:`_median_of_seven` without the work space."""
     height = values.shape[0]
     last = min(far, stop - near)
     first = near
+    if last - first == 6 and first > 0 and 0 <= row + step * first < height and (
+            0 <= row + step * last < height):  # the whole flank of a stripe of σ 1.5 px
+        i = row + step * first
+        return _median_of_seven(
+            np.float64(values[i, c]), np.float64(values[i + step, c]),
+            np.float64(values[i + 2 * step, c]), np.float64(values[i + 3 * step, c]),
+            np.float64(values[i + 4 * step, c]), np.float64(values[i + 5 * step, c]),
+            np.float64(values[i + 6 * step, c]))
     if last < first:
         first = last = stop // 2
     n = 0
@@ -627,29 +671,48 @@ def _flank_floor(values: npt.NDArray[np.generic], row: int, c: int, step: int, n
 
 @uncounted
 def _median_of_7(p: FloatArray) -> float:
-    """The median of ``p[:7]`` (finite values) by a selection network of 13 exchanges
-    (no branch to mispredict), reordering them."""
-    for a, b in ((0, 5), (0, 3), (1, 6), (2, 4), (0, 1), (3, 5), (2, 6), (2, 3), (3, 6),
-                 (4, 5), (1, 4), (1, 3), (3, 4)):
-        lo, hi = min(p[a], p[b]), max(p[a], p[b])
-        p[a], p[b] = lo, hi
-    return p[3]
+    """The median of ``p[:7]`` (finite values), :func:`_median_of_seven` of them."""
+    return _median_of_seven(p[0], p[1], p[2], p[3], p[4], p[5], p[6])
 
 
 @uncounted
-def _next_maximum(peaks: IntArray, m: int, c: int, step: int) -> int:
-    """Rows from peak ``m`` of column ``c`` to the nearest other peak in direction
-    ``step`` (+1 down, -1 up); a large number when there is none. ``peaks`` holds its -1
-    padding after the rows."""
+def _median_of_seven(p0: float, p1: float, p2: float, p3: float, p4: float, p5: float,
+                     p6: float) -> float:
+    """The median of seven finite values by a selection network of 13 exchanges (no
+    branch to mispredict), in registers: an array in memory stalls each exchange on the
+    store of the one before."""
+    p0, p5 = _ordered(p0, p5)
+    p0, p3 = _ordered(p0, p3)
+    p1, p6 = _ordered(p1, p6)
+    p2, p4 = _ordered(p2, p4)
+    p0, p1 = _ordered(p0, p1)
+    p3, p5 = _ordered(p3, p5)
+    p2, p6 = _ordered(p2, p6)
+    p2, p3 = _ordered(p2, p3)
+    p3, p6 = _ordered(p3, p6)
+    p4, p5 = _ordered(p4, p5)
+    p1, p4 = _ordered(p1, p4)
+    p1, p3 = _ordered(p1, p3)
+    p3, p4 = _ordered(p3, p4)
+    return p3
+
+
+@uncounted
+def _next_maxima(peaks: IntArray, m: int, c: int) -> tuple[int, int]:
+    """Rows from peak ``m`` of column ``c`` to the nearest other peak above it and to the
+    nearest below it, in one pass over the column; a large number where there is none.
+    ``peaks`` holds its -1 padding after the rows."""
     row = peaks[m, c]
-    best = 1 << 30
+    above = below = 1 << 30
     for q in range(peaks.shape[0]):
         other = peaks[q, c]
         if other < 0:
             break
-        if (other - row) * step > 0:
-            best = min(best, abs(other - row))
-    return best
+        if other < row:
+            above = min(above, row - other)
+        elif other > row:
+            below = min(below, other - row)
+    return above, below
 
 
 @kernel(_edge_signatures())
@@ -676,11 +739,10 @@ def one_sided(values: npt.NDArray[np.generic], peaks: IntArray,
             row = peaks[m, c]
             if row < 0 or (any_saturated and _flat_top(saturated, row, c)):
                 continue
+            up, down = _next_maxima(peaks, m, c)
             v = np.float64(values[row, c])
-            above = v - _flank_floor(values, row, c, -1, near, far,
-                                     _next_maximum(peaks, m, c, -1), kept)
-            below = v - _flank_floor(values, row, c, 1, near, far,
-                                     _next_maximum(peaks, m, c, 1), kept)
+            above = v - _flank_floor(values, row, c, -1, near, far, up, kept)
+            below = v - _flank_floor(values, row, c, 1, near, far, down, kept)
             low, high = min(above, below), max(above, below)
             if np.isinf(low):
                 low = high  # one side outside the image: the other side decides
@@ -960,23 +1022,27 @@ def ambient_level(series: FloatArray, rows: IntArray) -> tuple[FloatArray, Float
     """Per column p of ``series`` (n, P) float64 (DN) over its ``rows`` (k,) (the OFF
     sub-frames, k >= 1): the level ``max(mean, 1)`` and the ratio of the variance (ddof
     1; 0 for k = 1) to it, (P,) each, computed as numpy's ``mean``, ``var`` (the rows
-    added one after another) and ``maximum`` do."""
+    added one after another) and ``maximum`` do. The sums run along the rows (contiguous)
+    and add each column's values in row order, as a loop per column would."""
     k, size = rows.size, series.shape[1]
+    total, squares = np.zeros(size), np.zeros(size)
+    for i in range(k):  # row by row: contiguous passes, each column's sum in row order
+        row = series[rows[i]]
+        for p in range(size):
+            total[p] += row[p]
+    mean = np.empty(size)
     level, ratio = np.empty(size), np.empty(size)
     for p in range(size):
-        total = 0.0
+        mean[p] = total[p] / k
+        level[p] = mean[p] if (mean[p] >= 1.0 or np.isnan(mean[p])) else 1.0
+    if k > 1:
         for i in range(k):
-            total += series[rows[i], p]
-        mean = total / k
-        level[p] = mean if (mean >= 1.0 or np.isnan(mean)) else 1.0
-        spread = 0.0
-        if k > 1:
-            squares = 0.0
-            for i in range(k):
-                d = series[rows[i], p] - mean
-                squares += d * d
-            spread = squares / (k - 1)
-        ratio[p] = spread / level[p]
+            row = series[rows[i]]
+            for p in range(size):
+                d = row[p] - mean[p]
+                squares[p] += d * d
+    for p in range(size):
+        ratio[p] = (squares[p] / (k - 1) if k > 1 else 0.0) / level[p]
     return level, ratio
 
 
