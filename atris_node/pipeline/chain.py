@@ -326,6 +326,7 @@ class Pipeline:
         faint = radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
                                      self.calibration.laser, dmap.exposure_us or None,
                                      self.config.min_reflectance)
+        faint = radiometry.whole_columns(samples.col_px, faint)
         doubts = extraction.doubts
         if faint.any():  # not at the range their line gives: doubts, not points
             doubts = _with_doubts(doubts, samples, faint)
