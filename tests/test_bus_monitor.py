@@ -94,7 +94,9 @@ def test_atris_monitor_log_is_read_by_cantools_decode(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     channel, log = f"cli-{uuid.uuid4().hex}", tmp_path / "monitor.log"
     with can.Bus(interface="virtual", channel=channel) as tx:
-        publisher = Publisher(tx, 7, period_s=0.02)
+        # the data must stay fresh while the monitor starts and listens: with the 0.2 s
+        # default a loaded machine saw only frames sent after it aged (invalid, FAULT)
+        publisher = Publisher(tx, 7, period_s=0.02, max_age_s=30.0)
         publisher.update(measurement(2.0), status(9))
         publisher.start()
         try:

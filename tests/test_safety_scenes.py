@@ -109,6 +109,12 @@ KNOWN_WRONG: dict[str, str] = {
                      "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
                      "up, no line seen above) is INVALID since pipeline.tops (far on seed "
                      "11 still: 3 sector-frames of 32, was 4)",
+    "low_box_within_ground_rows": "false free: the lowest sheet meets a 43 cm box 15 cm up at "
+                                  "4 m, under a row above its ground row (f b h / (d h0) = "
+                                  "0.98), and passes for ground; the sheet above passes over "
+                                  "the box; sector 1 NO_RETURN in map 1 with the box at "
+                                  "3.73 m (a line on its ground rows cannot tell anything "
+                                  "under 1.5 rows, 23 cm there, from the ground)",
 }
 #: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
 #: not a pipeline fault (the unit cannot know its calibration is off), strict expected
