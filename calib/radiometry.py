@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 from atris_node.calibration import Calibration
 from atris_node.errors import CalibrationError
-from atris_node.pipeline.geometry import Points, triangulate, undistort_pixels
+from atris_node.pipeline.geometry import Points, triangulate_pixels
 from atris_node.pipeline.radiometry import sample_peaks, source_range_m
 from calib.peaks import find_line_rows
 
@@ -61,8 +61,7 @@ def measure_return(calibration: Calibration, values: npt.NDArray[np.generic],
     found = find_line_rows(values, len(laser.alpha_rad))
     line, column = np.nonzero(found.valid)
     rows = found.rows[line, column]
-    u_px, v_px = undistort_pixels(rows, column, camera)
-    points = triangulate(u_px, v_px, line, camera, laser, z_max_m=10.0 * distance_m)
+    points = triangulate_pixels(rows, column, line, camera, laser, z_max_m=10.0 * distance_m)
     ok = points.valid
     if int(ok.sum()) < MIN_SAMPLES:
         raise CalibrationError(f"lines not found on the target: {int(ok.sum())} samples "

@@ -258,8 +258,8 @@ def _kept(samples: LineSamples, points: Points, vehicle: FloatArray, keep: BoolA
           ) -> tuple[LineSamples, Points, FloatArray]:
     """The samples, their points and vehicle-frame points where ``keep`` is True."""
     return (select(samples, keep),
-            Points(points.xyz_m[keep], points.valid[keep], points.sigma_z_m[keep]),
-            vehicle[keep])
+            Points(rows_where(points.xyz_m, keep), points.valid[keep], points.sigma_z_m[keep]),
+            rows_where(vehicle, keep))
 
 
 def _widen(columns: BoolArray, margin: int) -> BoolArray:

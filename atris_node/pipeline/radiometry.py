@@ -78,14 +78,21 @@ def source_range_m(points: Points, laser: LaserCalibration) -> FloatArray:
     return np.sqrt(xyz[:, 0] ** 2 + (xyz[:, 1] + laser.baseline_m) ** 2 + xyz[:, 2] ** 2)
 
 
+def _per_map_dn_m2(code_length: int, laser: LaserCalibration, exposure_us: float | None
+                   ) -> float:
+    """N/2 · D at ``exposure_us`` (None: the calibration's own): what a map of
+    ``code_length`` sub-frames holds, in DN·m², of a white surface facing the unit."""
+    exposure = laser.return_exposure_us if exposure_us is None else exposure_us
+    return 0.5 * code_length * laser.return_dn_m2 * exposure / laser.return_exposure_us
+
+
 def apparent_reflectance(peak_dn: FloatArray, range_m: FloatArray, code_length: int,
                          laser: LaserCalibration, exposure_us: float | None) -> FloatArray:
     """(n,) ρ cos i that a peak of ``peak_dn`` (DN, summed over a map of ``code_length``
     sub-frames) stands for at ``range_m`` (m, > 0), with the calibration scaled to
     ``exposure_us`` (None: the calibration's own). A negative peak gives 0."""
-    exposure = laser.return_exposure_us if exposure_us is None else exposure_us
-    per_map = 0.5 * code_length * laser.return_dn_m2 * exposure / laser.return_exposure_us
-    return np.maximum(peak_dn, 0.0) * range_m**2 / per_map
+    return np.maximum(peak_dn, 0.0) * range_m**2 / _per_map_dn_m2(code_length, laser,
+                                                                   exposure_us)
 
 
 def too_faint(values: npt.NDArray[Any], samples: LineSamples, points: Points,
@@ -100,8 +107,7 @@ def too_faint(values: npt.NDArray[Any], samples: LineSamples, points: Points,
     out = np.zeros(len(samples), dtype=np.bool_)
     if not calibrated(laser) or min_reflectance <= 0.0 or not len(samples):
         return out
-    exposure = laser.return_exposure_us if exposure_us is None else exposure_us
-    per_map = 0.5 * code_length * laser.return_dn_m2 * exposure / laser.return_exposure_us
+    per_map = _per_map_dn_m2(code_length, laser, exposure_us)
     radiometry_kernels.too_faint(
         values, np.ascontiguousarray(samples.row_px, dtype=np.float64),
         np.ascontiguousarray(samples.col_px, dtype=np.float64),

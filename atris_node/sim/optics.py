@@ -68,6 +68,13 @@ def electrons_per_radiance(camera: CameraSpec, wavelength_nm: float) -> float:
         4.0 * camera.f_number**2 * photon_j)
 
 
+def sheet_peak_intensity(pattern: LinePattern) -> float:
+    """Radiant intensity (W/sr) at the centre of one line's sheet: its share of the
+    power over the fan and the Gaussian across it, ``P_k / (fan · σ · √(2π))``."""
+    return pattern.power_w / len(pattern.alpha_rad) / (
+        pattern.fan_rad * pattern.line_sigma_rad * math.sqrt(2.0 * math.pi))
+
+
 def line_return_dn_m2(camera: CameraSpec, pattern: LinePattern) -> float:
     """The radiometric calibration of a line (:class:`atris_node.calibration.LaserCalibration`
     ``return_dn_m2``): the peak DN per on sub-frame of a line centred on a pixel row of a
@@ -79,8 +86,7 @@ def line_return_dn_m2(camera: CameraSpec, pattern: LinePattern) -> float:
     sigma = pattern.line_sigma_rad
     footprint = 1.0 / camera.focal_px
     var = sigma**2 + footprint**2 * (1.0 / 12.0 + camera.psf_sigma_px**2)
-    peak_w_m2 = pattern.power_w / len(pattern.alpha_rad) / (
-        pattern.fan_rad * sigma * math.sqrt(2.0 * math.pi)) * sigma / math.sqrt(var)
+    peak_w_m2 = sheet_peak_intensity(pattern) * sigma / math.sqrt(var)
     electrons = (peak_w_m2 / math.pi * electrons_per_radiance(camera, pattern.wavelength_nm)
                  * camera.exposure_us * 1e-6)
     return electrons * camera.gain_dn_per_e
@@ -197,8 +203,7 @@ def sheet_irradiance(pose: Mounting, pattern: LinePattern, shapes: Sequence[Shap
     profile = sheet_profile(theta_s, pattern, footprint, psf_sigma_px)
     in_fan = (np.abs(phi) <= pattern.fan_rad / 2.0) & (theta_s > 0.0)
     cos_i = np.clip(-np.einsum("...i,...i->...", normals.reshape(-1, 3)[seen], dirs), 0.0, None)
-    peak = pattern.power_w / len(pattern.alpha_rad) / (
-        pattern.fan_rad * pattern.line_sigma_rad * math.sqrt(2.0 * math.pi))
+    peak = sheet_peak_intensity(pattern)
     irr = np.where(in_fan, peak * profile * cos_i / np.maximum(r, 1e-3) ** 2, 0.0)
     lit = np.flatnonzero((irr > 0.0) & (profile > PROFILE_CUTOFF))
     if lit.size:
