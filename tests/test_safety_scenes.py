@@ -64,7 +64,10 @@ With min_reflectance 0 (no check of a return's brightness against its range,
 pipeline.radiometry), edge_on_glossy_plate_dark_wall read a dark wall's upper stripes at
 7.6 m as 0.31 m (sector 4 VALID in map 3) and retro_pole_stray_stripe a hanging sphere's
 stripe at 2.05 m as 0.71 m (sector 6 VALID in map 0; tests/test_radiometry.py runs both
-ways).
+ways). low_box_within_ground_rows read free before a low box (sector 1 NO_RETURN in
+maps 1 and 4 of 6 on seed 1, the box at 3.73 m) with the lines seen beyond the range or
+not at all (tops.unseen_tops without ``passing``) taking no part in the walk up from a
+rise near its ground row.
 """
 
 from __future__ import annotations
@@ -109,12 +112,6 @@ KNOWN_WRONG: dict[str, str] = {
                      "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
                      "up, no line seen above) is INVALID since pipeline.tops (far on seed "
                      "11 still: 3 sector-frames of 32, was 4)",
-    "low_box_within_ground_rows": "false free: the lowest sheet meets a 43 cm box 15 cm up at "
-                                  "4 m, under a row above its ground row (f b h / (d h0) = "
-                                  "0.98), and passes for ground; the sheet above passes over "
-                                  "the box; sector 1 NO_RETURN in map 1 with the box at "
-                                  "3.73 m (a line on its ground rows cannot tell anything "
-                                  "under 1.5 rows, 23 cm there, from the ground)",
 }
 #: scenes whose pipeline is handed a calibration error that the tolerance cannot absorb;
 #: not a pipeline fault (the unit cannot know its calibration is off), strict expected

@@ -98,6 +98,8 @@ class SectorJudge:
         self._expected: tuple[VisibilityPrior, BoolArray] | None = None
         #: the last ground plane and the camera's and projector's heights above it, m
         self._heights: tuple[GroundPlane, float, float] | None = None
+        #: the last prior and where each sheet leaves the range (:meth:`_sheet_exits`)
+        self._exits: tuple[VisibilityPrior, FloatArray, FloatArray, BoolArray] | None = None
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
@@ -126,9 +128,10 @@ class SectorJudge:
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
         flagged = _NO_COLUMNS  # samples that keep their columns from being free
-        if sheet is not None:
+        if sheet is not None and ground is not None:
             valid = pick(points.valid)
-            tops = self._unseen_tops(found, valid, sheet)
+            tops = self._unseen_tops(found, valid, sheet,
+                                     self._passing(prior, ground, line[~valid], column[~valid]))
             under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
             flagged = found.column[tops | under]
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
@@ -175,17 +178,56 @@ class SectorJudge:
                              float(ground.height(self.projector_m[None, :])[0]))
         return self._heights[1], self._heights[2]
 
-    def _unseen_tops(self, found: ObstaclePoints, valid: BoolArray, sheet: Sheet
-                     ) -> BoolArray:
+    def _unseen_tops(self, found: ObstaclePoints, valid: BoolArray, sheet: Sheet,
+                     passing: tuple[FloatArray, FloatArray, BoolArray]) -> BoolArray:
         """(n,) the valid samples that are no obstacle point and whose top no line
-        above bounds."""
+        above bounds (``passing``: see :func:`atris_node.pipeline.tops.unseen_tops`)."""
         return unseen_tops(found.line, found.column, sheet.distance_m, sheet.height_m,
                            found.sigma_m, found.obstacle, valid,
                            lines=len(self.calibration.laser.alpha_rad),
                            width=self.column_sector.size, clearance_m=self.clearance_m,
                            projector_height_m=sheet.projector_height_m,
                            height_sigma=sheet.height_sigma_m, rows_off=sheet.rows_off,
-                           focal_baseline_px_m=sheet.focal_baseline)
+                           focal_baseline_px_m=sheet.focal_baseline, passing=passing)
+
+    def _passing(self, prior: VisibilityPrior, ground: GroundPlane, beyond_line: IntArray,
+                 beyond_column: IntArray) -> tuple[FloatArray, FloatArray, BoolArray]:
+        """(K, W) distance and height (m) of each sheet where it leaves the operating
+        range, where its line is known to pass over every nearer distance: its sheet
+        meets the ground only beyond z_max (not seen within the range, it is taken as
+        meeting nothing there), or the line was seen beyond the range (``beyond_line``,
+        ``beyond_column``: its samples with no return within it; (K, W) True there);
+        nan elsewhere (:func:`atris_node.pipeline.tops.unseen_tops`)."""
+        distance, height, leaves = self._sheet_exits(prior, ground)
+        lines, width = leaves.shape
+        seen = np.zeros((lines, width), dtype=np.bool_)
+        inside = (beyond_line >= 0) & (beyond_line < lines) & (beyond_column >= 0) & (
+            beyond_column < width)
+        seen[beyond_line[inside], beyond_column[inside]] = True
+        known = leaves | seen
+        return np.where(known, distance, np.nan), np.where(known, height, np.nan), seen
+
+    def _sheet_exits(self, prior: VisibilityPrior, ground: GroundPlane
+                     ) -> tuple[FloatArray, FloatArray, BoolArray]:
+        """(K, W) horizontal distance from the projector and height above ``ground`` (m)
+        of each line's sheet at camera z = z_max in each column (the point
+        [v·z/f, z·cot α_k − b, z] of Eq. 1's plane), and where the sheet meets the
+        ground only beyond z_max (``prior``); kept while the prior is the same."""
+        if self._exits is None or self._exits[0] is not prior:
+            cam, laser = self.calibration.camera, self.calibration.laser
+            z = self.z_range_m[1]
+            cot = 1.0 / np.tan(np.asarray(laser.alpha_rad, dtype=np.float64))
+            x = (np.arange(cam.width_px, dtype=np.float64) - cam.cx_px) * z / cam.focal_px
+            k, w = cot.size, x.size
+            on_sheet = np.stack([np.broadcast_to(x, (k, w)),
+                                 np.broadcast_to((z * cot - laser.baseline_m)[:, None], (k, w)),
+                                 np.full((k, w), z)], axis=-1).reshape(-1, 3)
+            vehicle = self.mounting.camera_to_vehicle(on_sheet)
+            origin = self.projector_m
+            distance = np.hypot(vehicle[:, 0] - origin[0], vehicle[:, 1] - origin[1])
+            self._exits = (prior, distance.reshape(k, w), ground.height(vehicle).reshape(k, w),
+                           np.asarray(prior.ground_range_m > z))
+        return self._exits[1], self._exits[2], self._exits[3]
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
                   prior: VisibilityPrior, valid: BoolArray, flagged: IntArray

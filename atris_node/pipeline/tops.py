@@ -18,8 +18,14 @@ below that height. The lines above are walked from k − 1 upwards:
 - a line that lands beyond (on the ground or on anything else): it passed over at
   height h. h at most the clearance: the
   surface is below the clearance, ground. Else its top is unknown;
-- a line above not seen in the column (within one column either side) tells nothing:
-  the next line up is asked;
+- a line above with no return within the range in the column (within one column either
+  side) passed over at its sheet's height there when its sheet is known to leave the
+  range: it meets the ground only beyond z_max (not seen, it is what the free verdict
+  takes as nothing in its way), or it was seen beyond the range. Such a line lands
+  beyond, where its sheet leaves the range (a low box under a row above the lowest
+  sheet's ground row, the sheet above passing over it to the ground beyond z_max, read
+  free before this rule: low_box_within_ground_rows);
+- any other line above not seen in the column tells nothing: the next line up is asked;
 - no line left above: unknown when the rise is more than RISE_PX rows (below).
 
 A sample whose top is unknown is an *unseen top*: something may stand there as tall as
@@ -87,7 +93,8 @@ def height_sigma_m(range_sigma_m: FloatArray, height_m: FloatArray, camera_heigh
 def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height_m: FloatArray,
                 sigma_m: FloatArray, obstacle: BoolArray, valid: BoolArray, *, lines: int,
                 width: int, clearance_m: float, projector_height_m: float,
-                height_sigma: FloatArray, rows_off: FloatArray, focal_baseline_px_m: float
+                height_sigma: FloatArray, rows_off: FloatArray, focal_baseline_px_m: float,
+                passing: tuple[FloatArray, FloatArray, BoolArray] | None = None
                 ) -> BoolArray:
     """(n,) True for the valid samples that stand clearly above the ground, below
     ``clearance_m``, and whose top no line above them bounds (see the module docstring).
@@ -102,6 +109,14 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
             rows per metre of range.
         obstacle, valid: (n,) above the clearance; triangulated at all.
         projector_height_m: the projector's height (m) above the ground plane.
+        passing: (K, W) distance and height (m) of each line's sheet where it leaves the
+            operating range in each column, nan where the line is not known to pass over
+            there, and (K, W) where it was seen beyond the range: such a line passed over
+            the rise at its sheet's height, and lands there in the walk. A line not seen
+            where its sheet meets the ground only beyond the range (what the free
+            verdict takes as nothing in its way) is asked after the walk, for the rises
+            within RISE_PX rows of their ground row that no seen line bounds. None:
+            such lines tell nothing.
     """
     n = line.size
     rise = valid & ~obstacle & (height_m > _off_ground_m(height_sigma))
@@ -117,23 +132,77 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
     foot = np.maximum(np.maximum(FOOT_REL * d, FOOT_M), FOOT_PX * d * d / focal_baseline_px_m)
     unknown = np.zeros(idx.size, dtype=np.bool_)
     pending = np.ones(idx.size, dtype=np.bool_)
+    exhausted = np.zeros(idx.size, dtype=np.bool_)
     for step in range(1, lines + 1):
         above = k - step
         ended = pending & (above < 0)
-        unknown |= ended & sure
+        exhausted |= ended
         pending &= ~ended
         if not pending.any():
             break
         j = np.flatnonzero(pending)
         dist, high, hit = _nearest_in_column(grid_d, grid_h, grid_o, above[j], c[j])
+        if passing is not None:  # seen beyond the range: it passed over
+            _passing_where_missing(dist, high, passing, passing[2], above[j], c[j])
         missing = ~np.isfinite(dist)
         hit &= ~missing & (dist <= d[j] + foot[j])
         beyond = ~missing & ~hit & (dist > d[j] + same[j])
-        passed = projector_height_m + (d[j] / np.where(beyond, dist, 1.0)) * (
-            high - projector_height_m)
-        unknown[j[beyond & (passed > clearance_m)]] = True
+        unknown[j[beyond & (_passed_m(d[j], dist, high, projector_height_m)
+                            > clearance_m)]] = True
         pending[j[hit | beyond]] = False  # missing or on the same surface: ask the next
+    unknown |= exhausted & sure
+    if passing is not None:
+        weak = np.flatnonzero(exhausted & ~sure)
+        unknown[weak] |= _passed_unseen(k[weak], c[weak], d[weak], same[weak], grid_d,
+                                       passing, projector_height_m, clearance_m)
     out[idx[unknown]] = True
+    return out
+
+
+def _passing_where_missing(dist: FloatArray, high: FloatArray,
+                           passing: tuple[FloatArray, FloatArray, BoolArray], use: BoolArray,
+                           k: IntArray, c: IntArray) -> None:
+    """Where line ``k`` has no return near column ``c`` (``dist`` nan) and ``use`` (K, W)
+    holds, the point where its sheet leaves the range (``passing``), in place: a landing
+    point beyond, never an obstacle hit."""
+    gone = ~np.isfinite(dist)
+    gone[gone] = use[k[gone], c[gone]]
+    if gone.any():
+        dist[gone], high[gone] = passing[0][k[gone], c[gone]], passing[1][k[gone], c[gone]]
+
+
+def _passed_m(d: FloatArray, landing_m: FloatArray, landing_h: FloatArray,
+              projector_height_m: float) -> FloatArray:
+    """(m,) the height (m) at distance ``d`` of the sheets that land at ``landing_m``,
+    ``landing_h`` (straight from the projector; nan where the landing is unknown)."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(projector_height_m + (d / landing_m) * (
+            landing_h - projector_height_m), dtype=np.float64)
+
+
+def _passed_unseen(k: IntArray, c: IntArray, d: FloatArray, same: FloatArray,
+                   grid_d: FloatArray, passing: tuple[FloatArray, FloatArray, BoolArray],
+                   projector_height_m: float, clearance_m: float) -> BoolArray:
+    """(m,) rises (line ``k``, column ``c``, distance ``d``) that no seen line above
+    bounds but a line above with no return near the column passed over above the
+    clearance, its sheet known to leave the range there (``passing``). Asked only after
+    the walk: a line lost in the noise on a surface that the lines above it show is
+    blocked, not passing (a wall's foot stripe, the line above too faint on the wall)."""
+    out = np.zeros(k.size, dtype=np.bool_)
+    for step in range(1, int(k.max(initial=0)) + 1):
+        j = np.flatnonzero(k - step >= 0)
+        if j.size == 0:
+            break
+        above = k[j] - step
+        dist = np.full(j.size, np.nan)
+        high = np.zeros(j.size)
+        seen = np.zeros(j.size, dtype=np.bool_)
+        for shift in (0, -1, 1):
+            seen |= np.isfinite(grid_d[above, np.clip(c[j] + shift, 0, grid_d.shape[1] - 1)])
+        _passing_where_missing(dist, high, passing, np.isfinite(passing[0]), above, c[j])
+        over = ~seen & (dist > d[j] + same[j]) & (
+            _passed_m(d[j], dist, high, projector_height_m) > clearance_m)
+        out[j[over]] = True
     return out
 
 

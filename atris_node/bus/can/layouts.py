@@ -67,6 +67,11 @@ FAULTS = (
 STATES = {0: "INIT", 1: "NEGOTIATING", 2: "RUNNING", 3: "NO_CODE", 4: "FAULT", 5: "STOPPED"}
 
 
+#: what a sector distance's reserved values mean
+_STATES_TEXT = ("; no_return: no obstacle met by any light sheet within the range "
+                "(z_max); invalid: not known")
+
+
 def _distance(name: str, start: int, comment: str) -> SignalSpec:
     return S(name, start, 16, 0, 65.532, comment, scale=0.001, unit="m",
              choices=DISTANCE_CHOICES)
@@ -109,9 +114,9 @@ SECTORS = MessageSpec("Sectors", "two sector distances per frame; frames for sec
                       "2-3, ... back to back each cycle", (*E2E_HEADER,
     S("SectorIndex", 12, 4, 0, 15, "index of the first sector in this frame (even); "
       "0 = right edge"),
-    _distance("Distance0", 16, "horizontal range in sector SectorIndex"),
+    _distance("Distance0", 16, "horizontal range in sector SectorIndex" + _STATES_TEXT),
     _percent("Confidence0", 32, "confidence of Distance0"),
-    _distance("Distance1", 40, "horizontal range in sector SectorIndex + 1"),
+    _distance("Distance1", 40, "horizontal range in sector SectorIndex + 1" + _STATES_TEXT),
     _percent("Confidence1", 56, "confidence of Distance1"),
 ), e2e=True)
 #: the unit frames, by their offset in the unit's ID block
