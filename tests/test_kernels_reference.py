@@ -800,7 +800,8 @@ def test_expected_on_surface_is_the_numpy_form() -> None:
 def _line_holes_numpy(points: Any, seen: Any, noisy: Any, bright_snr: float
                       ) -> tuple[Any, ...]:
     """The numpy form verdicts.LineHoles.of (and the bright flanks that shadowed_columns
-    asked of each hole) had before their compiled pass."""
+    asks of each hole: GAP_RUN of the 2·GAP_RUN columns on either side) had before their
+    compiled pass."""
     from atris_node.pipeline.verdicts import GAP_RUN
 
     lines, width = seen.shape
@@ -824,10 +825,10 @@ def _line_holes_numpy(points: Any, seen: Any, noisy: Any, bright_snr: float
     bright = np.zeros(k.size, dtype=np.bool_)
     for i, (line, a, b) in enumerate(zip(k, start, stop, strict=True)):
         mine = (points.line == line) & points.obstacle & (points.snr >= bright_snr)
-        before = (points.column >= a - GAP_RUN) & (points.column < a)
-        after = (points.column >= b) & (points.column < b + GAP_RUN)
-        bright[i] = (np.unique(points.column[mine & before]).size == GAP_RUN
-                     and np.unique(points.column[mine & after]).size == GAP_RUN)
+        before = (points.column >= a - 2 * GAP_RUN) & (points.column < a)
+        after = (points.column >= b) & (points.column < b + 2 * GAP_RUN)
+        bright[i] = (np.unique(points.column[mine & before]).size >= GAP_RUN
+                     and np.unique(points.column[mine & after]).size >= GAP_RUN)
     return k, start, stop, nearer[keep], farther[keep], hidden[keep], bright
 
 

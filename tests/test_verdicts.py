@@ -415,3 +415,21 @@ def test_feature_lines_passing_under_a_surface_are_not_missing_from_it() -> None
     points, evidence = _wall_over_a_low_box(8.0, range(0), range(4, 28), 6.0, under=1,
                                             beyond_column=30)
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+
+
+def test_feature_a_dropout_beside_the_hole_leaves_a_bright_line_bright() -> None:
+    """clipped_pairs_retro_wall: the bright lines stopping together over a dark box in
+    front of the wall: four of the five miss one more column, two columns beside the hole
+    (clipped stripes on a retro-reflective wall drop out now and then). They are still bright
+    lines stopping on one surface: sector 0 is INVALID, as without the dropout. Checked
+    to fail with every one of the GAP_RUN columns beside the hole asked to be bright
+    (verdicts_kernels.line_holes before): VALID at the wall, 3.5 m (the scene read its
+    wall at 7.9-8.0 m for the box at 2.94 m in one sector-frame each on seeds 1 and 2)."""
+    points, evidence = _hole_scene(3.5, snr=80.0)
+    keep = ~((points.column == 23) & (points.line < 4))  # lines 0-3 drop out there
+    points = points.take(np.flatnonzero(keep))
+    seen = np.zeros((5, WIDTH), bool)
+    seen[points.line, points.column] = True
+    evidence = ColumnEvidence(evidence.sector, evidence.doubtful, evidence.ambiguous,
+                              evidence.missing, seen=seen)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID

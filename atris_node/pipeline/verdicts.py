@@ -106,8 +106,8 @@ GAP_RUN = 3
 #: strong lines that stop in the same columns between points on the reported surface:
 #: something stands in all their rays there (:func:`shadowed_columns`)
 SHADOW_LINES = 2
-#: such a line is seen on GAP_RUN columns each side of its hole with an SNR of at least
-#: SHADOW_SNR·snr_min: a surface a tenth as bright would still show
+#: such a line is seen on GAP_RUN of the 2·GAP_RUN columns each side of its hole with an
+#: SNR of at least SHADOW_SNR·snr_min: a surface a tenth as bright would still show
 SHADOW_SNR = 10.0
 #: a surface seen by lines of SNR SURFACE_SNR·snr_min would show another line on it
 #: (:func:`missing_on_surface`); such a line is looked for only where it would meet the
@@ -503,7 +503,9 @@ def _floats(values: npt.NDArray[np.generic]) -> FloatArray:
 
 def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     """Columns of sector ``s`` in which SHADOW_LINES or more bright lines (seen with an
-    SNR of SHADOW_SNR·snr_min in every one of GAP_RUN columns each side) all have a hole
+    SNR of SHADOW_SNR·snr_min in GAP_RUN of the 2·GAP_RUN columns each side: a single
+    dropout beside the hole, as clipped stripes on a retro-reflective wall have, leaves a
+    line bright) all have a hole
     in one surface, its flanks within
     max(DOUBT_REL·d, DOUBT_ABS_M) of each other and no farther than ``distance_m`` plus
     that, with no obstacle point of any line at most that far in them. A hole at a depth

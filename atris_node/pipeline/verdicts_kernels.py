@@ -472,6 +472,15 @@ def shadowed(nearer: FloatArray, farther: FloatArray, noisy: BoolArray, bright: 
     return shadow.sum()
 
 
+@kernel()
+def _count_true(row: BoolArray, lo: int, hi: int) -> int:
+    """How many of ``row``'s entries lo .. hi - 1 (clipped to the row) are True."""
+    count = 0
+    for c in range(max(lo, 0), min(hi, row.size)):
+        count += row[c]
+    return count
+
+
 @kernel(_with_mask((_F, _B, _I, _I, _I, types.int64, types.int64, types.float64,
                     types.float64, types.float64), (_I, _I, _F, _F, _I, _F, types.int64)))
 def unseen(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray,
@@ -563,7 +572,8 @@ def line_holes(seen: BoolArray, noisy: BoolArray, line: IntArray, column: IntArr
     ((K, W), or (0, 0) for nowhere) from the points (``line``, ``column``, ``range_m``,
     ``obstacle``, ``snr``; (n,) each): per hole its line, start, stop, nearer and farther
     flank (m), noisy, and bright (its line has an obstacle point of SNR ``bright_snr`` or
-    more in each of the ``gap`` columns on either side). A flank is the last obstacle
+    more in ``gap`` of the 2·``gap`` columns on either side: a single dropout beside the
+    hole leaves it bright). A flank is the last obstacle
     point of the line in the column, as a numpy assignment leaves it."""
     lines, width = seen.shape
     flank = np.full((lines, width), np.nan)
@@ -599,10 +609,8 @@ def line_holes(seen: BoolArray, noisy: BoolArray, line: IntArray, column: IntArr
         out[h] = flanked or hidden[h]
         if flanked:
             nearer[h], farther[h] = min(left, right), max(left, right)
-        ok = a >= gap and b + gap <= bright_width
-        for j in range(gap):
-            ok = ok and bright[k, a - gap + j] and bright[k, b + j]
-        lit[h] = ok
+        lit[h] = (_count_true(bright[k], a - 2 * gap, a) >= gap
+                  and _count_true(bright[k], b, b + 2 * gap) >= gap)
     return (row[out], start[out], stop[out], nearer[out], farther[out], hidden[out],
             lit[out])
 
