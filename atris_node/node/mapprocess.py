@@ -47,7 +47,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from atris_node.errors import MapProcessError, MapProcessLostError
+from atris_node.errors import ConfigError, MapProcessError, MapProcessLostError
 from atris_node.node.shared import MapNotice, Segment, map_bytes, notice_of
 from atris_node.pipeline.chain import Pipeline, PipelineResult
 from atris_node.pipeline.temporal import window_series
@@ -100,6 +100,8 @@ class MapProcess:
         self._lost: str | None = None
         #: seconds the last start took (spawn, imports, the child's Pipeline)
         self.start_s: float | None = None
+        #: times the child asked for the window's values at its peaks
+        self.series_requests = 0
 
     # ----------------------------------------------------------------- lifecycle
     @property
@@ -174,6 +176,7 @@ class MapProcess:
             kind, payload = self._receive()
             if kind == "series":  # the window's values at the peaks, read here
                 assert dmap.window is not None
+                self.series_requests += 1
                 self._send(window_series(dmap.window, payload))
             elif kind == "error":
                 raise MapProcessError(f"the pipeline failed in {self._name}: {payload}")
@@ -213,6 +216,10 @@ class MapProcess:
         """Copy the map's values and mask into the map slot; the notice that describes
         it."""
         assert self._map is not None
+        if dmap.values.nbytes + dmap.saturated.nbytes > self._map.size:
+            raise ConfigError(f"distortion map is {dmap.values.shape[1]}x"
+                              f"{dmap.values.shape[0]} {dmap.values.dtype}: larger than the "
+                              f"calibrated image the map slot holds")
         values = self._map.array(dmap.values.shape, dmap.values.dtype)
         values[...] = dmap.values
         self._map.array(dmap.values.shape, bool, values.nbytes)[...] = dmap.saturated
@@ -236,11 +243,10 @@ def _end(process: BaseProcess) -> None:
 _ELSEWHERE = np.empty((0, 0), dtype=np.uint8)
 
 
-def _child_map(memory: Segment, notice: MapNotice, shape: tuple[int, int],
-               conn: Connection) -> DistortionMap:
+def _child_map(memory: Segment, notice: MapNotice, conn: Connection) -> DistortionMap:
     """The map in the map slot, its window read from the unit through ``conn``."""
-    values = memory.array(shape, notice.values_dtype)
-    saturated = memory.array(shape, bool, values.nbytes)
+    values = memory.array(notice.shape, notice.values_dtype)
+    saturated = memory.array(notice.shape, bool, values.nbytes)
     window = None
     if notice.window:
         before = None if notice.before is None else (notice.before, _ELSEWHERE)
@@ -260,12 +266,10 @@ def serve(conn: Connection, parts: PipelineParts, map_name: str) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     pipeline = Pipeline(parts.config, parts.calibration, parts.mounting, parts.layout)
     memory = Segment.attach(map_name)
-    cam = parts.calibration.camera
-    shape = (cam.height_px, cam.width_px)
     conn.send(("ready", None))
     try:
         while (notice := _next(conn)) is not None:
-            conn.send(_measure(pipeline, _child_map(memory, notice, shape, conn)))
+            conn.send(_measure(pipeline, _child_map(memory, notice, conn)))
     finally:
         memory.close()
 

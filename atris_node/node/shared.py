@@ -78,10 +78,11 @@ class Segment:
 @dataclass(frozen=True)
 class MapNotice:
     """What the map process needs to see a map in the map slot: the map's own small
-    fields, the values' dtype, and its window's signs and the offset of the OFF frame
+    fields, its (H, W) and the values' dtype, and its window's signs and the offset of the OFF frame
     before it (``window`` False: the map has no window)."""
 
     fields: dict[str, Any]
+    shape: tuple[int, int]
     values_dtype: str
     window: bool = False
     signs: tuple[int, ...] = ()
@@ -102,8 +103,9 @@ def map_bytes(height: int, width: int) -> int:
 def notice_of(dmap: DistortionMap) -> MapNotice:
     """The notice of ``dmap`` (written to the map slot)."""
     fields = {name: getattr(dmap, name) for name in SMALL_FIELDS}
+    shape = (int(dmap.values.shape[0]), int(dmap.values.shape[1]))
     window = dmap.window
     if window is None:
-        return MapNotice(fields, dmap.values.dtype.str)
+        return MapNotice(fields, shape, dmap.values.dtype.str)
     before = None if window.before is None else window.before[0]
-    return MapNotice(fields, dmap.values.dtype.str, True, tuple(window.signs), before)
+    return MapNotice(fields, shape, dmap.values.dtype.str, True, tuple(window.signs), before)
