@@ -132,7 +132,11 @@ class MapProcess:
         self._process.start()
         child_end.close()
         self._lost = None
-        self._expect_ready()
+        try:
+            self._expect_ready()
+        except MapProcessLostError:
+            self.close()  # the segment goes, the child is reaped
+            raise
         self.start_s = time.monotonic() - started
         logger.info("%s (pid %s) started in %.2f s", self._name, self.pid, self.start_s)
 
