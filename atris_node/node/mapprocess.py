@@ -147,7 +147,7 @@ class MapProcess:
         except (EOFError, OSError):
             ready = False
         if not ready:
-            self._fail(f"did not start within {START_TIMEOUT_S:.0f} s")
+            self._fail(f"did not start (within {START_TIMEOUT_S:.0f} s)")
 
     def close(self) -> None:
         """Ask the child to end, wait for it (kill it after STOP_TIMEOUT_S), unlink the
