@@ -155,11 +155,20 @@ def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
             unit.shutdown()
 
 
+def stopped(unit: Unit) -> bool:
+    """True once the unit stored a fatal error (``check()`` raises)."""
+    try:
+        unit.check()
+    except NodeFaultError:
+        return True
+    return False
+
+
 def assert_stopped_safely(rig: Rig, since: float) -> None:
-    """FAULT and invalid distances from the first FAULT cycle after ``since`` on, nothing
-    published after it, the laser off, ``check()`` raising the lost map process."""
-    wait_for(lambda: any(c.state == "FAULT" for c in list(rig.frames.cycles)
-                         if c.time_s > since), 10.0)
+    """The unit stops (``check()`` raising the lost map process); FAULT and invalid
+    distances from the first FAULT cycle after ``since`` on, nothing published after the
+    stop, the laser off."""
+    wait_for(lambda: stopped(rig.unit), 10.0)
     count = len(rig.published)
     time.sleep(0.3)
     after = [c for c in list(rig.frames.cycles) if c.time_s > since]
@@ -194,8 +203,9 @@ def test_a_hung_map_process_is_killed_and_the_laser_goes_off(rig: Rig) -> None:
     by the data's age while the loop strobes on; a child is killed.)
 
     Checked by waiting without a deadline in ``MapProcess._receive`` (``poll(None)``):
-    the unit waited for the child for ever, the projector stayed lit and the test failed
-    (the output went FAULT by age only)."""
+    the unit waited for the child for ever and never stopped (the output went FAULT by
+    the data's age only, the projector stayed lit); the test timed out waiting for the
+    stop and failed."""
     rig.child.deadline_s = 0.5
     pid = rig.child.pid
     assert pid is not None
