@@ -232,6 +232,8 @@ def test_shutdown_leaves_no_segment_and_no_child(request: pytest.FixtureRequest)
         assert isinstance(child, MapProcess) and child.alive
         pid = child.pid
         assert segments()
+        environ = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+        assert b"OPENBLAS_NUM_THREADS=1" in environ  # no BLAS pool spinning beside the loop
         unit.activate(threaded=True)
         wait_for(lambda: unit.stats.measurements >= 3, 60.0)
         unit.deactivate()

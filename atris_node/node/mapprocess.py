@@ -37,9 +37,11 @@ from __future__ import annotations
 import contextlib
 import logging
 import multiprocessing
+import os
 import signal
 import time
 import traceback
+from collections.abc import Iterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
@@ -129,7 +131,8 @@ class MapProcess:
         self._process = context.Process(target=serve, args=(child_end, self._parts,
                                                             self._map.name),
                                         name=self._name, daemon=True)
-        self._process.start()
+        with _one_blas_thread():
+            self._process.start()
         child_end.close()
         self._lost = None
         try:
@@ -228,6 +231,27 @@ class MapProcess:
         values[...] = dmap.values
         self._map.array(dmap.values.shape, bool, values.nbytes)[...] = dmap.saturated
         return notice_of(dmap)
+
+
+#: thread-pool sizes of the BLAS libraries numpy may use, set to 1 for the child
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _one_blas_thread() -> Iterator[None]:
+    """The environment a child is spawned with: one BLAS thread. An OpenBLAS pool's
+    threads spin for a while after each call (the pipeline's ``test @ series``), on the
+    core the camera loop needs; the child's work is one core's by design."""
+    saved = {key: os.environ.get(key) for key in BLAS_THREADS}
+    os.environ.update({key: "1" for key in BLAS_THREADS})
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 def _end(process: BaseProcess) -> None:
