@@ -276,3 +276,17 @@ def test_a_unit_with_a_map_process_measures_in_the_loop_too(
             unit.shutdown()
     assert published
     assert not segments()
+
+
+def test_the_atris_command_asks_for_one_blas_thread_unless_told(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """An OpenBLAS pool thread spinning after the demodulator's dot products took a
+    fifth to a third of the second core (docs/benchmarks.md, issue 20)."""
+    from atris_node import cli
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    monkeypatch.setattr(os, "environ", dict(os.environ))
+    cli.one_blas_thread()
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+    assert os.environ["OMP_NUM_THREADS"] == "2"
