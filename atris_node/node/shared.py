@@ -12,10 +12,11 @@ Segments are named ``atris_maps_<pid>_<n>`` and unlinked by :meth:`Segment.close
 
 Example:
     >>> segment = Segment.create(64)
-    >>> view = segment.array((2, 4), "int32")
-    >>> view[:] = 7
-    >>> int(Segment.attach(segment.name).array((2, 4), "int32").sum())
+    >>> segment.array((2, 4), "int32")[:] = 7
+    >>> seen = Segment.attach(segment.name)
+    >>> int(seen.array((2, 4), "int32").sum())
     56
+    >>> seen.close()
     >>> segment.close()
 """
 
