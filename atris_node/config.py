@@ -22,6 +22,8 @@ from typing import Any
 from atris_node.errors import ConfigError
 
 ENV_PREFIX = "ATRIS_"
+#: where a unit measures its maps (``pipeline.worker``; docs/node.md "The map thread")
+WORKERS = ("thread", "process", "inline")
 Check = Callable[[Any], str | None]
 
 
@@ -113,8 +115,10 @@ PARAMS: tuple[Param, ...] = (
       "doubt, not a point (0 = off; needs the calibration's return_dn_m2)", in_range(0.0, 0.5)),
     P("interference.every_windows", int, 8, "measure other codes' energy on one window of N "
       "sub-frames out of this many (0 = never; hopping needs it)", in_range(0, 10000)),
-    P("pipeline.thread", bool, True, "measure maps on a thread beside the camera loop (a "
-      "map that finds it busy replaces the waiting one); false: in the loop, serially"),
+    P("pipeline.worker", str, "thread", "where maps are measured: thread (a map thread "
+      "beside the camera loop; a map that finds it busy replaces the waiting one), process "
+      "(the pipeline pass in a child process, fed through shared memory) or inline (in the "
+      "loop, serially)", one_of(*WORKERS)),
     P("pipeline.objects", bool, False, "cluster points into objects (open3d DBSCAN)"),
     P("bus.interface", str, "virtual", "python-can interface"),
     P("bus.channel", str, "atris", "python-can channel"),
@@ -176,6 +180,9 @@ PARAMS: tuple[Param, ...] = (
       "adaptive.max_range_sigma_m, m", in_range(0.1, 200.0)),
 )
 PARAM_BY_KEY: dict[str, Param] = {p.key: p for p in PARAMS}
+#: keys no longer accepted, and what to set instead
+REPLACED = {"pipeline.thread": "pipeline.worker (thread, process or inline; "
+                               "pipeline.thread = false is pipeline.worker = \"inline\")"}
 
 
 def _parse_bool(text: str) -> bool:
@@ -255,6 +262,8 @@ class Config:
         """A new Config with ``updates`` applied (checked) as coming from ``source``."""
         values, sources = dict(self.values), dict(self.sources)
         for key, value in updates.items():
+            if key in REPLACED:
+                raise ConfigError(f"{source}: {key} was replaced by {REPLACED[key]}")
             if key not in PARAM_BY_KEY:
                 raise ConfigError(f"{source}: unknown parameter {key!r}; accepted: "
                                   f"{', '.join(sorted(PARAM_BY_KEY))}")

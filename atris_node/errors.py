@@ -72,3 +72,12 @@ class NegotiationError(AtrisError, RuntimeError):
 
 class NodeFaultError(AtrisError, RuntimeError):
     """A fatal error stored by a background thread and re-raised in the main loop."""
+
+
+class MapProcessError(AtrisError, RuntimeError):
+    """The pipeline raised in the map process; the message carries its traceback there."""
+
+
+class MapProcessLostError(NodeFaultError):
+    """The map process could not start, ended, or did not answer within its deadline:
+    no map is measured any more (the unit stops: laser off, FAULT)."""

@@ -7,6 +7,7 @@ so a published frame can say how old its data is.
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,10 @@ class WindowFrames:
     #: the last OFF sub-frame before the window, as (its sequence minus the window's
     #: first, < 0; its pixels), when the demodulator saw it without a gap since
     before: tuple[int, npt.NDArray[np.generic]] | None = None
+    #: for a window whose pixels stay in another process (the map process asks the unit):
+    #: the frames' values at flat pixel indices, (n, P) float64 DN, the OFF frame before
+    #: the window first; ``pixels`` and the pixels of ``before`` are then left empty
+    gather: Callable[[npt.NDArray[np.int64]], npt.NDArray[np.float64]] | None = None
 
 
 @dataclass(frozen=True)

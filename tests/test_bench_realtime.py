@@ -105,7 +105,7 @@ def test_feature_a_stalled_consumer_drops_and_the_counts_add_up() -> None:
     """Every map stalls 40 ms in the camera loop (no map thread) while sub-frames come
     every 4 ms: the camera's queue fills and the sub-frames that find it full are dropped,
     never lost from the count."""
-    row = realtime.measure(replace(STALLED, serial=True))
+    row = realtime.measure(replace(STALLED, worker="inline"))
     subs = row["sub_frames"]
     assert subs["offered"] == 240
     assert subs["dropped"] > 0
@@ -121,10 +121,10 @@ def test_with_the_map_thread_a_slow_pipeline_skips_maps_instead_of_dropping_sub_
     camera drops (almost) nothing and maps are skipped instead, newest first. Both runs in
     one test, compared with each other (a loaded machine can still drop a few).
 
-    Checked by running the map-thread row with ``serial=True`` as well: its drops were
+    Checked by running the map-thread row with ``worker="inline"`` as well: its drops were
     those of the first row and the comparison failed."""
     threaded = realtime.measure(STALLED)
-    serial = realtime.measure(replace(STALLED, serial=True))
+    serial = realtime.measure(replace(STALLED, worker="inline"))
     subs = threaded["sub_frames"]
     assert subs["offered"] == subs["consumed"] + subs["dropped"] + subs["pending"]
     assert subs["dropped"] * 4 < serial["sub_frames"]["dropped"]

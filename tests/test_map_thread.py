@@ -11,6 +11,9 @@ The camera loop hands each complete map to the map thread and reads on. Promises
   error re-raised by ``check()``;
 - the newest map wins: a map waiting while another is measured is replaced, not queued.
 
+The unit-level promises hold with both ``pipeline.worker = "thread"`` and ``"process"``
+(the map thread then waits for the map process: tests/test_map_process.py).
+
 Each protection was removed once and the test watched fail, then put back:
 - the epoch comparison in ``Unit._publish`` (always publishing): the gated map was
   published after the loop had gone invalid, the first test failed;
@@ -108,9 +111,10 @@ def wait_for(done: Callable[[], bool], timeout_s: float) -> None:
         time.sleep(0.005)
 
 
-@pytest.fixture
+@pytest.fixture(params=["thread", "process"])
 def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
-    """A threaded unit (map thread on, the default) that has published valid distances."""
+    """A threaded unit that has published valid distances, its maps measured on the map
+    thread (the default) or sent by it to the map process."""
     frames = CycleFrames()
     cameras: list[FaultyCamera] = []
 
@@ -120,7 +124,8 @@ def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
         return cameras[-1], projector
 
     with listened_bus(f"map-thread-{request.node.name}", frames, 0.01) as bus:
-        unit = Unit(cfg.load(environ={}, overrides=BASE), bus, open_backend=opener)
+        overrides = [*BASE, f"pipeline.worker={request.param}"]
+        unit = Unit(cfg.load(environ={}, overrides=overrides), bus, open_backend=opener)
         unit.configure()
         assert unit.measure is not None
         gate = Gate(unit.measure.measure)

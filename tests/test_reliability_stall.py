@@ -201,7 +201,7 @@ def test_no_running_cycle_goes_out_on_a_row_lost_during_a_stall(rig: Any) -> Non
     negotiation's at send time. Checked to fail with ``Unit.configure`` not setting the
     publisher's ``status_at_send`` (the status sent as the loop last handed it): the
     cycles after the loss said RUNNING with the lost row and numeric distances."""
-    unit = rig.start("publish.max_age_s=2.0", "pipeline.thread=false")
+    unit = rig.start("publish.max_age_s=2.0", "pipeline.worker=inline")
     assert wait_for(lambda: any(_valid(c) for c in rig.cycles.cycles))
     camera = rig.cameras[0]
     camera.hold.set()

@@ -52,6 +52,15 @@ def thread_cpu_s() -> dict[int, tuple[str, float]]:
     return out
 
 
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds (``utime + stime``) of process ``pid`` so far; 0.0 when it is gone or
+    ``/proc`` is not there."""
+    try:
+        return _task_cpu_s(Path(f"/proc/{pid}/stat").read_text())
+    except OSError:
+        return 0.0
+
+
 def per_thread(before: dict[int, tuple[str, float]], after: dict[int, tuple[str, float]],
                seconds: float) -> list[dict[str, Any]]:
     """CPU between two :func:`thread_cpu_s` samples, summed by thread name: rows with

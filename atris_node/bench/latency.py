@@ -29,6 +29,7 @@ from atris_node import config as cfg
 from atris_node.bench._timing import spread_ms
 from atris_node.bus.can.frames import FrameCodec
 from atris_node.bus.can.ids import FrameKind, unit_of
+from atris_node.config import WORKERS
 from atris_node.errors import FrameDecodeError
 from atris_node.node.unit import Unit
 from atris_node.types import Measurement
@@ -76,11 +77,13 @@ class Arrivals(can.Listener):
         raise exc
 
 
-def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
-    """Run one unit for ``seconds`` and return the latency row."""
+def measure(scene: str, seconds: float, code_length: int,
+            worker: str = "thread") -> dict[str, Any]:
+    """Run one unit for ``seconds`` (maps measured by ``worker``, ``pipeline.worker``)
+    and return the latency row."""
     config = cfg.load(environ={}, overrides=[
         f"driver.scene={scene}", "driver.realtime=true", f"code.length={code_length}",
-        f"bus.channel={CHANNEL}"])
+        f"bus.channel={CHANNEL}", f"pipeline.worker={worker}"])
     sent: dict[int, float] = {}
     pipeline_ms: list[float] = []
     arrivals = Arrivals()
@@ -109,6 +112,7 @@ def measure(scene: str, seconds: float, code_length: int) -> dict[str, Any]:
     last = _row(scene, unit, sent, arrivals.last_sends)
     row["last_frame_p50_ms"], row["last_frame_p99_ms"] = last["p50_ms"], last["p99_ms"]
     row["pipeline_p50_ms"] = round(float(np.median(pipeline_ms)), 3) if pipeline_ms else None
+    row["worker"] = worker
     return row
 
 
@@ -125,11 +129,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", default="indoor_lab", help="simulator scene (640x400)")
     parser.add_argument("--seconds", type=float, default=10.0, help="run time, s")
     parser.add_argument("--code-length", type=int, default=8, help="N")
+    parser.add_argument("--worker", choices=WORKERS, default="thread",
+                        help="where maps are measured (pipeline.worker)")
     parser.add_argument("--json", action="store_true", help="print the row as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    row = measure(args.scene, args.seconds, args.code_length)
+    row = measure(args.scene, args.seconds, args.code_length, args.worker)
     print(json.dumps(row) if args.json else
           "  ".join(f"{k}={v}" for k, v in row.items()))
     return 0

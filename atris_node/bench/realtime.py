@@ -3,6 +3,7 @@
     atris bench realtime --camera oak --mode sliding
     atris bench realtime --camera paper --json
     atris bench realtime --camera 640x400@120 --seconds 5
+    atris bench realtime --camera paper --worker process
 
 ``--camera`` is ``oak`` (OV9282: 1280x800, 8-bit, 120 sub-frames/s), ``paper`` (CMV2000:
 2048x1088, 10-bit, 600 sub-frames/s) or ``WxH[xBITS]@RATE``: width and height in pixels,
@@ -35,6 +36,11 @@ The first ``--warmup`` seconds (negotiation, the first maps) are not counted; th
   the loop's thread): calls, wall ms per call p50/p99/max, CPU seconds and % of one core.
 - ``threads``: CPU seconds and % of one core per thread over the counted time;
   ``process_cpu_pct`` for the whole process (200 = two cores busy).
+- ``worker``: where maps were measured (``--worker``: ``pipeline.worker``, thread, process
+  or inline); ``map_thread``: true unless inline. With ``process``, ``map_process``: the
+  child's CPU (``cpu_pct``, % of one core over the counted time), its start-up time
+  (``start_s``); the ``pipeline`` stage is then the map thread's wait for the child, its CPU the map
+  thread's own.
 - ``peak_rss_mb`` (the process's peak resident set, pre-rendered pictures included),
   ``prerendered_mb`` and ``sensor_late_max_ms`` (the sensor thread's worst wake-up delay).
 """
@@ -60,7 +66,9 @@ from atris_node.bench._timing import spread_ms
 from atris_node.bench.accuracy import scaled
 from atris_node.bench.latency import Arrivals
 from atris_node.bench.pacing import PacedCamera, PacedProjector, Prerendered
+from atris_node.config import WORKERS
 from atris_node.errors import CodeError, UsageError
+from atris_node.node.mapprocess import MapProcess
 from atris_node.node.unit import Unit
 from atris_node.sim import Simulator, load_scene
 from atris_node.types import Measurement
@@ -159,7 +167,7 @@ def _cpu_s() -> float:
 class Options:
     """What to run: camera, demodulation mode, counted and warm-up seconds, scene, N,
     frame buffers, a deliberate stall per map (ms, for tests of the drop rule), and
-    whether maps are measured in the camera loop (``serial``) instead of the map thread."""
+    where maps are measured (``worker``: ``pipeline.worker``)."""
 
     camera: CameraSpec
     mode: str = "sliding"
@@ -169,7 +177,7 @@ class Options:
     code_length: int = 16
     queue_depth: int = 4
     stall_ms: float = 0.0
-    serial: bool = False
+    worker: str = "thread"
 
 
 def measure(opts: Options) -> dict[str, Any]:
@@ -182,7 +190,7 @@ def measure(opts: Options) -> dict[str, Any]:
     config = cfg.load(environ={}, overrides=[
         f"driver.scene={opts.scene}", f"code.length={opts.code_length}",
         f"code.demod={opts.mode}", f"bus.channel={CHANNEL}",
-        f"pipeline.thread={str(not opts.serial).lower()}"])
+        f"pipeline.worker={opts.worker}"])
     timers = {name: cputime.StageTimer() for name in STAGES}
     sent: dict[int, tuple[float, int]] = {}
     arrivals = Arrivals()
@@ -200,7 +208,7 @@ def measure(opts: Options) -> dict[str, Any]:
             _instrument(unit, timers, opts.stall_ms)
             camera.start()
             unit.activate()
-            usage = _counted_run(camera, timers)
+            usage = _counted_run(camera, timers, _map_process(unit))
             _drain(camera)
         finally:
             unit.shutdown()
@@ -209,22 +217,36 @@ def measure(opts: Options) -> dict[str, Any]:
         unit.check()
     row = _row(opts, camera, frames, sent, arrivals.sends, timers, usage, pending)
     row["maps"] = {"skipped": unit.stats.maps_skipped, "stale": unit.stats.stale_maps}
+    if "map_process" in usage:
+        row["map_process"] = usage["map_process"]
     return row
 
 
-def _counted_run(camera: PacedCamera, timers: dict[str, cputime.StageTimer]
-                 ) -> dict[str, Any]:
-    """Wait through the counted sub-frames; CPU per thread and of the process over them."""
+def _map_process(unit: Unit) -> MapProcess | None:
+    pipeline = None if unit.measure is None else unit.measure.pipeline
+    return pipeline if isinstance(pipeline, MapProcess) else None
+
+
+def _counted_run(camera: PacedCamera, timers: dict[str, cputime.StageTimer],
+                 child: MapProcess | None) -> dict[str, Any]:
+    """Wait through the counted sub-frames; CPU per thread and of the process over them
+    (and of the map process, ``child``)."""
     start_s, end_s = camera.due_s(camera.counts.first), camera.due_s(camera.counts.end)
     for timer in timers.values():
         timer.start_s, timer.end_s = start_s, end_s
     _sleep_until(start_s)
     threads, process = cputime.thread_cpu_s(), _cpu_s()
+    child_cpu = cputime.process_cpu_s(child.pid) if child and child.pid else 0.0
     _sleep_until(end_s)
     seconds = max(time.monotonic() - start_s, 1e-9)
-    return {"threads": cputime.per_thread(threads, cputime.thread_cpu_s(), seconds),
-            "process_cpu_pct": round(100.0 * (_cpu_s() - process) / seconds, 1),
-            "seconds": seconds}
+    usage = {"threads": cputime.per_thread(threads, cputime.thread_cpu_s(), seconds),
+             "process_cpu_pct": round(100.0 * (_cpu_s() - process) / seconds, 1),
+             "seconds": seconds}
+    if child is not None and child.pid:
+        child_cpu = cputime.process_cpu_s(child.pid) - child_cpu
+        usage["map_process"] = {"cpu_pct": round(100.0 * child_cpu / seconds, 1),
+                                "start_s": round(child.start_s or 0.0, 3)}
+    return usage
 
 
 def _drain(camera: PacedCamera) -> None:
@@ -246,7 +268,7 @@ def _row(opts: Options, camera: PacedCamera, frames: Prerendered,
         "camera": {"name": spec.name, "width": spec.width, "height": spec.height,
                    "bits": spec.bits, "rate_hz": spec.rate_hz},
         "mode": opts.mode, "code_length": opts.code_length, "scene": opts.scene,
-        "map_thread": not opts.serial,
+        "worker": opts.worker, "map_thread": opts.worker != "inline",
         "queue_depth": opts.queue_depth, "seconds": round(seconds, 3),
         "sub_frames": {"offered": counts.offered, "consumed": counts.consumed,
                        "dropped": counts.dropped, "pending": pending,
@@ -272,8 +294,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--queue", type=int, default=4, help="camera frame buffers")
     parser.add_argument("--stall-ms", type=float, default=0.0,
                         help="sleep added per map (to see the drop rule at work), ms")
+    parser.add_argument("--worker", choices=WORKERS, default=None,
+                        help="where maps are measured (pipeline.worker; default thread)")
     parser.add_argument("--serial", action="store_true",
-                        help="measure maps in the camera loop (pipeline.thread=false)")
+                        help="measure maps in the camera loop (= --worker inline)")
     parser.add_argument("--json", action="store_true", help="print the row as one object")
 
 
@@ -287,8 +311,11 @@ def options_of(args: argparse.Namespace) -> Options:
         length = codes.check_length(args.code_length)
     except CodeError as exc:
         raise UsageError(f"--code-length: {exc}") from exc
+    if args.serial and args.worker not in (None, "inline"):
+        raise UsageError(f"--serial is --worker inline; it cannot go with --worker {args.worker}")
+    worker = "inline" if args.serial else args.worker or "thread"
     return Options(parse_camera(args.camera), args.mode, args.seconds, args.warmup,
-                   args.scene, length, args.queue, args.stall_ms, args.serial)
+                   args.scene, length, args.queue, args.stall_ms, worker)
 
 
 def _table(row: dict[str, Any]) -> str:
@@ -301,12 +328,16 @@ def _table(row: dict[str, Any]) -> str:
         f"dropped {subs['dropped']}  pending {subs['pending']}  gaps {subs['gaps']}",
         f"output      {row['output_hz']:.1f} Hz of {row['expected_output_hz']:.1f} Hz "
         f"({row['measurements']} measurements; maps skipped {row['maps']['skipped']}, "
-        f"stale {row['maps']['stale']}; map thread {'on' if row['map_thread'] else 'off'})",
+        f"stale {row['maps']['stale']}; worker {row['worker']})",
         f"data age    p50 {age['p50']} ms  p99 {age['p99']} ms  max {age['max']} ms",
         f"{'stage':<10} {'calls':>7} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'cpu %':>6}"]
     lines += [f"{name:<10} {s['calls']:>7} {s['p50_ms']:>8.3f} {s['p99_ms']:>8.3f} "
               f"{s['max_ms']:>8.3f} {s['cpu_pct']:>6.1f}" for name, s in row["stages"].items()]
     lines += [f"thread {t['thread']}: {t['cpu_pct']:.1f} % of a core" for t in row["threads"]]
+    child = row.get("map_process")
+    if child is not None:
+        lines.append(f"map process: {child['cpu_pct']:.1f} % of a core, started in "
+                     f"{child['start_s']:.2f} s")
     lines.append(f"process {row['process_cpu_pct']:.1f} % of a core, peak RSS "
                  f"{row['peak_rss_mb']:.0f} MB ({row['prerendered_mb']:.0f} MB pre-rendered), "
                  f"sensor late by up to {row['sensor_late_max_ms']:.1f} ms")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from types import ModuleType
@@ -71,12 +72,27 @@ def _split_global(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     return parser.parse_known_args(argv)
 
 
+#: thread-pool sizes of the BLAS libraries numpy may use
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_blas_thread() -> None:
+    """One BLAS thread unless the environment says otherwise; called before a
+    subcommand imports numpy. An OpenBLAS pool's threads spin for a while after each
+    call: the demodulator's gain measure (a dot product over the strip sample of every
+    sliding map) kept one spinning on the second core, 20 to 35 % of it, beside the map
+    thread or the map process (docs/benchmarks.md, issue 20)."""
+    for key in BLAS_THREADS:
+        os.environ.setdefault(key, "1")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``atris`` console script."""
     options, rest = _split_global(list(sys.argv[1:] if argv is None else argv))
     level = logging.DEBUG if options.verbose > 1 else (
         logging.INFO if options.verbose else logging.WARNING)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    one_blas_thread()
     try:
         return dispatch("atris", COMMANDS, rest)
     except KeyboardInterrupt:

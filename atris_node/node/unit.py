@@ -14,10 +14,12 @@ One sub-frame step of the loop::
     map thread (atris_node.node.worker): pipeline -> Measurement -> publisher
                                          (status + sectors + nearest)
 
-With ``pipeline.thread`` (the default, when the loop runs in its own thread) the loop hands
-each complete map to the map thread and reads on; a measurement is published only if the
-loop has not gone invalid since its map was complete (the loop's epoch). Without it, and
-in ``step()`` / ``run_for()`` called directly, the map is measured in the loop.
+With ``pipeline.worker = "thread"`` (the default, when the loop runs in its own thread) the
+loop hands each complete map to the map thread and reads on; a measurement is published
+only if the loop has not gone invalid since its map was complete (the loop's epoch). With
+``"process"`` the map thread sends the pipeline pass to the map process
+(atris_node.node.mapprocess) and waits for it. With ``"inline"``, and in ``step()`` /
+``run_for()`` called directly, the map is measured in the loop.
 
 The projector is off whenever the node is not demodulating: before activation, while the
 code is not owned, on a camera fault, on deactivate/shutdown, and (through ``atexit`` and the
@@ -47,9 +49,11 @@ from atris_node.errors import (
     CameraLostError,
     DemodulationError,
     DriverError,
+    MapProcessLostError,
     NodeFaultError,
 )
 from atris_node.node import wiring
+from atris_node.node.mapprocess import MapProcess
 from atris_node.node.measure import Measurer
 from atris_node.node.snapshot import write_snapshot
 from atris_node.node.stats import NodeStats
@@ -125,11 +129,18 @@ class Unit:
 
     # ----------------------------------------------------------------- lifecycle
     def configure(self) -> None:
-        """Open every component with the laser off."""
+        """Open every component with the laser off (and start the map process with
+        ``pipeline.worker = "process"``).
+
+        Raises:
+            MapProcessLostError: the map process did not start.
+        """
         if self.lifecycle != Lifecycle.UNCONFIGURED:
             return
         self._camera, self._projector = self._open_driver()
-        pipeline = wiring.make_pipeline(self.config, self._camera)
+        pipeline: Any = wiring.make_pipeline(self.config, self._camera)
+        if self.config["pipeline.worker"] == "process":
+            pipeline = MapProcess(pipeline, name=f"atris-map-process-{self.label}")
         self._services = wiring.make_bus_services(self.config, self.bus)
         self._publisher = wiring.make_output(self.config, self.bus, self._services, self.clock)
         self._negotiator = wiring.make_negotiator(self.config, self.bus, self._camera,
@@ -141,6 +152,7 @@ class Unit:
                                           float(getattr(self._camera, "rate_hz", 0.0)))
         self._measure = Measurer(self.config, pipeline, adaptive, self._negotiator, self.stats,
                                  self.clock)
+        self._start_map_process()  # its start-up (seconds) belongs here, not in activate()
         self.lifecycle = Lifecycle.INACTIVE
         logger.info("unit %s configured", self.label)
 
@@ -151,16 +163,19 @@ class Unit:
             NodeFaultError: the loop of the previous activation has not ended yet (it hangs,
                 e.g. in a camera read): a second loop beside it would strobe and read the
                 same devices. The laser stays off and the state says FAULT until it ended.
+            MapProcessLostError: the map process (``pipeline.worker = "process"``) did not
+                start; the unit stays inactive, the laser off.
         """
         if self.lifecycle != Lifecycle.INACTIVE:
             return
         self._refuse_beside_old_loop()
+        self._start_map_process()
         self._stop.clear()
         assert self._publisher is not None
         self._publisher.start()
         self._negotiator.start()
         self.lifecycle = Lifecycle.ACTIVE
-        if threaded and self.config["pipeline.thread"]:
+        if threaded and self.config["pipeline.worker"] != "inline":
             self._maps = MapThread(self._measure_map, self._on_map_thread_error,
                                    name=f"atris-maps-{self.label}")
             self._maps.start()
@@ -168,6 +183,13 @@ class Unit:
             self._thread = threading.Thread(target=self._guarded_loop,
                                             name=f"atris-unit-{self.label}", daemon=True)
             self._thread.start()
+
+    def _start_map_process(self) -> None:
+        """Start the map process when the unit has one (configure), or again when it died
+        (activate)."""
+        assert self._measure is not None
+        if isinstance(self._measure.pipeline, MapProcess):
+            self._measure.pipeline.start()
 
     def deactivate(self) -> None:
         """Stop the loop and the bus services: laser off, the loop stopped (and the laser
@@ -219,6 +241,8 @@ class Unit:
         if self._publisher is not None:  # it reports FAULT after a refused activate()
             self._publisher.stop()
         self._laser_off()
+        if self._measure is not None and isinstance(self._measure.pipeline, MapProcess):
+            self._measure.pipeline.close()
         for part in (self._projector, self._camera):
             if part is not None:
                 part.close()
@@ -497,6 +521,8 @@ class Unit:
         assert self._measure is not None
         try:
             measurement = self._measure.measure(dmap, self._camera)
+        except MapProcessLostError:  # no map can be measured any more: the unit stops
+            raise
         except Exception as exc:
             self._on_pipeline_error(exc)
             return

@@ -99,7 +99,8 @@ def not_own_light(peaks: IntArray, window: WindowFrames | None, local: NoiseMap)
     (:func:`atris_node.pipeline.peaks_kernels.peak_pixels`, :func:`_series`,
     :func:`atris_node.pipeline.peaks_kernels.ambient_level`, :func:`_mark_not_own`)."""
     out = np.zeros(peaks.shape, dtype=bool)
-    if window is None or len(window.pixels) != len(window.signs) or not peaks.size:
+    if window is None or not peaks.size or (
+            window.gather is None and len(window.pixels) != len(window.signs)):
         return out
     m, c, flat, tile_sigma = peaks_kernels.peak_pixels(
         np.ascontiguousarray(peaks, dtype=np.int64), local.tile_row, local.sigma_tiles,
@@ -108,8 +109,7 @@ def not_own_light(peaks: IntArray, window: WindowFrames | None, local: NoiseMap)
         return out
     before = window.before
     test, norm = _test_weights(tuple(window.signs), None if before is None else before[0])
-    frames = ((before[1],) if before is not None else ()) + window.pixels
-    series = _series(frames, flat)  # (n, P), DN
+    series = window_series(window, flat)  # (n, P), DN
     level, gain = _ambient(series, window)
     _mark_not_own(out, m, c, test @ series, tile_sigma, level, gain,
                   math.sqrt(len(window.signs)), norm)
@@ -128,6 +128,16 @@ def _test_weights(signs: tuple[int, ...], before: int | None) -> tuple[FloatArra
         test = test[1:]
     test.setflags(write=False)
     return test, float(np.linalg.norm(test))
+
+
+def window_series(window: WindowFrames, flat: IntArray) -> FloatArray:
+    """(n, P) float64 the value of each frame of ``window`` (the OFF frame before it first,
+    when there is one) at the flat pixel indices ``flat``, DN; from ``window.gather`` when
+    its pixels are in another process."""
+    if window.gather is not None:
+        return window.gather(flat)
+    before = window.before
+    return _series(((before[1],) if before is not None else ()) + window.pixels, flat)
 
 
 def _series(frames: tuple[npt.NDArray[Any], ...], flat: IntArray) -> FloatArray:
