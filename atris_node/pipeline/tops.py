@@ -18,15 +18,18 @@ below that height. The lines above are walked from k − 1 upwards:
 - a line that lands beyond (on the ground or on anything else): it passed over at
   height h. h at most the clearance: the
   surface is below the clearance, ground. Else its top is unknown;
-- a line above with no return within the range in the column (within one column either
-  side) passed over at its sheet's height there when its sheet is known to leave the
-  range: it meets the ground only beyond z_max (not seen, it is what the free verdict
-  takes as nothing in its way), or it was seen beyond the range. Such a line lands
-  beyond, where its sheet leaves the range (a low box under a row above the lowest
-  sheet's ground row, the sheet above passing over it to the ground beyond z_max, read
-  free before this rule: low_box_within_ground_rows);
+- a line above seen only beyond the range in the column (within one column either
+  side) passed over at its sheet's height there: it lands beyond, where its sheet
+  leaves the range;
 - any other line above not seen in the column tells nothing: the next line up is asked;
-- no line left above: unknown when the rise is more than RISE_PX rows (below).
+- no line left above: unknown when the rise is more than RISE_PX rows (below); for a
+  smaller rise, unknown when a line above that is not seen near the column, and whose
+  sheet meets the ground only beyond z_max (what the free verdict takes as nothing in
+  its way), passed over it above the clearance. Asked only once the walk found no seen
+  line: a line lost in the noise on a wall the lines above it show was stopped by the
+  wall, it did not pass. (A low box under a row above the lowest sheet's ground row,
+  the sheet above passing over it to the ground beyond z_max, read free before these
+  two rules: low_box_within_ground_rows.)
 
 A sample whose top is unknown is an *unseen top*: something may stand there as tall as
 an obstacle, at the sample's range. A sector holding one is not free, and not VALID at a
