@@ -156,8 +156,9 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
     unknown |= exhausted & sure
     if passing is not None:
         weak = np.flatnonzero(exhausted & ~sure)
-        unknown[weak] |= _passed_unseen(k[weak], c[weak], d[weak], same[weak], grid_d,
-                                       passing, projector_height_m, clearance_m)
+        unknown[weak] |= _passed_unseen(k[weak], c[weak], d[weak], same[weak],
+                                       (grid_d, grid_h, grid_o), passing,
+                                       projector_height_m, clearance_m)
     out[idx[unknown]] = True
     return out
 
@@ -184,25 +185,25 @@ def _passed_m(d: FloatArray, landing_m: FloatArray, landing_h: FloatArray,
 
 
 def _passed_unseen(k: IntArray, c: IntArray, d: FloatArray, same: FloatArray,
-                   grid_d: FloatArray, passing: tuple[FloatArray, FloatArray, BoolArray],
+                   grids: tuple[FloatArray, FloatArray, BoolArray],
+                   passing: tuple[FloatArray, FloatArray, BoolArray],
                    projector_height_m: float, clearance_m: float) -> BoolArray:
     """(m,) rises (line ``k``, column ``c``, distance ``d``) that no seen line above
-    bounds but a line above with no return near the column passed over above the
-    clearance, its sheet known to leave the range there (``passing``). Asked only after
-    the walk: a line lost in the noise on a surface that the lines above it show is
-    blocked, not passing (a wall's foot stripe, the line above too faint on the wall)."""
+    bounds but a line above with no return near the column (``grids`` of
+    :func:`_grids`) passed over above the clearance, its sheet known to leave the range
+    there (``passing``). Asked only after the walk: a line lost in the noise on a
+    surface that the lines above it show is blocked, not passing (a wall's foot stripe,
+    the line above too faint on the wall)."""
     out = np.zeros(k.size, dtype=np.bool_)
+    known = np.isfinite(passing[0])
     for step in range(1, int(k.max(initial=0)) + 1):
         j = np.flatnonzero(k - step >= 0)
         if j.size == 0:
             break
         above = k[j] - step
-        dist = np.full(j.size, np.nan)
-        high = np.zeros(j.size)
-        seen = np.zeros(j.size, dtype=np.bool_)
-        for shift in (0, -1, 1):
-            seen |= np.isfinite(grid_d[above, np.clip(c[j] + shift, 0, grid_d.shape[1] - 1)])
-        _passing_where_missing(dist, high, passing, np.isfinite(passing[0]), above, c[j])
+        dist, high, _ = _nearest_in_column(*grids, above, c[j])
+        seen = np.isfinite(dist)
+        _passing_where_missing(dist, high, passing, known, above, c[j])
         over = ~seen & (dist > d[j] + same[j]) & (
             _passed_m(d[j], dist, high, projector_height_m) > clearance_m)
         out[j[over]] = True
