@@ -86,6 +86,33 @@ def test_free_floor_is_free_in_every_sector_within_the_sheets_reach(
     assert "no sector can be reported free" in caplog.text
 
 
+@pytest.mark.parametrize(("wall_m", "baseline_scale", "z_max_m", "states"), [
+    (2.95, 1.03, 3.0, {SectorState.INVALID}), (3.6, 1.03, 3.0, {SectorState.NO_RETURN}),
+    (None, 1.0, 4.9, {SectorState.NO_RETURN})])
+def test_feature_a_return_just_beyond_the_range_is_no_evidence_of_free(
+        wall_m: float | None, baseline_scale: float, z_max_m: float,
+        states: set[SectorState]) -> None:
+    """The free floor (its sheets meet it at 3.4 and 4.4 m) with a wall across the view and
+    the baseline handed 3 % long, so that every range reads 3 % long: a wall 5 cm inside
+    z_max 3 m returns just beyond it and may stand within the range: not free (stress
+    scenes wall_at_range_edge_*); a wall beyond z_max by more than the margin
+    (max(10 %, 20 cm, 3 sigma)) still shows the range free. With a 2 cm clearance (the
+    upper sheet crosses it at 4.87 m) the floor itself 0.11 m beyond z_max 4.9 m (within
+    that margin) is ground, and the range free. Checked to fail with
+    evidence.SectorJudge._at_the_edge returning no column (the wall at 2.95 m went out
+    NO_RETURN in every sector) and without its height test (the floor case INVALID)."""
+    scene = SCENES["free_floor"]
+    if wall_m is not None:
+        scene = replace(scene, boxes=(Box(wall_m, -20.0, 20.0),))
+    laser = scene.calibration.laser
+    handed = replace(scene.calibration,
+                     laser=replace(laser, baseline_m=baseline_scale * laser.baseline_m))
+    config = replace(CONFIG, z_max_m=z_max_m, ground_clearance_m=0.02)
+    dmap, _ = render(scene, np.random.default_rng(1))
+    result = Pipeline(config, handed, scene.mounting, config.layout()).process(dmap)
+    assert {s.state for s in result.measurement.sectors} == states
+
+
 def test_measurement_carries_the_map_sequence_and_time() -> None:
     scene = SCENES["boxes_one_line"]
     dmap, _ = render(scene, np.random.default_rng(2))

@@ -32,6 +32,8 @@ from atris_node.pipeline.tops import (
     unseen_tops,
 )
 from atris_node.pipeline.verdicts import (
+    DOUBT_ABS_M,
+    DOUBT_REL,
     ColumnEvidence,
     ObstaclePoints,
     SectorColumns,
@@ -44,6 +46,11 @@ from atris_node.types import SectorDistance
 #: would show may be lost under more: a sun patch, the edge of a surface under flicker
 #: that the code does not cancel)
 CLEAN_NOISE = 2.0
+#: a return beyond z_max by less than this many of its σ (or than max(DOUBT_REL·z_max,
+#: DOUBT_ABS_M)) may stand within the range (:meth:`SectorJudge._at_the_edge`)
+EDGE_SIGMAS = 3.0
+#: the range (m) up to which the returns beyond z_max are triangulated for that test
+_NO_LIMIT_M = 1.0e6
 #: no flagged sample (:meth:`SectorJudge._evidence`)
 _NO_COLUMNS = np.zeros(0, dtype=np.int64)
 
@@ -137,9 +144,36 @@ class SectorJudge:
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
                 pick(samples.row_px)[under], pick(samples.col_px)[under]))
             verdicts_kernels.least_per_sector(top_m, np.where(tops, sector, -1), range_m)
+        flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground)])
         evidence = self._evidence(extraction, foreign, prior, points.valid, flagged)
         return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
                                self._columns)
+
+    def _at_the_edge(self, extraction: Extraction, points: Points, clean: BoolArray,
+                     ground: GroundPlane | None) -> IntArray:
+        """(m,) the columns of the ``clean`` samples that triangulate beyond z_max by no
+        more than max(DOUBT_REL·z_max, DOUBT_ABS_M, EDGE_SIGMAS·σ), higher than the
+        clearance above the ``ground`` (any height without one): a surface there may
+        stand within the range (a calibration off by its tolerance, the horizontal range
+        the distances are given in against the camera z the range is cut at), so its
+        columns are not free. A sheet seen on the ground beyond z_max met nothing before
+        it, and a return farther beyond is the clean band's evidence of that too."""
+        beyond = np.flatnonzero(clean & ~points.valid)
+        if not beyond.size:
+            return _NO_COLUMNS
+        samples = extraction.samples
+        z_max = self.z_range_m[1]
+        margin = max(DOUBT_REL * z_max, DOUBT_ABS_M)
+        far = triangulate_pixels(samples.row_px[beyond], samples.col_px[beyond],
+                                 samples.line[beyond], self.calibration.camera,
+                                 self.calibration.laser, z_max_m=_NO_LIMIT_M,
+                                 sigma_u_px=samples.sigma_u_px[beyond])
+        over = far.xyz_m[:, 2] - z_max
+        edge = far.valid & (over <= np.maximum(margin, EDGE_SIGMAS * far.sigma_z_m))
+        if ground is not None and edge.any():
+            vehicle = self.mounting.camera_to_vehicle(far.xyz_m)
+            edge &= ground.height(vehicle) > self.clearance_m
+        return samples.col_px[beyond[edge]].astype(np.int64)
 
     def _credible_obstacle(self, obstacle: BoolArray, line: IntArray, column: IntArray,
                            sheet: Sheet) -> BoolArray:
