@@ -113,6 +113,35 @@ def test_feature_a_return_just_beyond_the_range_is_no_evidence_of_free(
     assert {s.state for s in result.measurement.sectors} == states
 
 
+def test_feature_a_line_counts_as_returned_by_the_ground_only_where_it_is() -> None:
+    """evidence.SectorJudge._returned: on the free floor (z_max 6 m, both sheets meet it
+    within the range), a line found on the ground in 30 % of the columns where it is
+    expected there, at SNR 20, is returned by the ground: its ground hits (m) are handed
+    to the verdicts (verdicts.lost_before). Found in 10 % of them (under
+    verdicts.LOST_RETURNED, a line near its threshold that noise drops), or at SNR 8
+    (under LOST_SNR·snr_min), or nowhere, it is not, and its absence tells nothing.
+    Checked to fail with the fraction test and with the SNR test taken out (each
+    admitted its case)."""
+    scene = SCENES["free_floor"]
+    config = replace(CONFIG, z_max_m=6.0)
+    pipe = Pipeline(config, scene.calibration, scene.mounting, config.layout())
+    judge, prior = pipe._judge, pipe._prior
+    quiet = judge._expected_on_ground(prior)
+    columns = np.flatnonzero(quiet[1])
+    assert columns.size > 100
+
+    def returned(fraction: float, snr: float):
+        some = columns[:int(fraction * columns.size)]
+        on_ground = (np.ones(some.size, np.int64), some, np.full(some.size, snr))
+        return judge._returned(prior, quiet, on_ground)
+
+    hits = returned(0.3, 20.0)
+    assert hits is not None and np.all(np.isinf(hits[0]))
+    assert np.all(np.isfinite(hits[1, columns])) and np.all(hits[1, columns] > 0.5)
+    assert returned(0.1, 20.0) is None and returned(0.3, 8.0) is None
+    assert returned(0.0, 20.0) is None
+
+
 def test_measurement_carries_the_map_sequence_and_time() -> None:
     scene = SCENES["boxes_one_line"]
     dmap, _ = render(scene, np.random.default_rng(2))

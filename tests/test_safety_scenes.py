@@ -112,11 +112,6 @@ KNOWN_WRONG: dict[str, str] = {
                      "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
                      "up, no line seen above) is INVALID since pipeline.tops (far on seed "
                      "11 still: 3 sector-frames of 32, was 4)",
-    "black_platform_steep_lines_lost": "far: a black 17 cm platform before a pale wall; the two "
-                                       "steep sheets are lost on its top (no peak), the upper "
-                                       "ones pass over it to the wall: the wall read at "
-                                       "3.4-3.7 m for the platform at 1.9-2.1 m (5 / 2 / 7 of "
-                                       "32 sector-frames on seeds 1 / 2 / 3)",
     "box_top_comb_shift": "far: a bright box top 0.47 m ahead, its three stripes the only comb "
                           "in the map, taken four lines off: 1.53 m in map 3",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "

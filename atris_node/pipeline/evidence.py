@@ -34,6 +34,8 @@ from atris_node.pipeline.tops import (
 from atris_node.pipeline.verdicts import (
     DOUBT_ABS_M,
     DOUBT_REL,
+    LOST_RETURNED,
+    LOST_SNR,
     ColumnEvidence,
     ObstaclePoints,
     SectorColumns,
@@ -107,6 +109,8 @@ class SectorJudge:
         self._heights: tuple[GroundPlane, float, float] | None = None
         #: the last prior and where each sheet leaves the range (:meth:`_sheet_exits`)
         self._exits: tuple[VisibilityPrior, FloatArray, FloatArray, BoolArray] | None = None
+        #: the last prior and where each sheet meets the ground clearance (:meth:`_ground_hits`)
+        self._hits: tuple[VisibilityPrior, FloatArray] | None = None
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
@@ -135,8 +139,11 @@ class SectorJudge:
         doubt_m = self._doubt_ranges(extraction)
         top_m = np.full(self.layout.count, np.inf)
         flagged = _NO_COLUMNS  # samples that keep their columns from being free
+        on_ground: tuple[IntArray, IntArray, FloatArray] | None = None
         if sheet is not None and ground is not None:
             valid = pick(points.valid)
+            low = valid & (np.abs(sheet.height_m) <= self.clearance_m)
+            on_ground = (line[low], column[low], data.snr[low])
             tops = self._unseen_tops(found, valid, sheet,
                                      self._passing(prior, ground, line[~valid], column[~valid]))
             under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
@@ -145,7 +152,7 @@ class SectorJudge:
                 pick(samples.row_px)[under], pick(samples.col_px)[under]))
             verdicts_kernels.least_per_sector(top_m, np.where(tops, sector, -1), range_m)
         flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground)])
-        evidence = self._evidence(extraction, foreign, prior, points.valid, flagged)
+        evidence = self._evidence(extraction, foreign, prior, points.valid, flagged, on_ground)
         return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
                                self._columns)
 
@@ -264,13 +271,15 @@ class SectorJudge:
         return self._exits[1], self._exits[2], self._exits[3]
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
-                  prior: VisibilityPrior, valid: BoolArray, flagged: IntArray
+                  prior: VisibilityPrior, valid: BoolArray, flagged: IntArray,
+                  on_ground: tuple[IntArray, IntArray, FloatArray] | None = None
                   ) -> ColumnEvidence:
         """The column evidence of one map; ``valid`` (n,) marks the samples of
         ``extraction`` that triangulate within the operating range, the columns
         ``flagged`` (m,) hold samples that keep them from being free (unseen tops, below
-        the ground; counted among the doubtful). The per-column counts in one compiled
-        pass (:func:`atris_node.pipeline.verdicts_kernels.column_evidence`)."""
+        the ground; counted among the doubtful), ``on_ground`` the (line, column, SNR) of
+        the samples on the ground (None: no ground plane). The per-column counts in one
+        compiled pass (:func:`atris_node.pipeline.verdicts_kernels.column_evidence`)."""
         samples = extraction.samples
         expected = self._expected_on_ground(prior)
         noisy = None if extraction.band_noise_dn is None else (
@@ -286,9 +295,50 @@ class SectorJudge:
             np.ascontiguousarray(valid), expected, np.ascontiguousarray(prior.looks_beyond),
             np.ascontiguousarray(extraction.doubtful_columns, dtype=np.int64),
             np.ascontiguousarray(foreign, dtype=np.bool_), flagged)
+        returned = None if on_ground is None else self._returned(
+            prior, expected if noisy is None else expected & ~noisy, on_ground)
         return ColumnEvidence(self.column_sector, doubtful=doubtful,
                               ambiguous=extraction.ambiguous_columns, missing=missing,
-                              seen=seen, noisy=noisy, expected=expected, prior=prior)
+                              seen=seen, noisy=noisy, expected=expected, prior=prior,
+                              returned_m=returned)
+
+    def _returned(self, prior: VisibilityPrior, quiet: BoolArray,
+                  on_ground: tuple[IntArray, IntArray, FloatArray]) -> FloatArray | None:
+        """(K, W) :attr:`ColumnEvidence.returned_m`: where line k meets the ground
+        clearance (horizontal range, m) in the ``quiet`` (K, W) columns where it is
+        expected on the ground, for the lines that the ground returns in this map: found
+        on it (``on_ground``: line, column, SNR of the ground samples) in
+        LOST_RETURNED of those columns with a median SNR of LOST_SNR·snr_min; inf
+        elsewhere. None when the ground returns no line so."""
+        line, column, snr = on_ground
+        lines, width = quiet.shape
+        on = np.zeros((lines, width), dtype=np.bool_)
+        on[line, column] = True
+        count = quiet.sum(axis=1)
+        fraction = (on & quiet).sum(axis=1) / np.maximum(count, 1)
+        returned = (count > 0) & (fraction >= LOST_RETURNED)
+        for k in np.flatnonzero(returned):
+            returned[k] = np.median(snr[line == k]) >= LOST_SNR * self.settings.snr_min
+        if not returned.any():
+            return None
+        return np.where(quiet & returned[:, None], self._ground_hits(prior), np.inf)
+
+    def _ground_hits(self, prior: VisibilityPrior) -> FloatArray:
+        """(K, W) horizontal range (m, vehicle frame) of the point where each line's
+        sheet meets the ground clearance in each column (camera z ``prior.ground_range_m``
+        on the column's ray), inf where it does not; kept while the prior is the same."""
+        if self._hits is None or self._hits[0] is not prior:
+            cam, laser = self.calibration.camera, self.calibration.laser
+            z = np.asarray(prior.ground_range_m, dtype=np.float64)
+            meets = np.isfinite(z) & (z > 0.0)
+            z = np.where(meets, z, 1.0)
+            cot = np.asarray(prior.cot_alpha, dtype=np.float64)[:, None]
+            x = (np.arange(z.shape[1], dtype=np.float64) - cam.cx_px) * z / cam.focal_px
+            vehicle = self.mounting.camera_to_vehicle(
+                np.stack([x, z * cot - laser.baseline_m, z], axis=-1).reshape(-1, 3))
+            hits = self.layout.horizontal_range(vehicle[:, 0], vehicle[:, 1]).reshape(z.shape)
+            self._hits = (prior, np.where(meets, hits, np.inf))
+        return self._hits[1]
 
     def _expected_on_ground(self, prior: VisibilityPrior) -> BoolArray:
         """:func:`expected_on_ground` of ``prior``, kept while the prior is the same."""

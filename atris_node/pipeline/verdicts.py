@@ -122,6 +122,15 @@ SURFACE_SEEN_ROWS_PX = 0.5
 #: found in SURFACE_SOLID of their columns
 SURFACE_RUN = 2
 SURFACE_SOLID = 0.8
+#: a line the ground returns in a map (on its ground rows in LOST_RETURNED of the quiet
+#: columns where it meets the ground within the range, at a median SNR of LOST_SNR·snr_min;
+#: evidence.SectorJudge) that shows in at most LOST_SEEN of the LOST_RUN·min_points or
+#: more quiet columns of a sector where it would meet the ground nearer than the distance
+#: found is stopped there by something that returns no light (:func:`lost_before`)
+LOST_RETURNED = 0.2
+LOST_SNR = 1.5
+LOST_SEEN = 0.05
+LOST_RUN = 2
 #: columns across a sector boundary within which a neighbour's obstacle points vouch for a
 #: sector's few nearer points (one object straddling the boundary)
 STRADDLE_COLUMNS = 8
@@ -225,6 +234,10 @@ class ColumnEvidence:
     expected: BoolArray | None = None
     #: where each line would show on a surface (:func:`missing_on_surface`); None: unknown
     prior: VisibilityPrior | None = None
+    #: (K, W) horizontal range (m) at which line k meets the ground clearance in column c
+    #: where the line is expected there, its band quiet, and the ground returns it in this
+    #: map (LOST_RETURNED, LOST_SNR); inf elsewhere; None: not known (:func:`lost_before`)
+    returned_m: FloatArray | None = None
 
     @property
     def unclean(self) -> IntArray:
@@ -649,6 +662,26 @@ def _abrupt(on: ObstaclePoints, line: int, start: int, stop: int, snr: float) ->
     return bool(on.snr[edge].max() >= snr)
 
 
+def lost_before(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
+    """True when a line that the ground returns in this map (``evidence.returned_m``) is
+    seen, at any row, in at most LOST_SEEN of the LOST_RUN·``min_points`` or more columns
+    of sector ``s`` where it would meet the ground clearance nearer than ``distance_m``
+    less max(DOUBT_REL·d, DOUBT_ABS_M): something that returns no light stands in its way
+    there (a black platform whose top the steep sheets meet, the upper ones passing over
+    it to the wall behind), at any range up to that ground hit. A line lost in part of
+    the sector is :func:`missing_on_surface`'s and :func:`unseen_columns`' case; the
+    whole sector asks no flank."""
+    returned, seen = view.evidence.returned_m, view.evidence.seen
+    if returned is None or seen is None:
+        return False
+    columns = view.columns[s]
+    nearer = returned[:, columns] < distance_m - _doubt_margin_m(distance_m)
+    expected = nearer.sum(axis=1)
+    shown = (nearer & seen[:, columns]).sum(axis=1)
+    return bool(((expected >= LOST_RUN * settings.min_points)
+                 & (shown <= LOST_SEEN * expected)).any())
+
+
 def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
     """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
     max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
@@ -727,7 +760,10 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
         # a nearer surface may go on, too dark for the lines, where they stop; or
         # something stands in the rays of every bright line over a few columns
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if missing_on_surface(s, view, found.distance_m, settings) >= settings.min_points:
+    if (missing_on_surface(s, view, found.distance_m, settings) >= settings.min_points
+            or lost_before(s, view, found.distance_m, settings)):
+        # a line missing from the surface, or one the ground returns elsewhere lost
+        # before it over the whole sector: something lower stands there, unseen
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if straddles(s, view, found.distance_m, settings):
         # an object credible across the boundary stands nearer in this sector's edge
