@@ -72,6 +72,8 @@ rise near its ground row.
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from atris_node.bench.safety import score_scene
@@ -246,3 +248,23 @@ def test_feature_alpha_error_reads_long_as_geometry_predicts() -> None:
                 error = sector.distance_m / true - 1.0
                 assert abs(error - predicted(true)) < 0.015, (name, sector, true)
         assert valid >= 6, name
+
+
+def test_feature_a_face_foot_is_not_the_ground_returning_a_line() -> None:
+    """parking_pedestrian on seed 2: line 4 (90 deg) is too faint on the dark, grazed
+    ground at 3.2 m to be found there, but lands within 10 cm of the ground on the parked
+    car's and the pedestrian's faces (met square on, SNR 30-54), a row or so off its
+    ground row. Taken for the ground's returns, they made line 4 "returned by the ground"
+    and its absence across sector 3 (the building at 9 m, nothing before it) a sign of
+    something dark there: map 3 sector 3 went INVALID. Only samples within half a row of
+    their sheet's ground row count (evidence.ON_GROUND_ROWS_PX): it stays VALID at 8.9 m.
+    Checked to fail without the row test (INVALID)."""
+    from atris_node.bench.safety import LAYOUT, _measure, scene_settings
+    from atris_node.pipeline.chain import PipelineConfig
+    from atris_node.sim import load_scene
+
+    scene = load_scene("parking_pedestrian")
+    config = PipelineConfig(sector_count=LAYOUT.count, fov_deg=math.degrees(LAYOUT.fov_rad),
+                            **scene_settings(scene))
+    sector = _measure(scene, 4, config, seed=2)[3][0].sectors[3]
+    assert sector.state is SectorState.VALID and abs(sector.distance_m - 9.0) < 0.27

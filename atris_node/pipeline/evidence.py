@@ -48,6 +48,11 @@ from atris_node.types import SectorDistance
 #: would show may be lost under more: a sun patch, the edge of a surface under flicker
 #: that the code does not cancel)
 CLEAN_NOISE = 2.0
+#: a sample within this many rows of where its sheet meets the ground, and within the
+#: clearance of it, is the ground's return of its line (a face's foot a few centimetres
+#: up, met square on and far brighter, lies a row or more off for the shallow sheets that
+#: meet the ground far off: SectorJudge._returned)
+ON_GROUND_ROWS_PX = 0.5
 #: a return beyond z_max by less than this many of its σ (or than max(DOUBT_REL·z_max,
 #: DOUBT_ABS_M)) may stand within the range (:meth:`SectorJudge._at_the_edge`)
 EDGE_SIGMAS = 3.0
@@ -142,7 +147,8 @@ class SectorJudge:
         on_ground: tuple[IntArray, IntArray, FloatArray] | None = None
         if sheet is not None and ground is not None:
             valid = pick(points.valid)
-            low = valid & (np.abs(sheet.height_m) <= self.clearance_m)
+            low = valid & (np.abs(sheet.height_m) <= self.clearance_m) & (
+                np.abs(sheet.rows_off) <= ON_GROUND_ROWS_PX)
             on_ground = (line[low], column[low], data.snr[low])
             tops = self._unseen_tops(found, valid, sheet,
                                      self._passing(prior, ground, line[~valid], column[~valid]))
