@@ -1919,3 +1919,51 @@ def test_smooth_is_the_median_of_the_window(taps: int) -> None:
                 want[i] = np.median(window)
         got = peaks_kernels.smooth(line, col, row, lines, width, taps, 2.0)
         assert got.tobytes() == want.tobytes()
+
+
+# ------------------------------------------------- the rival test's tables (perf-5)
+
+
+def _tables_builtin(m: int, k_count: int, match: npt.NDArray[np.float64],
+                    costs: npt.NDArray[np.float64], spare: npt.NDArray[np.float64]
+                    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """rivals_kernels._tables as it was: each cell the builtin min of its three sums,
+    the cell to the left read back from the table."""
+    skip = costs[0]
+    f = np.zeros((k_count + 1, m + 1))
+    g = np.zeros((k_count + 1, m + 1))
+    for i in range(1, m + 1):
+        f[0, i] = f[0, i - 1] + spare[i - 1]
+    for j in range(1, k_count + 1):
+        f[j, 0] = f[j - 1, 0] + skip
+        for i in range(1, m + 1):
+            f[j, i] = min(f[j - 1, i - 1] + match[j - 1, i - 1], f[j - 1, i] + skip,
+                          f[j, i - 1] + spare[i - 1])
+    for i in range(m - 1, -1, -1):
+        g[k_count, i] = g[k_count, i + 1] + spare[i]
+    for j in range(k_count - 1, -1, -1):
+        g[j, m] = g[j + 1, m] + skip
+        for i in range(m - 1, -1, -1):
+            g[j, i] = min(match[j, i] + g[j + 1, i + 1], g[j + 1, i] + skip,
+                          g[j, i + 1] + spare[i])
+    return f, g
+
+
+def test_rival_tables_are_the_builtin_min_form() -> None:
+    """rivals_kernels._tables (the least of three sums by two comparisons, the cell to the
+    left kept) equals the builtin-min form on 500 random columns (inf outside a band,
+    whole and half pixel costs, ties), bitwise, both tables."""
+    from atris_node.pipeline import rivals_kernels as rk
+
+    rng = np.random.default_rng(53)
+    costs = np.array([10.0, 40.0, 10.0, 10.0])
+    for _ in range(500):
+        k_count, m = int(rng.integers(1, 17)), int(rng.integers(0, 14))
+        match = rng.integers(0, 40, (k_count, max(m, 1))) / 2.0
+        match[rng.random(match.shape) < rng.random()] = np.inf
+        spare = np.where(rng.random(max(m, 1)) < 0.5, costs[1], 0.0)
+        f = np.full((k_count + 1, m + 1), -3.0)
+        g = np.full((k_count + 1, m + 1), -3.0)
+        rk._tables(m, k_count, match, costs, spare, f, g)
+        want_f, want_g = _tables_builtin(m, k_count, match, costs, spare)
+        assert f.tobytes() == want_f.tobytes() and g.tobytes() == want_g.tobytes()

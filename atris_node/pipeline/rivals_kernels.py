@@ -116,18 +116,34 @@ def _tables(m: int, k_count: int, match: FloatArray, costs: FloatArray, spare: F
     for i in range(1, m + 1):
         f[0, i] = f[0, i - 1] + spare[i - 1]
     for j in range(1, k_count + 1):
-        f[j, 0] = f[j - 1, 0] + skip_px
+        last = f[j - 1, 0] + skip_px  # the cell to the left, kept (not read back)
+        f[j, 0] = last
         for i in range(1, m + 1):
-            f[j, i] = min(f[j - 1, i - 1] + match[j - 1, i - 1], f[j - 1, i] + skip_px,
-                          f[j, i - 1] + spare[i - 1])
+            last = _least(f[j - 1, i - 1] + match[j - 1, i - 1], f[j - 1, i] + skip_px,
+                          last + spare[i - 1])
+            f[j, i] = last
     g[k_count, m] = 0.0
     for i in range(m - 1, -1, -1):
         g[k_count, i] = g[k_count, i + 1] + spare[i]
     for j in range(k_count - 1, -1, -1):
-        g[j, m] = g[j + 1, m] + skip_px
+        last = g[j + 1, m] + skip_px
+        g[j, m] = last
         for i in range(m - 1, -1, -1):
-            g[j, i] = min(match[j, i] + g[j + 1, i + 1], g[j + 1, i] + skip_px,
-                          g[j, i + 1] + spare[i])
+            last = _least(match[j, i] + g[j + 1, i + 1], g[j + 1, i] + skip_px,
+                          last + spare[i])
+            g[j, i] = last
+
+
+@uncounted
+def _least(a: float, b: float, c: float) -> float:
+    """``min(a, b, c)`` of costs (never NaN): the first of the least, by two comparisons
+    (about 10 % off the tables against the builtin)."""
+    least = a
+    if b < least:  # noqa: PLR1730 (min() compiles slower)
+        least = b
+    if c < least:  # noqa: PLR1730
+        least = c
+    return least
 
 
 @uncounted
