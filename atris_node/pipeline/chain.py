@@ -155,7 +155,7 @@ class PipelineConfig:
     def sectors(self) -> SectorSettings:
         """The sector part of the configuration."""
         return SectorSettings(self.min_points, self.min_confidence, self.snr_min,
-                              self.max_sigma_rel, self.max_sigma_m)
+                              self.max_sigma_rel, self.max_sigma_m, self.z_min_m)
 
 
 def _check(ok: bool, name: str, value: object, accepted: str) -> None:

@@ -71,14 +71,16 @@ def estimate_ground(points: FloatArray, previous: GroundPlane, threshold_m: floa
 @dataclass(frozen=True)
 class SectorSettings:
     """How sector verdicts are made (atris_node.pipeline.verdicts): the points a distance
-    needs, the confidence (0..1) it needs, the peak SNR threshold, and the largest
-    standard error a VALID distance d may have: max(``max_sigma_rel``·d, ``max_sigma_m``)."""
+    needs, the confidence (0..1) it needs, the peak SNR threshold, the largest
+    standard error a VALID distance d may have: max(``max_sigma_rel``·d, ``max_sigma_m``),
+    and the near end of the operating range ``z_min_m`` (camera z, m; 0: none)."""
 
     min_points: int = 5
     min_confidence: float = 0.2
     snr_min: float = 6.0
     max_sigma_rel: float = 0.015
     max_sigma_m: float = 0.025
+    z_min_m: float = 0.0
 
     def sigma_limit_m(self, distance_m: float) -> float:
         """The largest standard error (m) of a VALID distance ``distance_m``."""

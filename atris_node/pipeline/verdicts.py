@@ -682,6 +682,19 @@ def lost_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
                  & (shown <= LOST_SEEN * expected)).any())
 
 
+def at_the_near_end(s: int, view: MapView, settings: SectorSettings) -> bool:
+    """True when ``min_points`` or more obstacle points of sector ``s`` lie within
+    DOUBT_REL·z_min of the near end of the operating range (camera z, ``points.depth_m``):
+    a surface that reaches the near end may go on nearer, where no band is read (a dark
+    car's flank at 0.21 m was read at 0.32 m, the near end 0.3 m). False without
+    ``z_min_m`` or depths."""
+    hits = view.sectors[s].hits
+    if settings.z_min_m <= 0.0 or hits.depth_m is None:
+        return False
+    near = hits.depth_m <= (1.0 + DOUBT_REL) * settings.z_min_m
+    return bool(np.count_nonzero(near) >= settings.min_points)
+
+
 def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
     """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
     max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
@@ -764,6 +777,9 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
             or lost_before(s, view, found.distance_m, settings)):
         # a line missing from the surface, or one the ground returns elsewhere lost
         # before it over the whole sector: something lower stands there, unseen
+        return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
+    if at_the_near_end(s, view, settings):
+        # a surface reaching the near end of the range may stand nearer, unseen
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if straddles(s, view, found.distance_m, settings):
         # an object credible across the boundary stands nearer in this sector's edge
