@@ -676,8 +676,8 @@ def lost_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
         return False
     columns = view.columns[s]
     nearer = returned[:, columns] < distance_m - _doubt_margin_m(distance_m)
-    expected = nearer.sum(axis=1)
-    shown = (nearer & seen[:, columns]).sum(axis=1)
+    expected = np.count_nonzero(nearer, axis=1)
+    shown = np.count_nonzero(nearer & seen[:, columns], axis=1)
     return bool(((expected >= LOST_RUN * settings.min_points)
                  & (shown <= LOST_SEEN * expected)).any())
 
