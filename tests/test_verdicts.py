@@ -497,3 +497,24 @@ def test_feature_a_surface_at_the_near_end_of_the_range_is_not_its_distance(
     assert out.state is state
     if state is SectorState.VALID:
         assert out.distance_m == pytest.approx(front_m, abs=0.01)
+
+
+def test_feature_a_surface_one_line_shows_across_the_boundary_stands_in_both() -> None:
+    """A box at 2.71 m that one line alone shows (a two-sheet unit, the other sheet on the
+    ground) over 20 columns of sector 1 up to the boundary, and over 3 columns of sector
+    0, too few to be credible there; a wall at 5 m behind. The box is credible in sector
+    1 (one line over 20 columns), so its 3 points in sector 0 are its edge: sector 0 is
+    INVALID, not the wall (a randomly drawn scene read 5.0 m for the box at 2.71 m in
+    sector 0's place, 2 of 4 maps). A single line's points beside the boundary at a range
+    where sector 1 has no credible cluster do not make it so (sector 0 reads the wall).
+    Checked to fail with only more than one line vouching for the object (VALID 5 m)."""
+    wall = _points([5.0] * 60, np.zeros(60), np.arange(30).repeat(2))
+    edge = _points([2.71, 2.72, 2.71], [0, 0, 0], [29, 30, 31])
+    box = _points([2.71 + 0.001 * i for i in range(20)], [0] * 20, 32 + np.arange(20),
+                  sector=1)
+    out = sector_verdicts(_join(wall, edge, box), _evidence(), LAYOUT, SETTINGS)[0]
+    assert out.state is SectorState.INVALID
+    far_box = _points([3.6 + 0.001 * i for i in range(20)], [0] * 20, 32 + np.arange(20),
+                      sector=1)
+    out = sector_verdicts(_join(wall, edge, far_box), _evidence(), LAYOUT, SETTINGS)[0]
+    assert out.state is SectorState.VALID and out.distance_m == pytest.approx(5.0, abs=0.05)

@@ -699,14 +699,18 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
     max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
     object that is credible across the boundary: ``min_points`` or more obstacle points
-    of a neighbouring sector, from more than one line, within STRADDLE_COLUMNS columns
-    and the cluster window of range of one of them. A thin pole on a sector boundary
-    stands in both sectors; the one holding its edge must not read what stands behind."""
+    of a neighbouring sector within STRADDLE_COLUMNS columns and the cluster window of
+    range of one of them, from more than one line or at the range of that sector's own
+    nearest credible cluster (a surface that one line alone shows, over the columns
+    that make it credible there). A thin pole on a sector boundary stands in both
+    sectors; the one holding its edge must not read what stands behind."""
     hits = view.sectors[s].hits
     near = np.flatnonzero(hits.range_m < distance_m - _doubt_margin_m(distance_m))
     if near.size == 0:
         return False
-    beside = [view.sectors[t].hits for t in (s - 1, s + 1) if 0 <= t < len(view.sectors)]
+    others = [t for t in (s - 1, s + 1) if 0 <= t < len(view.sectors)]
+    beside = [view.sectors[t].hits for t in others]
+    credible = [c.distance_m for c in map(view.credible, others) if c is not None]
     other_range = np.concatenate([b.range_m for b in beside])
     if other_range.size < settings.min_points:
         return False
@@ -717,8 +721,9 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
         window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * hits.sigma_m[i])
         mine = ((np.abs(other_range - r) <= window)
                 & (np.abs(other_column - hits.column[i]) <= STRADDLE_COLUMNS))
-        if (np.count_nonzero(mine) >= settings.min_points
-                and np.unique(other_line[mine]).size > 1):
+        if np.count_nonzero(mine) >= settings.min_points and (
+                np.unique(other_line[mine]).size > 1
+                or any(abs(c - r) <= window for c in credible)):
             return True
     return False
 
