@@ -114,6 +114,14 @@ KNOWN_WRONG: dict[str, str] = {
                      "the ramp's foot. Sector 3's kerb (a face only line 76 deg meets, 9 cm "
                      "up, no line seen above) is INVALID since pipeline.tops (far on seed "
                      "11 still: 3 sector-frames of 32, was 4)",
+    "crossing_box_swept_in_blank": "far: a box crossing at 5.6 m/s sweeps into 64 of a "
+                                   "sector's 93 columns during a map; its partial code "
+                                   "window cancels and they are blank; its far part (1.5 m) "
+                                   "is read for its nearest point (1.0 m)",
+    "low_surface_line_rarely_on_ground": "far: a low surface at 6.2 m that its one line does "
+                                         "not return; the ground returns that line in 2 % of "
+                                         "its columns, too rarely for lost_before: the wall "
+                                         "at 10.8 m read",
     "box_top_comb_shift": "far: a bright box top 0.47 m ahead, its three stripes the only comb "
                           "in the map, taken four lines off: 1.53 m in map 3",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
