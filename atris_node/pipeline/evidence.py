@@ -261,20 +261,23 @@ class SectorJudge:
         [v·z/f, z·cot α_k − b, z] of Eq. 1's plane), and where the sheet meets the
         ground only beyond z_max (``prior``); kept while the prior is the same."""
         if self._exits is None or self._exits[0] is not prior:
-            cam, laser = self.calibration.camera, self.calibration.laser
             z = self.z_range_m[1]
-            cot = 1.0 / np.tan(np.asarray(laser.alpha_rad, dtype=np.float64))
-            x = (np.arange(cam.width_px, dtype=np.float64) - cam.cx_px) * z / cam.focal_px
-            k, w = cot.size, x.size
-            on_sheet = np.stack([np.broadcast_to(x, (k, w)),
-                                 np.broadcast_to((z * cot - laser.baseline_m)[:, None], (k, w)),
-                                 np.full((k, w), z)], axis=-1).reshape(-1, 3)
-            vehicle = self.mounting.camera_to_vehicle(on_sheet)
+            k, w = len(self.calibration.laser.alpha_rad), self.calibration.camera.width_px
+            vehicle = self._on_sheets(np.full((k, w), z))
             origin = self.projector_m
             distance = np.hypot(vehicle[:, 0] - origin[0], vehicle[:, 1] - origin[1])
             self._exits = (prior, distance.reshape(k, w), ground.height(vehicle).reshape(k, w),
                            np.asarray(prior.ground_range_m > z))
         return self._exits[1], self._exits[2], self._exits[3]
+
+    def _on_sheets(self, z_m: FloatArray) -> FloatArray:
+        """(K·W, 3) vehicle-frame points (m) of each line's sheet at camera z ``z_m``
+        (K, W) on each column's ray: [v·z/f, z·cot α_k − b, z], Eq. 1's plane (pinhole)."""
+        cam, laser = self.calibration.camera, self.calibration.laser
+        cot = 1.0 / np.tan(np.asarray(laser.alpha_rad, dtype=np.float64))[:, None]
+        x = (np.arange(cam.width_px, dtype=np.float64) - cam.cx_px) * z_m / cam.focal_px
+        return self.mounting.camera_to_vehicle(
+            np.stack([x, z_m * cot - laser.baseline_m, z_m], axis=-1).reshape(-1, 3))
 
     def _evidence(self, extraction: Extraction, foreign: BoolArray,
                   prior: VisibilityPrior, valid: BoolArray, flagged: IntArray,
@@ -334,14 +337,10 @@ class SectorJudge:
         sheet meets the ground clearance in each column (camera z ``prior.ground_range_m``
         on the column's ray), inf where it does not; kept while the prior is the same."""
         if self._hits is None or self._hits[0] is not prior:
-            cam, laser = self.calibration.camera, self.calibration.laser
             z = np.asarray(prior.ground_range_m, dtype=np.float64)
             meets = np.isfinite(z) & (z > 0.0)
             z = np.where(meets, z, 1.0)
-            cot = np.asarray(prior.cot_alpha, dtype=np.float64)[:, None]
-            x = (np.arange(z.shape[1], dtype=np.float64) - cam.cx_px) * z / cam.focal_px
-            vehicle = self.mounting.camera_to_vehicle(
-                np.stack([x, z * cot - laser.baseline_m, z], axis=-1).reshape(-1, 3))
+            vehicle = self._on_sheets(z)
             hits = self.layout.horizontal_range(vehicle[:, 0], vehicle[:, 1]).reshape(z.shape)
             self._hits = (prior, np.where(meets, hits, np.inf))
         return self._hits[1]
