@@ -1002,12 +1002,12 @@ def test_lines_per_column_is_the_sum_over_lines() -> None:
 
 def _shadowed_columns_numpy(s: int, view: Any, distance_m: float) -> int:
     """verdicts.shadowed_columns as numpy steps (its form before the compiled pass)."""
-    from atris_node.pipeline.verdicts import SHADOW_LINES, _doubt_margin_m
+    from atris_node.pipeline.verdicts import SHADOW_LINES, doubt_margin_m
 
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None or not holes.line.size:
         return 0
-    margin = _doubt_margin_m(distance_m)
+    margin = doubt_margin_m(distance_m)
     limit = distance_m + margin
     mine = ((holes.nearer_m <= limit) & (holes.farther_m <= holes.nearer_m + margin)
             & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])

@@ -32,13 +32,12 @@ from atris_node.pipeline.tops import (
     unseen_tops,
 )
 from atris_node.pipeline.verdicts import (
-    DOUBT_ABS_M,
-    DOUBT_REL,
     LOST_RETURNED,
     LOST_SNR,
     ColumnEvidence,
     ObstaclePoints,
     SectorColumns,
+    doubt_margin_m,
     sector_verdicts,
 )
 from atris_node.types import SectorDistance
@@ -176,7 +175,7 @@ class SectorJudge:
             return _NO_COLUMNS
         samples = extraction.samples
         z_max = self.z_range_m[1]
-        margin = max(DOUBT_REL * z_max, DOUBT_ABS_M)
+        margin = doubt_margin_m(z_max)
         far = triangulate_pixels(samples.row_px[beyond], samples.col_px[beyond],
                                  samples.line[beyond], self.calibration.camera,
                                  self.calibration.laser, z_max_m=_NO_LIMIT_M,

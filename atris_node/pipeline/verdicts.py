@@ -462,7 +462,7 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None:
         return 0
-    margin = _doubt_margin_m(distance_m)
+    margin = doubt_margin_m(distance_m)
     inside, hits = view.sectors[s].inside, view.sectors[s].hits
     count = verdicts_kernels.unseen(
         holes.nearer_m, holes.noisy, holes.line, holes.start, holes.stop, span[0], span[1],
@@ -481,7 +481,7 @@ def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSe
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None:
         return 0
-    margin = _doubt_margin_m(distance_m)
+    margin = doubt_margin_m(distance_m)
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
             & (holes.start <= span[1]) & (holes.stop > span[0]))
     if not near.any():
@@ -532,7 +532,7 @@ def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None or not holes.line.size:
         return 0
-    margin = _doubt_margin_m(distance_m)
+    margin = doubt_margin_m(distance_m)
     hits = view.sectors[s].hits
     return int(verdicts_kernels.shadowed(
         holes.nearer_m, holes.farther_m, holes.noisy, holes.bright, holes.start, holes.stop,
@@ -570,7 +570,7 @@ def missing_on_surface(s: int, view: MapView, distance_m: float, settings: Secto
     hits = view.sectors[s].hits
     if hits.depth_m is None:
         return 0
-    margin = _doubt_margin_m(distance_m)
+    margin = doubt_margin_m(distance_m)
     strong = SURFACE_SNR * settings.snr_min
     # the surface's lines expected and not seen, and their long runs: one compiled pass
     first, onto, bottom, shown, line, start, stop = verdicts_kernels.lost_on_surface(
@@ -675,7 +675,7 @@ def lost_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
     if returned is None or seen is None:
         return False
     columns = view.columns[s]
-    nearer = returned[:, columns] < distance_m - _doubt_margin_m(distance_m)
+    nearer = returned[:, columns] < distance_m - doubt_margin_m(distance_m)
     expected = np.count_nonzero(nearer, axis=1)
     shown = np.count_nonzero(nearer & seen[:, columns], axis=1)
     return bool(((expected >= LOST_RUN * settings.min_points)
@@ -705,7 +705,7 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     that make it credible there). A thin pole on a sector boundary stands in both
     sectors; the one holding its edge must not read what stands behind."""
     hits = view.sectors[s].hits
-    near = np.flatnonzero(hits.range_m < distance_m - _doubt_margin_m(distance_m))
+    near = np.flatnonzero(hits.range_m < distance_m - doubt_margin_m(distance_m))
     if near.size == 0:
         return False
     others = [t for t in (s - 1, s + 1) if 0 <= t < len(view.sectors)]
@@ -728,7 +728,7 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     return False
 
 
-def _doubt_margin_m(distance_m: float) -> float:
+def doubt_margin_m(distance_m: float) -> float:
     """max(DOUBT_REL·d, DOUBT_ABS_M): how near a doubt must come to a distance d (m)."""
     return max(DOUBT_REL * distance_m, DOUBT_ABS_M)
 
@@ -761,7 +761,7 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
                               SectorState.INVALID, 0.0, conf, samples)
     found = view.credible(s)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
-            found.distance_m + _doubt_margin_m(found.distance_m)) or top_m < (
+            found.distance_m + doubt_margin_m(found.distance_m)) or top_m < (
             found.distance_m - max(TOP_REL * found.distance_m, TOP_ABS_M)):
         # nothing credible, or something nearer that is not credible, or a peak whose
         # line could not be told may stand as near (the cluster found may be one such
