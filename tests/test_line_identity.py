@@ -106,7 +106,8 @@ def _range_errors(scene: str, identity: str, unique: bool = False) -> np.ndarray
     demod = BlockDemodulator(sim.chips, bits=sim.camera.bits)
     # the identity stage's own errors: without the later brightness check, which drops
     # whole columns of a comb taken lines off (more of them in greedy's)
-    config = PipelineConfig(identity=identity, unique_identity=unique, min_reflectance=0.0)
+    config = PipelineConfig(identity=identity, unique_identity=unique, min_reflectance=0.0,
+                            tied_reflectance=0.0)
     pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
     errors = []
     for seq in range(3 * sim.chips.size):

@@ -119,7 +119,8 @@ def pipeline_config(config: Config) -> PipelineConfig:
                           objects=p["objects"], roi_narrowing=p["roi_narrowing"],
                           roi_full_every=p["roi_full_every"], identity=p["identity"],
                           invalid_on_interference=p["invalid_on_interference"],
-                          min_reflectance=p["min_reflectance"])
+                          min_reflectance=p["min_reflectance"],
+                          tied_reflectance=p["tied_reflectance"])
 
 
 def make_pipeline(config: Config, camera: Camera) -> Pipeline:

@@ -120,6 +120,9 @@ class PipelineConfig:
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
     #: ρ cos i under which a sample is too faint for its range (pipeline.radiometry; 0 = off)
     min_reflectance: float = radiometry.MIN_REFLECTANCE
+    #: ρ cos i under which a sample whose line continuity chose over a rival is too faint
+    #: (pipeline.radiometry.TIED_REFLECTANCE; 0 = as ``min_reflectance``)
+    tied_reflectance: float = radiometry.TIED_REFLECTANCE
 
     def __post_init__(self) -> None:
         _check(self.peak_method in PEAK_METHODS, "peak_method", self.peak_method,
@@ -140,8 +143,8 @@ class PipelineConfig:
             _check(getattr(self, name) >= 1, name, getattr(self, name), "an integer >= 1")
         _check(0.0 <= self.min_confidence <= 1.0, "min_confidence", self.min_confidence,
                "in [0, 1]")
-        _check(0.0 <= self.min_reflectance < 1.0, "min_reflectance", self.min_reflectance,
-               "in [0, 1)")
+        for name in ("min_reflectance", "tied_reflectance"):
+            _check(0.0 <= getattr(self, name) < 1.0, name, getattr(self, name), "in [0, 1)")
 
     def layout(self) -> SectorLayout:
         """The :class:`SectorLayout` of ``sector_count`` and ``fov_deg``."""
@@ -323,10 +326,8 @@ class Pipeline:
         timings["lines"] = _lap(start)
         samples, removed = self._clean_samples(extraction.samples)
         points, vehicle = self._triangulate(samples)
-        faint = radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
-                                     self.calibration.laser, dmap.exposure_us or None,
-                                     self.config.min_reflectance)
-        faint = radiometry.whole_columns(samples.col_px, faint)
+        faint = radiometry.whole_columns(samples.col_px,
+                                         self._too_faint(dmap, extraction, samples, points))
         doubts = extraction.doubts
         if faint.any():  # not at the range their line gives: doubts, not points
             doubts = _with_doubts(doubts, samples, faint)
@@ -368,6 +369,25 @@ class Pipeline:
             removed = per_column(samples.col_px[~keep], width)
             samples = select(samples, keep)
         return smooth_along_lines(samples, lines, width, self.config.smooth_columns), removed
+
+    def _too_faint(self, dmap: DistortionMap, extraction: Extraction, samples: LineSamples,
+                   points: Points) -> BoolArray:
+        """(n,) the samples too faint for the range their line gives: under
+        ``min_reflectance``, or under ``tied_reflectance`` where continuity chose their
+        line over a rival (``extraction.tied``): a tie the physics left open is settled by
+        rows from other columns, which a comb shifted by whole lines matches as well (a
+        far wall's comb one line off reads as the comb of a pole 0.97 m away), and a
+        return that dark for the near range is no evidence of it."""
+        laser, exposure = self.calibration.laser, dmap.exposure_us or None
+        faint = radiometry.too_faint(dmap.values, samples, points, dmap.code_length, laser,
+                                     exposure, self.config.min_reflectance)
+        tied = extraction.tied
+        if tied is None or self.config.tied_reflectance <= self.config.min_reflectance:
+            return faint
+        col = np.clip(np.rint(samples.col_px).astype(np.int64), 0, tied.shape[1] - 1)
+        return faint | radiometry.too_faint(
+            dmap.values, samples, points, dmap.code_length, laser, exposure,
+            self.config.tied_reflectance, only=tied[samples.line, col])
 
     def _check_shape(self, dmap: DistortionMap) -> None:
         cam = self.calibration.camera

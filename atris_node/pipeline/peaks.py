@@ -166,6 +166,10 @@ class Extraction:
     #: samples too faint for the range their line gives (atris_node.pipeline.radiometry):
     #: kept as doubts, not points (counted by the chain after triangulation)
     too_faint: int = 0
+    #: (K, W) True where line k's sample in column c was identified by continuity over a
+    #: rival the physics could not rule out (:attr:`atris_node.pipeline.rivals.Identity.tied`);
+    #: None: no rival test
+    tied: BoolArray | None = None
 
 
 # --------------------------------------------------------------------------- rows read
@@ -342,6 +346,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
     striped = peaks
     aligned = settings.identity == "aligned"
     doubts = _NO_DOUBTS
+    tied = None
     if settings.unique:
         peaks, lone = stripe_peaks(peaks)
         striped = peaks  # light that is no line's stripe still counts as foreign below
@@ -351,7 +356,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         identity = robust_identity(
             peaks, lambda r: _peak_snr(values, local, r) < WEAK_SNR * settings.snr_min,
             bands, settings.min_separation_px, prior, aligned=aligned)
-        rows, unsure = identity.rows, identity.unsure
+        rows, unsure, tied = identity.rows, identity.unsure, identity.tied
         doubts = (identity.doubt_row, identity.doubt_col, identity.doubt_line)
     else:
         rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
@@ -375,7 +380,8 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       band_noise_dn=band_noise(local, bands),
                       tile_noise_dn=median_of(local.sigma_tiles[:-1])
                       if local.sigma_tiles.shape[0] > 1 else noise,
-                      blinded=blinded_bands(values, flat, local, bands, settings.snr_min))
+                      blinded=blinded_bands(values, flat, local, bands, settings.snr_min),
+                      tied=tied)
 
 
 def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float32]:

@@ -145,16 +145,20 @@ class FirstPass:
 @dataclass(frozen=True)
 class Identity:
     """The identity of one map: ``rows`` (K, W) by line (-1 = none), ``unsure`` (W,)
-    ambiguous peaks per column, and every ambiguous peak as (n,) ``doubt_row``,
+    ambiguous peaks per column, every ambiguous peak as (n,) ``doubt_row``,
     ``doubt_col`` and ``doubt_line``: the line among its hypotheses that puts it nearest
     (lowest in the image), so that a sector can tell whether the doubt reaches nearer than
-    the distance it reports."""
+    the distance it reports; and ``tied`` (K, W), True at the kept samples whose peak had a
+    rival in the test without continuity: the physics could not tell their line, the
+    continuity to other columns settled it (:func:`atris_node.pipeline.radiometry` asks
+    their brightness more)."""
 
     rows: IntArray
     unsure: IntArray
     doubt_row: IntArray
     doubt_col: IntArray
     doubt_line: IntArray
+    tied: BoolArray
 
 
 def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
@@ -187,10 +191,11 @@ def robust_identity(peaks: IntArray, weak: Callable[[IntArray], BoolArray],
         rivals_kernels.strong_rows(np.ascontiguousarray(peaks, dtype=np.int64), weak_peaks,
                                    np.ascontiguousarray(rows, dtype=np.int64)),
         image_positions(edges[2]))
-    doubts = [np.concatenate(parts) for parts in zip(
+    doubt_row, doubt_col, doubt_line = (np.concatenate(parts) for parts in zip(
         (full.doubt_row, full.doubt_col, full.doubt_line), (row, col, line),
-        (alone.doubt_row, alone.doubt_col, alone.doubt_line), strict=True)]
-    return Identity(kept, full.unsure + lost, *doubts)
+        (alone.doubt_row, alone.doubt_col, alone.doubt_line), strict=True))
+    return Identity(kept, full.unsure + lost, doubt_row, doubt_col, doubt_line,
+                    full.tied & (kept >= 0))
 
 
 def _to_infinity(hi: IntArray, order: IntArray, prior: VisibilityPrior | None) -> IntArray:
@@ -225,10 +230,11 @@ def _unique(peaks: IntArray, bands: tuple[Band, ...],
         same = earlier[2] & (first == earlier[0]).all(axis=0)
         reuse = (earlier[1], same)
     rows, nearest, passed = _unique_rows(peaks, edges, first, prior, reuse, counted)
-    doubts = rivals_kernels.doubts(np.ascontiguousarray(peaks, dtype=np.int64), first, rows,
-                                   nearest, np.ascontiguousarray(unsure, dtype=np.int64),
-                                   *edges)
-    return Identity(rows, *doubts), first, passed
+    unsure, doubt_row, doubt_col, doubt_line = rivals_kernels.doubts(
+        np.ascontiguousarray(peaks, dtype=np.int64), first, rows, nearest,
+        np.ascontiguousarray(unsure, dtype=np.int64), *edges)
+    tied = (passed.ambiguous >= 0) & (rows >= 0)
+    return Identity(rows, unsure, doubt_row, doubt_col, doubt_line, tied), first, passed
 
 
 def set_aside(peaks: IntArray, drop: BoolArray) -> tuple[IntArray, IntArray]:
