@@ -171,6 +171,16 @@ def test_feature_dark_panel_edge_is_not_read_as_the_wall_behind(seed: int) -> No
     _assert_never_wrong(score_scene("glossy_dark_panels", MAPS, seed=seed).row())
 
 
+def test_feature_a_platform_edge_line_is_no_fade() -> None:
+    """platform_before_wall on seed 2: a dark 42 cm platform before a wall; its lowest
+    line, missing over 60 columns of sector 5 where the wall would show it, has two weak
+    points (SNR 9) beside the run, which counted as the line fading into it (a glossy
+    surface turning its lobe away), and the wall 2.3 m behind the platform was read
+    (3.54 m for 2.34 m, map 1). A fade needs verdicts.FADE_POINTS (3) points. Checked to
+    fail with FADE_POINTS 2 (far)."""
+    _assert_never_wrong(score_scene("platform_before_wall", MAPS, seed=2).row())
+
+
 @pytest.mark.parametrize("name", _scenes(stress_scenes()))
 def test_feature_stress_scene_never_wrong(name: str) -> None:
     _assert_never_wrong(_row(name))

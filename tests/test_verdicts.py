@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -378,8 +379,9 @@ def test_feature_a_line_missing_from_the_surface_blocks_it() -> None:
     other lines are patchy (found in half their columns: a run of noise), or where the
     lowest line fades into the run (SNR 8 beside it, under 2·snr_min: a glossy wall
     turning its lobe from that sheet), the wall's 4 m stands. Checked to fail with
-    missing_on_surface taken out of _verdict (sector 0 VALID at 4 m), and the fading
-    line with _abrupt always True (INVALID)."""
+    missing_on_surface taken out of _verdict (sector 0 VALID at 4 m), the fading
+    line with _abrupt always True (INVALID), and two weak points with FADE_POINTS 2 (the
+    rule before: VALID)."""
     box = range(4, 28)
     outside = [c for c in range(32) if c not in box]
     points, evidence = _wall_over_a_low_box(8.0, outside)
@@ -391,6 +393,12 @@ def test_feature_a_line_missing_from_the_surface_blocks_it() -> None:
         assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), args
     points, evidence = _wall_over_a_low_box(8.0, range(0))  # the lowest line never seen
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    # two weak points beside a run of 30 columns are no fade (verdicts.FADE_POINTS: a
+    # dark platform's edge let the wall 2.3 m behind it be read); three are
+    points, evidence = _wall_over_a_low_box(8.0, range(2), range(32), None, 0, 8.0)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    points, evidence = _wall_over_a_low_box(8.0, range(3), range(32), None, 0, 8.0)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.VALID
 
 
 def test_feature_lines_passing_under_a_surface_are_not_missing_from_it() -> None:
@@ -518,3 +526,36 @@ def test_feature_a_surface_one_line_shows_across_the_boundary_stands_in_both() -
                       sector=1)
     out = sector_verdicts(_join(wall, edge, far_box), _evidence(), LAYOUT, SETTINGS)[0]
     assert out.state is SectorState.VALID and out.distance_m == pytest.approx(5.0, abs=0.05)
+
+
+def _wall_behind_a_ground_line_hole(shown: list[int], snr: float = 30.0,
+                                    ground_m: float = 2.0) -> tuple[ObstaclePoints,
+                                                                     ColumnEvidence]:
+    """:func:`_wall_behind_a_lost_ground_line`, line 3 returned by the ground in the
+    ``shown`` columns (of all 64) on its ground rows at ``snr``."""
+    points, evidence = _wall_behind_a_lost_ground_line(ground_m, range(0))
+    assert evidence.seen is not None
+    seen = evidence.seen.copy()
+    seen[3, shown] = True
+    ground_snr = np.zeros((4, WIDTH))
+    ground_snr[3, shown] = snr
+    return points, dataclasses.replace(evidence, seen=seen, ground_snr=ground_snr)
+
+
+def test_feature_a_hole_in_a_bright_ground_line_blocks_the_surface_behind() -> None:
+    """A dark box before a wall at 4 m: the lowest line, which would meet the ground at
+    2 m, is returned by the ground at SNR 30 on both sides of a 12-column run of sector 0
+    and seen at no row in it: something that returns no light stands in its way there,
+    and the sector is INVALID (a randomly drawn scene read the wall at 4.45 m for a dark
+    object at 0.63 m, 4 maps of 4). The wall's 4 m stands for a run of 8 columns (too
+    few), flanks at SNR 12 (a weak ground line drops out near its threshold), a run open
+    on one side (the fan's edge, or the ground line fading), and a ground hit within the
+    wall's margin. Checked to fail with hole_before taken out of _verdict (VALID 4 m)."""
+    hole = [c for c in range(WIDTH) if not 10 <= c < 22]
+    points, evidence = _wall_behind_a_ground_line_hole(hole)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    for args in [([c for c in range(WIDTH) if not 10 <= c < 18],),
+                 (hole, 12.0), (list(range(20)),), (hole, 30.0, 3.7)]:
+        points, evidence = _wall_behind_a_ground_line_hole(*args)
+        out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+        assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), args

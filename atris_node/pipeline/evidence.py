@@ -308,7 +308,9 @@ class SectorJudge:
         return ColumnEvidence(self.column_sector, doubtful=doubtful,
                               ambiguous=extraction.ambiguous_columns, missing=missing,
                               seen=seen, noisy=noisy, expected=expected, prior=prior,
-                              returned_m=returned)
+                              returned_m=returned,
+                              ground_snr=None if returned is None else _ground_snr(
+                                  returned.shape, on_ground))
 
     def _returned(self, prior: VisibilityPrior, quiet: BoolArray,
                   on_ground: tuple[IntArray, IntArray, FloatArray]) -> FloatArray | None:
@@ -420,3 +422,14 @@ def expected_on_ground(prior: VisibilityPrior, calibration: Calibration,
         row = cam.cy_px + cam.focal_px * cot - cam.focal_px * prior.baseline_m / z
     z_min, z_max = z_range_m
     return np.asarray((z <= z_max) & (z >= z_min) & (row >= 0) & (row < cam.height_px))
+
+
+def _ground_snr(shape: tuple[int, ...], on_ground: tuple[IntArray, IntArray, FloatArray] | None
+                ) -> FloatArray:
+    """(K, W) the highest SNR of line k's samples on its ground rows in column c (0: none);
+    ``on_ground`` the (line, column, SNR) of those samples."""
+    out = np.zeros(shape, dtype=np.float64)
+    if on_ground is not None:
+        line, column, snr = on_ground
+        np.maximum.at(out, (line, column), np.nan_to_num(snr, nan=0.0))
+    return out

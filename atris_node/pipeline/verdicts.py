@@ -131,6 +131,14 @@ LOST_RETURNED = 0.2
 LOST_SNR = 1.5
 LOST_SEEN = 0.05
 LOST_RUN = 2
+#: a line the ground returns at HOLE_SNR·snr_min or more on both sides of a run of at
+#: least LOST_RUN·min_points quiet columns (within GAP_RUN of its ends), and that shows at
+#: no row in that run where it would meet the ground clearance nearer than the distance,
+#: is stopped there by something that returns no light (:func:`hole_before`)
+HOLE_SNR = 3.0
+#: a line fades into a run (:func:`_abrupt`) only with this many of its points beside it:
+#: two weak ones are as likely a partial return at a dark object's edge
+FADE_POINTS = 3
 #: columns across a sector boundary within which a neighbour's obstacle points vouch for a
 #: sector's few nearer points (one object straddling the boundary)
 STRADDLE_COLUMNS = 8
@@ -238,6 +246,9 @@ class ColumnEvidence:
     #: where the line is expected there, its band quiet, and the ground returns it in this
     #: map (LOST_RETURNED, LOST_SNR); inf elsewhere; None: not known (:func:`lost_before`)
     returned_m: FloatArray | None = None
+    #: (K, W) the highest SNR of line k's samples on its ground rows in column c (0:
+    #: none); None where ``returned_m`` is (:func:`hole_before`)
+    ground_snr: FloatArray | None = None
 
     @property
     def unclean(self) -> IntArray:
@@ -649,15 +660,17 @@ def _solid(onto: BoolArray, shown: BoolArray, line: int, start: int, stop: int,
 def _abrupt(on: ObstaclePoints, line: int, start: int, stop: int, snr: float) -> bool:
     """True when ``line`` stops abruptly at its run [start, stop) on the surface (the
     points ``on``): one of its points there within 2·GAP_RUN columns of the run has an
-    SNR of at least ``snr``, or it has fewer than two there (the other lines predict
-    it). A line that fades into the run, near its threshold wherever it was last seen
-    (a glossy surface turning its lobe away from that sheet), does not count; the
-    point at a blocking object's very edge may be weak, so the strongest one counts."""
+    SNR of at least ``snr``, or it has fewer than FADE_POINTS there (the other lines
+    predict it; two weak points beside a dark platform's run of 60 columns let a wall
+    2.3 m behind it be read). A line that fades into the run, near its threshold
+    wherever it was last seen (a glossy surface turning its lobe away from that sheet),
+    does not count; the point at a blocking object's very edge may be weak, so the
+    strongest one counts."""
     reach = 2 * GAP_RUN
     edge = (on.line == line) & (
         ((on.column >= start - reach) & (on.column < start))
         | ((on.column >= stop) & (on.column < stop + reach)))
-    if np.count_nonzero(edge) < 2:
+    if np.count_nonzero(edge) < FADE_POINTS:
         return True
     return bool(on.snr[edge].max() >= snr)
 
@@ -680,6 +693,36 @@ def lost_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
     shown = np.count_nonzero(nearer & seen[:, columns], axis=1)
     return bool(((expected >= LOST_RUN * settings.min_points)
                  & (shown <= LOST_SEEN * expected)).any())
+
+
+def hole_before(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
+    """True when a line that the ground returns (``evidence.returned_m``) at
+    HOLE_SNR·snr_min or more within GAP_RUN columns on both sides of a run of LOST_RUN·
+    ``min_points`` or more quiet columns, where it would meet the ground clearance nearer
+    than ``distance_m`` less max(DOUBT_REL·d, DOUBT_ABS_M), shows at no row in that run,
+    and ``min_points`` or more of the run's columns lie in sector ``s``: something that
+    returns no light stands in its way there (a dark object before a bright floor, met by
+    the one line that reaches it), at any range up to that ground hit. Both flanks on the
+    ground and bright: not the fan's edge, nor a weak ground line dropping out near its
+    threshold. :func:`lost_before` asks the whole sector."""
+    evidence = view.evidence
+    returned, seen, snr = evidence.returned_m, evidence.seen, evidence.ground_snr
+    if returned is None or seen is None or snr is None:
+        return False
+    limit = distance_m - doubt_margin_m(distance_m)
+    bright = snr >= HOLE_SNR * settings.snr_min
+    run, width = LOST_RUN * settings.min_points, seen.shape[1]
+    for k in np.flatnonzero((returned < limit).any(axis=1)):
+        open_ = (np.isfinite(returned[k]) & ~seen[k]).astype(np.int8)
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], open_, [0]))))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if (stop - start < run or not (returned[k, start:stop] < limit).all()
+                    or np.count_nonzero(view.columns[s][start:stop]) < settings.min_points):
+                continue
+            if (bright[k, max(start - GAP_RUN, 0):start].any()
+                    and bright[k, stop:min(stop + GAP_RUN, width)].any()):
+                return True
+    return False
 
 
 def at_the_near_end(s: int, view: MapView, settings: SectorSettings) -> bool:
@@ -779,9 +822,11 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
         # something stands in the rays of every bright line over a few columns
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if (missing_on_surface(s, view, found.distance_m, settings) >= settings.min_points
-            or lost_before(s, view, found.distance_m, settings)):
+            or lost_before(s, view, found.distance_m, settings)
+            or hole_before(s, view, found.distance_m, settings)):
         # a line missing from the surface, or one the ground returns elsewhere lost
-        # before it over the whole sector: something lower stands there, unseen
+        # before it over the whole sector or between bright ground returns: something
+        # lower stands there, unseen
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if at_the_near_end(s, view, settings):
         # a surface reaching the near end of the range may stand nearer, unseen
