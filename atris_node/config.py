@@ -114,7 +114,7 @@ PARAMS: tuple[Param, ...] = (
       "incidence) under which a return is too faint for the range its line gives, and is a "
       "doubt, not a point (0 = off; needs the calibration's return_dn_m2)", in_range(0.0, 0.5)),
     P("pipeline.tied_reflectance", float, 0.007, "the same for a return whose line "
-      "continuity chose over a rival the physics could not rule out (at most "
+      "continuity chose over farther rivals the physics could not rule out (at most "
       "min_reflectance: no stricter check)", in_range(0.0, 0.5)),
     P("interference.every_windows", int, 8, "measure other codes' energy on one window of N "
       "sub-frames out of this many (0 = never; hopping needs it)", in_range(0, 10000)),

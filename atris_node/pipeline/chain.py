@@ -120,8 +120,8 @@ class PipelineConfig:
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
     #: ρ cos i under which a sample is too faint for its range (pipeline.radiometry; 0 = off)
     min_reflectance: float = radiometry.MIN_REFLECTANCE
-    #: ρ cos i under which a sample whose line continuity chose over a rival is too faint
-    #: (pipeline.radiometry.TIED_REFLECTANCE; 0 = as ``min_reflectance``)
+    #: ρ cos i under which a sample whose line continuity chose over farther rivals is too
+    #: faint (pipeline.radiometry.TIED_REFLECTANCE; at most ``min_reflectance``: as that)
     tied_reflectance: float = radiometry.TIED_REFLECTANCE
 
     def __post_init__(self) -> None:
@@ -374,10 +374,12 @@ class Pipeline:
                    points: Points) -> BoolArray:
         """(n,) the samples too faint for the range their line gives: under
         ``min_reflectance``, or under ``tied_reflectance`` where continuity chose their
-        line over a rival (``extraction.tied``): a tie the physics left open is settled by
-        rows from other columns, which a comb shifted by whole lines matches as well (a
-        far wall's comb one line off reads as the comb of a pole 0.97 m away), and a
-        return that dark for the near range is no evidence of it."""
+        line, the nearest hypothesis, over farther rivals (``extraction.tied``): a tie the
+        physics left open is settled by rows from other columns, which a comb shifted by
+        whole lines matches as well (a far wall's comb one line off reads as the comb of a
+        pole 0.97 m away), and a return that dark for the near range is no evidence of
+        it. Where a rival is nearer, the chosen range is the farther one, and a faint
+        return there says nothing against it (a black glossy wall at 3.7 m)."""
         laser, exposure = self.calibration.laser, dmap.exposure_us or None
         faint = radiometry.too_faint(dmap.values, samples, points, dmap.code_length, laser,
                                      exposure, self.config.min_reflectance)

@@ -166,9 +166,9 @@ class Extraction:
     #: samples too faint for the range their line gives (atris_node.pipeline.radiometry):
     #: kept as doubts, not points (counted by the chain after triangulation)
     too_faint: int = 0
-    #: (K, W) True where line k's sample in column c was identified by continuity over a
-    #: rival the physics could not rule out (:attr:`atris_node.pipeline.rivals.Identity.tied`);
-    #: None: no rival test
+    #: (K, W) True where line k's sample in column c was identified by continuity over
+    #: farther rivals the physics could not rule out
+    #: (:attr:`atris_node.pipeline.rivals.Identity.tied`); None: no rival test
     tied: BoolArray | None = None
 
 

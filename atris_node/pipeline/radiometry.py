@@ -52,9 +52,9 @@ BoolArray = npt.NDArray[np.bool_]
 
 #: ρ cos i: the faintest surface taken at face value (albedo 0.02 lit at 84°)
 MIN_REFLECTANCE = 0.002
-#: ρ cos i: the faintest surface taken for a sample whose line continuity chose over a
-#: rival the physics could not rule out (``Identity.tied``): about the 0.1 % quantile of
-#: the correctly identified samples (0.0068)
+#: ρ cos i: the faintest surface taken for a sample whose line continuity chose over
+#: farther rivals the physics could not rule out (``Identity.tied``: its nearest
+#: hypothesis): about the 0.1 % quantile of the correctly identified samples (0.0068)
 TIED_REFLECTANCE = 0.007
 
 

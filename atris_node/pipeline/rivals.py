@@ -149,9 +149,10 @@ class Identity:
     ``doubt_col`` and ``doubt_line``: the line among its hypotheses that puts it nearest
     (lowest in the image), so that a sector can tell whether the doubt reaches nearer than
     the distance it reports; and ``tied`` (K, W), True at the kept samples whose peak had a
-    rival in the test without continuity: the physics could not tell their line, the
-    continuity to other columns settled it (:func:`atris_node.pipeline.radiometry` asks
-    their brightness more)."""
+    rival in the test without continuity, every rival putting it farther: the physics
+    could not tell their line, and the continuity to other columns settled it for the
+    nearest hypothesis, where a wrong choice is a near phantom (the chain asks their
+    brightness more, :attr:`atris_node.pipeline.chain.PipelineConfig.tied_reflectance`)."""
 
     rows: IntArray
     unsure: IntArray
@@ -233,7 +234,10 @@ def _unique(peaks: IntArray, bands: tuple[Band, ...],
     unsure, doubt_row, doubt_col, doubt_line = rivals_kernels.doubts(
         np.ascontiguousarray(peaks, dtype=np.int64), first, rows, nearest,
         np.ascontiguousarray(unsure, dtype=np.int64), *edges)
-    tied = (passed.ambiguous >= 0) & (rows >= 0)
+    # the rival test's first pass keeps, per peak with a rival, the line among the chosen
+    # and its rivals that puts it nearest: the chosen one itself when every rival is
+    # farther
+    tied = (passed.ambiguous == np.arange(rows.shape[0])[:, None]) & (rows >= 0)
     return Identity(rows, unsure, doubt_row, doubt_col, doubt_line, tied), first, passed
 
 
