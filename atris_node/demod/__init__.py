@@ -27,7 +27,8 @@ overflow; uint16 sub-frames are added through an int16 view when the accumulator
 int16 (values below 2**15 read the same), never cast. Work is done in row chunks that
 stay in cache (CHUNK_BYTES, SLIDE_CHUNK_BYTES of accumulator), so the full-scale check
 reads pixels the arithmetic has just loaded; it reads the raw pixels, so a value above
-full scale is refused even where its int16 view is negative.
+full scale is refused even where its int16 view is negative. The sliding update is one
+compiled call per sub-frame (numba, the GIL released), row by row.
 
 Ownership: the demodulators keep references to pushed pixel arrays (no copy); a camera
 backend must hand over a fresh array per sub-frame and not write into it afterwards.

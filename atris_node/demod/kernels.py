@@ -8,6 +8,7 @@ import numpy as np
 import numpy.typing as npt
 
 from atris_node.errors import DemodulationError
+from atris_node.jit import kernel
 
 Array = npt.NDArray[np.generic]
 #: accumulator bytes per chunk of a block update, which streams two arrays (accumulator,
@@ -39,6 +40,24 @@ def _check_bits(bits: int) -> None:
 
 #: called with (row slice, sub-frame rows) for a chunk that holds a pixel at full scale
 ChunkHook = Callable[[slice, Array], None]
+
+
+@kernel()
+def _slide_rows(out: Array, prev: Array, new: Array, old: Array, sign: int,
+                chunk_rows: int, tops: npt.NDArray[np.int64]) -> None:  # pragma: no cover
+    """``out = prev + sign * (new - old)`` row by row, the maximum of the raw ``new`` pixels
+    of each chunk of ``chunk_rows`` rows into ``tops``: each row's maximum is taken first
+    (the row then stays in L1 for the update); one call per sub-frame, without the GIL."""
+    height = new.shape[0]
+    step = np.int32(sign)
+    for c in range(tops.size):
+        top = 0
+        for r in range(c * chunk_rows, min((c + 1) * chunk_rows, height)):
+            o, p, n, q = out[r], prev[r], new[r], old[r]
+            top = max(top, n.max())
+            for x in range(n.size):
+                o[x] = p[x] + step * (np.int32(n[x]) - np.int32(q[x]))
+        tops[c] = top
 
 
 class Kernels:
@@ -106,21 +125,22 @@ class Kernels:
               ) -> tuple[int, tuple[int, ...]]:
         """``out = prev + sign * (new - old)``; ``hooks`` = (enter new, leave old) chunk.
 
-        Per chunk: ``new - old`` into a scratch chunk that stays in cache, the full-scale
-        check of the raw ``new`` pixels while that subtraction has them cached, then
-        ``prev +- diff`` into ``out``. For pixels in 0..F nothing overflows: ``|new - old|
-        <= F`` and the result is a window sum, within ``N/2 * F``, which
-        :func:`accumulator_dtype` holds; a pixel above F may wrap, but it is in the returned
-        maximum and the caller refuses the sub-frame.
+        One compiled pass (:func:`_slide_rows`, the GIL released): per row, the maximum of
+        the raw ``new`` pixels, then the update while the row is cached. Then ``enter``
+        marks the new sub-frame's chunks at full scale and ``leave`` unmarks the old one's.
+        For pixels in 0..F nothing overflows: ``|new - old| <= F`` and the result is a
+        window sum, within ``N/2 * F``, which :func:`accumulator_dtype` holds; a pixel above
+        F may wrap, but it is in the returned maximum and the caller refuses the sub-frame.
         """
         old_frame, old_hot = old
-        src_new, src_old, tops = self.signed(new), self.signed(old_frame), []
-        op = np.add if sign > 0 else np.subtract
-        enter, leave = hooks if hooks is not None else (None, None)
-        for i, (rows, diff) in enumerate(zip(self.chunks, self._diffs, strict=True)):
-            np.subtract(src_new[rows], src_old[rows], diff, dtype=self.dtype)
-            tops.append(self._check(rows, new[rows], enter))
-            op(prev[rows], diff, out[rows])
-            if leave is not None and i in old_hot:
-                leave(rows, old_frame[rows])
-        return self._hot(tops)
+        tops = np.empty(len(self.chunks), dtype=np.int64)
+        _slide_rows(out, prev, new, old_frame, sign, self.chunks[0].stop, tops)
+        peak, hot = self._hot(tops.tolist())
+        if hooks is not None:
+            enter, leave = hooks
+            for i in hot:
+                if tops[i] == self.full_scale:
+                    enter(self.chunks[i], new[self.chunks[i]])
+            for i in old_hot:
+                leave(self.chunks[i], old_frame[self.chunks[i]])
+        return peak, hot
