@@ -1,4 +1,5 @@
-"""What both demodulators share: validation, sequence tracking, phase lock, map statistics."""
+"""What both demodulators share: validation, sequence tracking, phase lock, the pending map
+of a complete window."""
 
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ def _check_chips(chips: Sequence[int] | npt.NDArray[np.integer]) -> npt.NDArray[
 
 
 class Demodulator:
-    """Validation, sequence tracking, phase lock and map statistics of both demodulators."""
+    """Validation, sequence tracking, phase lock and the pending maps of both demodulators."""
 
     def __init__(self, chips: Sequence[int] | npt.NDArray[np.integer], bits: int,
                  lag: int | None = 0) -> None:

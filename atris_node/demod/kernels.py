@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from numba import types
 
 from atris_node.errors import DemodulationError
 from atris_node.jit import kernel
@@ -42,7 +44,17 @@ def _check_bits(bits: int) -> None:
 ChunkHook = Callable[[slice, Array], None]
 
 
-@kernel()
+def _slide_signatures() -> list[Any]:
+    """(out, prev, new, old, sign, chunk_rows, tops) for int16 and int32 sums of uint8 and
+    uint16 sub-frames, all C-contiguous; the inputs read-only or not."""
+    def c2(dtype: types.Type, readonly: bool = True) -> types.Array:
+        return types.Array(dtype, 2, "C", readonly=readonly)
+    return [types.void(c2(acc, False), c2(acc), c2(px), c2(px), types.int64, types.int64,
+                       types.Array(types.int64, 1, "C"))
+            for acc in (types.int16, types.int32) for px in (types.uint8, types.uint16)]
+
+
+@kernel(_slide_signatures())
 def _slide_rows(out: Array, prev: Array, new: Array, old: Array, sign: int,
                 chunk_rows: int, tops: npt.NDArray[np.int64]) -> None:  # pragma: no cover
     """``out = prev + sign * (new - old)`` row by row, the maximum of the raw ``new`` pixels
@@ -126,7 +138,8 @@ class Kernels:
         """``out = prev + sign * (new - old)``; ``hooks`` = (enter new, leave old) chunk.
 
         One compiled pass (:func:`_slide_rows`, the GIL released): per row, the maximum of
-        the raw ``new`` pixels, then the update while the row is cached. Then ``enter``
+        the raw ``new`` pixels, then the update while the row is cached (sub-frames that
+        are not C-contiguous are copied first; ``out`` and ``prev`` must be). Then ``enter``
         marks the new sub-frame's chunks at full scale and ``leave`` unmarks the old one's.
         For pixels in 0..F nothing overflows: ``|new - old| <= F`` and the result is a
         window sum, within ``N/2 * F``, which :func:`accumulator_dtype` holds; a pixel above
@@ -134,7 +147,8 @@ class Kernels:
         """
         old_frame, old_hot = old
         tops = np.empty(len(self.chunks), dtype=np.int64)
-        _slide_rows(out, prev, new, old_frame, sign, self.chunks[0].stop, tops)
+        _slide_rows(out, prev, np.ascontiguousarray(new), np.ascontiguousarray(old_frame),
+                    sign, self.chunks[0].stop, tops)
         peak, hot = self._hot(tops.tolist())
         if hooks is not None:
             enter, leave = hooks
