@@ -16,8 +16,9 @@ Array = npt.NDArray[np.generic]
 #: accumulator bytes per chunk of a block update, which streams two arrays (accumulator,
 #: sub-frame); measured best at 2048x1088 among 64..512 KiB
 CHUNK_BYTES = 256 * 1024
-#: accumulator bytes per chunk of a sliding update, which streams four (previous map, new
-#: and old sub-frame, new map) and a scratch chunk; measured best among 64..512 KiB
+#: accumulator bytes per chunk of a sliding update: the compiled update goes row by row,
+#: the chunks are the units of its full-scale bookkeeping (the saturation counts are
+#: updated only in chunks that hold a pixel at full scale)
 SLIDE_CHUNK_BYTES = 128 * 1024
 INT16_MAX = int(np.iinfo(np.int16).max)
 
@@ -88,8 +89,6 @@ class Kernels:
         self.full_scale = full_scale
         rows = max(1, chunk_bytes // (shape[1] * dtype.itemsize))
         self.chunks = [slice(r, min(r + rows, shape[0])) for r in range(0, shape[0], rows)]
-        diff = np.empty((rows, shape[1]), dtype=dtype)
-        self._diffs = [diff[: c.stop - c.start] for c in self.chunks]
 
     def signed(self, frame: Array) -> Array:
         """The frame as the accumulator adds it: int16 view of uint16 when exact."""
