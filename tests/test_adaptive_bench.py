@@ -11,8 +11,9 @@ import pytest
 
 from atris_node.bench.adaptive import _Probe, stepped_unit
 from atris_node.cli import main
+from atris_node.demod import PendingMap
 from atris_node.errors import ConfigError
-from atris_node.types import DistortionMap, SubFrame
+from atris_node.types import SubFrame
 from drivers import sim as sim_driver
 
 FIELDS = {"scene", "code_length", "output_hz", "ms_per_frame", "range_rmse_m",
@@ -57,7 +58,7 @@ def _choices(scene: str, read_delay_s: float, sub_frames: int) -> list[Any]:
         probe = _Probe(unit)
         on_map = unit._on_map
 
-        def recording(dmap: DistortionMap) -> None:
+        def recording(dmap: PendingMap) -> None:
             maps.append((dmap.first_sequence, dmap.code_length))
             on_map(dmap)
 

@@ -15,8 +15,9 @@ import pytest
 
 from atris_node import config as cfg
 from atris_node.bench.adaptive import stepped_unit
+from atris_node.demod import PendingMap
 from atris_node.node.unit import Unit
-from atris_node.types import DistortionMap, FaultBits, SectorState, SubFrame
+from atris_node.types import FaultBits, SectorState, SubFrame
 
 BASE = ["negotiation.window_s=0.05", "negotiation.reannounce_s=0.5", "adaptive.enabled=true",
         "adaptive.grow_frames=1", "adaptive.shrink_frames=2"]
@@ -28,15 +29,15 @@ class Windows:
     def __init__(self, unit: Unit) -> None:
         self.unit = unit
         self.pushed: dict[int, tuple[int, float]] = {}
-        self.maps: list[DistortionMap] = []
+        self.maps: list[PendingMap] = []
         demodulate, on_map = unit._demodulate, unit._on_map
 
-        def recording_demodulate(sub: SubFrame) -> DistortionMap | None:
+        def recording_demodulate(sub: SubFrame) -> PendingMap | None:
             assert unit.measure is not None and unit.measure.demod is not None
             self.pushed[sub.sequence] = (unit.measure.demod.code_length, sub.exposure_us)
             return demodulate(sub)
 
-        def recording_on_map(dmap: DistortionMap) -> None:
+        def recording_on_map(dmap: PendingMap) -> None:
             self.maps.append(dmap)
             on_map(dmap)
 

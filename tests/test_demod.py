@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from atris_node import codes
 from atris_node.demod import (
     BlockDemodulator,
+    Kernels,
     SlidingDemodulator,
     accumulator_dtype,
     measure_gain,
@@ -91,6 +92,29 @@ def test_every_map_is_the_window_sum(cls: type[Demod], bits: int) -> None:
         assert m.last_sequence - m.first_sequence == n - 1 and m.phase == lag
         np.testing.assert_array_equal(
             m.values, _window_sum(frames, codes.bipolar(chips), lag, m.last_sequence))
+
+
+@pytest.mark.parametrize(("bits", "n"), [(8, 16), (10, 16), (16, 8)])
+def test_compiled_slide_is_the_update_on_strided_frames(bits: int, n: int) -> None:
+    """The compiled sliding update against numpy, on sub-frames that are column slices of
+    wider arrays (a cropped camera image), both signs, chunk maxima and full-scale hooks."""
+    rng = np.random.default_rng(bits)
+    dtype, full = accumulator_dtype(n, bits), (1 << bits) - 1
+    kernels = Kernels(dtype, (70, 33), full, chunk_bytes=33 * dtype.itemsize * 16)
+    wide = rng.integers(0, full, (2, 70, 50)).astype(np.uint8 if bits == 8 else np.uint16)
+    new, old = wide[0][:, 5:38], wide[1][:, 9:42]
+    new[40, 3] = full  # in the third chunk of 16 rows
+    prev = rng.integers(-(n // 2) * full, (n // 2) * full, (70, 33)).astype(dtype)
+    marked: list[tuple[str, int]] = []
+    hooks = (lambda rows, _: marked.append(("in", rows.start)),
+             lambda rows, _: marked.append(("out", rows.start)))
+    for sign in (1, -1):
+        out = np.empty_like(prev)
+        peak, hot = kernels.slide(out, prev, new, (old, (0,)), sign, hooks)
+        expected = prev.astype(np.int64) + sign * (new.astype(np.int64) - old)
+        np.testing.assert_array_equal(out, expected)
+        assert peak == full and hot == (2,)
+    assert marked == [("in", 32), ("out", 0)] * 2
 
 
 def test_sliding_maps_are_independent_read_only_arrays() -> None:

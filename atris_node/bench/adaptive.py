@@ -44,8 +44,9 @@ from atris_node import config as cfg
 from atris_node.bench import skips
 from atris_node.bench.accuracy import range_errors
 from atris_node.bench.safety import score_sector, sector_truth
+from atris_node.demod import PendingMap
 from atris_node.node.unit import Unit
-from atris_node.types import DistortionMap, FaultBits, Measurement, SectorState, SubFrame
+from atris_node.types import FaultBits, Measurement, SectorState, SubFrame
 from drivers import sim as sim_driver
 
 SCENES = ("indoor_lab", "window_sun", "outdoor_medium_sun", "outdoor_strong_sun")
@@ -73,21 +74,21 @@ class _Probe:
         self.published: Measurement | None = None
         demodulate, on_map = unit._demodulate, unit._on_map
 
-        def timed_demodulate(sub: SubFrame) -> DistortionMap | None:
+        def timed_demodulate(sub: SubFrame) -> PendingMap | None:
             start = time.perf_counter()
             dmap = demodulate(sub)
             self.busy_s += time.perf_counter() - start
             return dmap
 
-        def timed_on_map(dmap: DistortionMap) -> None:
+        def timed_on_map(pending: PendingMap) -> None:
             start = time.perf_counter()
             self.published = None
-            on_map(dmap)
+            on_map(pending)
             self.busy_s += time.perf_counter() - start
-            if not self.choices or self.choices[-1][1] != dmap.code_length:
-                self.choices.append((dmap.first_sequence, dmap.code_length))
-            if self.recording and dmap.first_sequence >= self.first_sequence:
-                self._record(dmap)
+            if not self.choices or self.choices[-1][1] != pending.code_length:
+                self.choices.append((pending.first_sequence, pending.code_length))
+            if self.recording and pending.first_sequence >= self.first_sequence:
+                self._record(pending)
             self.busy_s = 0.0
 
         unit._demodulate = timed_demodulate  # type: ignore[method-assign]
@@ -97,7 +98,7 @@ class _Probe:
     def _on_measurement(self, measurement: Measurement) -> None:
         self.published = measurement
 
-    def _record(self, dmap: DistortionMap) -> None:
+    def _record(self, dmap: PendingMap) -> None:
         self.maps += 1
         self.lengths.add(dmap.code_length)
         self.frame_ms.append(self.busy_s * 1e3)

@@ -11,9 +11,11 @@ strobing orthogonal codes cancel, the own laser adds up to ``l * N / 2``.
 Both track sequence numbers (a gap re-primes the window and is counted, so a map never
 mixes signs), re-prime on an exposure or frame-shape change (counted; a new shape is
 accepted, not an error), flag pixels at full scale, lock to an unknown strobe lag by
-correlation (``lag=None``), and measure processing gain and SNR (paper Eq. 5-6) for every
+correlation (``lag=None``), and measure processing gain and SNR (paper Eq. 5-6) of each
 map, with ``extra`` keys ``ambient_level`` and ``saturated_fraction`` (fractions) and
-``signal_dn`` and ``residual_dn`` (``I_S`` and ``delta``).
+``signal_dn`` and ``residual_dn`` (``I_S`` and ``delta``). ``push`` returns the map;
+``push_pending`` a :class:`PendingMap` whose map, the same to the bit, is built and
+measured when a consumer takes it (a sliding map nobody takes costs no statistics).
 
 Constant ambient light cancels exactly (balanced codes). A linear drift ``d`` per
 sub-frame leaves the paper's remainder ``delta = d * sum_i v_i i``: zero for Walsh rows
@@ -25,7 +27,8 @@ overflow; uint16 sub-frames are added through an int16 view when the accumulator
 int16 (values below 2**15 read the same), never cast. Work is done in row chunks that
 stay in cache (CHUNK_BYTES, SLIDE_CHUNK_BYTES of accumulator), so the full-scale check
 reads pixels the arithmetic has just loaded; it reads the raw pixels, so a value above
-full scale is refused even where its int16 view is negative.
+full scale is refused even where its int16 view is negative. The sliding update is one
+compiled call per sub-frame (numba, the GIL released), row by row.
 
 Ownership: the demodulators keep references to pushed pixel arrays (no copy); a camera
 backend must hand over a fresh array per sub-frame and not write into it afterwards.
@@ -47,6 +50,7 @@ from __future__ import annotations
 from atris_node.demod.base import Demodulator
 from atris_node.demod.kernels import CHUNK_BYTES, SLIDE_CHUNK_BYTES, Kernels, accumulator_dtype
 from atris_node.demod.lock import LOCK_HISTORY, LOCK_SIGMAS, PhaseLock
+from atris_node.demod.pending import PendingMap
 from atris_node.demod.stats import (
     RESIDUAL_FLOOR_DN,
     STRIP_POSITIONS,
@@ -68,6 +72,7 @@ __all__ = [
     "BlockDemodulator",
     "Demodulator",
     "Kernels",
+    "PendingMap",
     "PhaseLock",
     "SlidingDemodulator",
     "accumulator_dtype",

@@ -1,12 +1,11 @@
-"""What both demodulators share: validation, sequence tracking, phase lock, map statistics."""
+"""What both demodulators share: validation, sequence tracking, phase lock, the pending map
+of a complete window."""
 
 from __future__ import annotations
 
 import collections
 import logging
-import statistics
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -14,9 +13,10 @@ import numpy.typing as npt
 from atris_node import codes
 from atris_node.demod.kernels import CHUNK_BYTES, Array, Kernels, accumulator_dtype
 from atris_node.demod.lock import PhaseLock
-from atris_node.demod.stats import measure_gain, strip_level
+from atris_node.demod.pending import AmbientLevel, Info, PendingMap, Window
+from atris_node.demod.stats import strip_level
 from atris_node.errors import CodeError, DemodulationError
-from atris_node.types import DistortionMap, SubFrame, WindowFrames
+from atris_node.types import DistortionMap, SubFrame
 
 logger = logging.getLogger(__name__)
 
@@ -31,37 +31,8 @@ def _check_chips(chips: Sequence[int] | npt.NDArray[np.integer]) -> npt.NDArray[
     return signs
 
 
-@dataclass(frozen=True)
-class Info:
-    """What a window keeps of one sub-frame besides its pixels."""
-
-    sequence: int
-    host_time_s: float
-    sign: int
-    hot_chunks: tuple[int, ...]  # row chunks holding a pixel at full scale
-    level: float | None  # mean raw level of the sampled strips, DN (when locking)
-
-    @property
-    def saturated(self) -> bool:
-        """True when some pixel of the sub-frame is at full scale."""
-        return bool(self.hot_chunks)
-
-
-def _window(frames: Sequence[Array], infos: Sequence[Info],
-            before: tuple[int, Array] | None) -> WindowFrames | None:
-    """The window's sub-frames and signs, when every one of them is at hand, and the last
-    OFF sub-frame before it (``before``: sequence, pixels) when that is near enough."""
-    if len(frames) != len(infos) or not frames:
-        return None
-    first = infos[0].sequence
-    prior = None
-    if before is not None and -len(infos) <= before[0] - first < 0:
-        prior = (before[0] - first, before[1])
-    return WindowFrames(tuple(frames), tuple(i.sign for i in infos), prior)
-
-
 class Demodulator:
-    """Validation, sequence tracking, phase lock and map statistics of both demodulators."""
+    """Validation, sequence tracking, phase lock and the pending maps of both demodulators."""
 
     def __init__(self, chips: Sequence[int] | npt.NDArray[np.integer], bits: int,
                  lag: int | None = 0) -> None:
@@ -141,6 +112,13 @@ class Demodulator:
         Raises DemodulationError for pixels of the wrong shape, dtype or bit depth, or
         above full scale (the window is re-primed first).
         """
+        pending = self.push_pending(sub)
+        return None if pending is None else pending.take()
+
+    def push_pending(self, sub: SubFrame) -> PendingMap | None:
+        """As :meth:`push`, but a complete window comes back as a :class:`PendingMap`: its
+        map (the same values, measures and mask) is built when a consumer takes it, and a
+        sliding map nobody takes costs no statistics."""
         self._validate(sub)
         self._follow(sub)
         self._last = sub
@@ -204,7 +182,7 @@ class Demodulator:
     # --- phase lock ----------------------------------------------------------------------
 
     def _try_lock(self, sub: SubFrame, level: float | None,
-                  decided: int | None) -> DistortionMap | None:
+                  decided: int | None) -> PendingMap | None:
         self._pending.append((sub, level))
         if decided is None:
             return None
@@ -213,7 +191,7 @@ class Demodulator:
         logger.info("strobe lag locked at %d sub-frame(s)", decided)
         return self._replay()
 
-    def _replay(self) -> DistortionMap | None:
+    def _replay(self) -> PendingMap | None:
         result = None
         for sub, level in self._pending:
             result = self._add(sub, level) or result
@@ -262,46 +240,41 @@ class Demodulator:
             self._clear_mask.setflags(write=False)
         return self._clear_mask
 
-    def _ambient_dn(self, infos: Sequence[Info], newest: Array) -> float:
-        """Mean raw level of the window's strips; with a known lag (levels not taken per
-        sub-frame) that of the newest sub-frame, refreshed once per N sub-frames."""
-        levels = [i.level for i in infos if i.level is not None]
-        if len(levels) == len(infos):
-            return statistics.fmean(levels)
+    def _ambient(self, infos: Sequence[Info], newest: Array) -> AmbientLevel | None:
+        """None when every sub-frame of the window has its strip level (taken for the
+        lock; the map's ambient level is their mean); with a known lag that of the newest
+        sub-frame, refreshed once per N sub-frames and measured when a map is taken."""
+        if all(i.level is not None for i in infos):
+            return None
         last = infos[-1].sequence
         if self._ambient_cache is None or not 0 <= last - self._ambient_cache[0] < self._n:
-            self._ambient_cache = (last, strip_level(newest))
+            self._ambient_cache = (last, AmbientLevel(newest))
         return self._ambient_cache[1]
 
-    def _make_map(self, values: Array, saturated: npt.NDArray[np.bool_] | None,
+    def _complete(self, values: Array, saturated: npt.NDArray[np.bool_] | None,
                   infos: Sequence[Info], newest: Array,
-                  frames: Sequence[Array] = ()) -> DistortionMap:
+                  frames: Sequence[Array] = ()) -> PendingMap:
+        """The pending map of a complete window (its statistics wait for take())."""
         values.setflags(write=False)
-        mask = self._no_saturation(values.shape) if saturated is None else saturated
-        fraction = 0.0 if saturated is None else np.count_nonzero(mask) / mask.size
-        gain, snr, signal, residual = measure_gain(values, self._n)
         dropped, self._dropped_since_map = self._dropped_since_map, 0
-        ambient = self._ambient_dn(infos, newest) / self._full_scale
-        return DistortionMap(
-            values=values, saturated=mask, code_length=self._n,  # type: ignore[arg-type]
-            first_sequence=infos[0].sequence, last_sequence=infos[-1].sequence,
-            first_time_s=infos[0].host_time_s, last_time_s=infos[-1].host_time_s,
-            phase=self._lag or 0, dropped=dropped, processing_gain=gain, snr=snr,
-            extra={"ambient_level": ambient, "saturated_fraction": float(fraction),
-                   "signal_dn": signal, "residual_dn": residual},
-            window=_window(frames, infos, self._before),
+        window = Window(
+            values=values, saturated=saturated, clear=self._no_saturation(values.shape),
+            infos=tuple(infos), frames=tuple(frames), before=self._before,
+            code_length=self._n, full_scale=self._full_scale, phase=self._lag or 0,
+            dropped=dropped, ambient=self._ambient(infos, newest),
             exposure_us=0.0 if self._last is None else float(self._last.exposure_us))
+        return PendingMap(window)
 
     # --- per window, in the subclasses ---------------------------------------------------
 
     _chunk_bytes = CHUNK_BYTES  # accumulator bytes per row chunk of the updates
     _clear_mask: npt.NDArray[np.bool_] | None = None
-    _ambient_cache: tuple[int, float] | None = None
+    _ambient_cache: tuple[int, AmbientLevel] | None = None
     #: the last OFF sub-frame before the current window (sequence, pixels)
     _before: tuple[int, Array] | None = None
 
     def _clear_window(self) -> None:
         raise NotImplementedError
 
-    def _add(self, sub: SubFrame, level: float | None) -> DistortionMap | None:
+    def _add(self, sub: SubFrame, level: float | None) -> PendingMap | None:
         raise NotImplementedError

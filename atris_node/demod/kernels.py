@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from numba import types
 
 from atris_node.errors import DemodulationError
+from atris_node.jit import kernel
 
 Array = npt.NDArray[np.generic]
 #: accumulator bytes per chunk of a block update, which streams two arrays (accumulator,
 #: sub-frame); measured best at 2048x1088 among 64..512 KiB
 CHUNK_BYTES = 256 * 1024
-#: accumulator bytes per chunk of a sliding update, which streams four (previous map, new
-#: and old sub-frame, new map) and a scratch chunk; measured best among 64..512 KiB
+#: accumulator bytes per chunk of a sliding update: the compiled update goes row by row,
+#: the chunks are the units of its full-scale bookkeeping (the saturation counts are
+#: updated only in chunks that hold a pixel at full scale)
 SLIDE_CHUNK_BYTES = 128 * 1024
 INT16_MAX = int(np.iinfo(np.int16).max)
 
@@ -41,6 +45,34 @@ def _check_bits(bits: int) -> None:
 ChunkHook = Callable[[slice, Array], None]
 
 
+def _slide_signatures() -> list[Any]:
+    """(out, prev, new, old, sign, chunk_rows, tops) for int16 and int32 sums of uint8 and
+    uint16 sub-frames, all C-contiguous; the inputs read-only or not."""
+    def c2(dtype: types.Type, readonly: bool = True) -> types.Array:
+        return types.Array(dtype, 2, "C", readonly=readonly)
+    return [types.void(c2(acc, False), c2(acc), c2(px), c2(px), types.int64, types.int64,
+                       types.Array(types.int64, 1, "C"))
+            for acc in (types.int16, types.int32) for px in (types.uint8, types.uint16)]
+
+
+@kernel(_slide_signatures())
+def _slide_rows(out: Array, prev: Array, new: Array, old: Array, sign: int,
+                chunk_rows: int, tops: npt.NDArray[np.int64]) -> None:  # pragma: no cover
+    """``out = prev + sign * (new - old)`` row by row, the maximum of the raw ``new`` pixels
+    of each chunk of ``chunk_rows`` rows into ``tops``: each row's maximum is taken first
+    (the row then stays in L1 for the update); one call per sub-frame, without the GIL."""
+    height = new.shape[0]
+    step = np.int32(sign)
+    for c in range(tops.size):
+        top = 0
+        for r in range(c * chunk_rows, min((c + 1) * chunk_rows, height)):
+            o, p, n, q = out[r], prev[r], new[r], old[r]
+            top = max(top, n.max())
+            for x in range(n.size):
+                o[x] = p[x] + step * (np.int32(n[x]) - np.int32(q[x]))
+        tops[c] = top
+
+
 class Kernels:
     """Chunked updates for one accumulator dtype and frame shape.
 
@@ -57,8 +89,6 @@ class Kernels:
         self.full_scale = full_scale
         rows = max(1, chunk_bytes // (shape[1] * dtype.itemsize))
         self.chunks = [slice(r, min(r + rows, shape[0])) for r in range(0, shape[0], rows)]
-        diff = np.empty((rows, shape[1]), dtype=dtype)
-        self._diffs = [diff[: c.stop - c.start] for c in self.chunks]
 
     def signed(self, frame: Array) -> Array:
         """The frame as the accumulator adds it: int16 view of uint16 when exact."""
@@ -106,21 +136,24 @@ class Kernels:
               ) -> tuple[int, tuple[int, ...]]:
         """``out = prev + sign * (new - old)``; ``hooks`` = (enter new, leave old) chunk.
 
-        Per chunk: ``new - old`` into a scratch chunk that stays in cache, the full-scale
-        check of the raw ``new`` pixels while that subtraction has them cached, then
-        ``prev +- diff`` into ``out``. For pixels in 0..F nothing overflows: ``|new - old|
-        <= F`` and the result is a window sum, within ``N/2 * F``, which
-        :func:`accumulator_dtype` holds; a pixel above F may wrap, but it is in the returned
-        maximum and the caller refuses the sub-frame.
+        One compiled pass (:func:`_slide_rows`, the GIL released): per row, the maximum of
+        the raw ``new`` pixels, then the update while the row is cached (sub-frames that
+        are not C-contiguous are copied first; ``out`` and ``prev`` must be). Then ``enter``
+        marks the new sub-frame's chunks at full scale and ``leave`` unmarks the old one's.
+        For pixels in 0..F nothing overflows: ``|new - old| <= F`` and the result is a
+        window sum, within ``N/2 * F``, which :func:`accumulator_dtype` holds; a pixel above
+        F may wrap, but it is in the returned maximum and the caller refuses the sub-frame.
         """
         old_frame, old_hot = old
-        src_new, src_old, tops = self.signed(new), self.signed(old_frame), []
-        op = np.add if sign > 0 else np.subtract
-        enter, leave = hooks if hooks is not None else (None, None)
-        for i, (rows, diff) in enumerate(zip(self.chunks, self._diffs, strict=True)):
-            np.subtract(src_new[rows], src_old[rows], diff, dtype=self.dtype)
-            tops.append(self._check(rows, new[rows], enter))
-            op(prev[rows], diff, out[rows])
-            if leave is not None and i in old_hot:
-                leave(rows, old_frame[rows])
-        return self._hot(tops)
+        tops = np.empty(len(self.chunks), dtype=np.int64)
+        _slide_rows(out, prev, np.ascontiguousarray(new), np.ascontiguousarray(old_frame),
+                    sign, self.chunks[0].stop, tops)
+        peak, hot = self._hot(tops.tolist())
+        if hooks is not None:
+            enter, leave = hooks
+            for i in hot:
+                if tops[i] == self.full_scale:
+                    enter(self.chunks[i], new[self.chunks[i]])
+            for i in old_hot:
+                leave(self.chunks[i], old_frame[self.chunks[i]])
+        return peak, hot

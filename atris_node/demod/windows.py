@@ -7,9 +7,10 @@ import collections
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.demod.base import Demodulator, Info
+from atris_node.demod.base import Demodulator
 from atris_node.demod.kernels import SLIDE_CHUNK_BYTES, Array, Kernels
-from atris_node.types import DistortionMap, SubFrame
+from atris_node.demod.pending import Info, PendingMap
+from atris_node.types import SubFrame
 
 
 class BlockDemodulator(Demodulator):
@@ -21,7 +22,7 @@ class BlockDemodulator(Demodulator):
         self._infos: list[Info] = []
         self._frames: list[Array] = []
 
-    def _add(self, sub: SubFrame, level: float | None) -> DistortionMap | None:
+    def _add(self, sub: SubFrame, level: float | None) -> PendingMap | None:
         kernels, frame = self._kernels_for(sub.pixels), sub.pixels
         sign = self._sign(sub.sequence)
         if self._acc is None:
@@ -33,7 +34,7 @@ class BlockDemodulator(Demodulator):
         self._frames.append(frame)
         if len(self._infos) < self._n:
             return None
-        result = self._make_map(self._acc, self._mask, self._infos, frame, self._frames)
+        result = self._complete(self._acc, self._mask, self._infos, frame, self._frames)
         off = [(i.sequence, f) for i, f in zip(self._infos, self._frames, strict=True)
                if i.sign < 0]
         self._clear_window()
@@ -65,7 +66,7 @@ class SlidingDemodulator(Demodulator):
         self._count: npt.NDArray[np.uint16] | None = None
         self._hot_frames: collections.Counter[int] = collections.Counter()
 
-    def _add(self, sub: SubFrame, level: float | None) -> DistortionMap | None:
+    def _add(self, sub: SubFrame, level: float | None) -> PendingMap | None:
         kernels, frame = self._kernels_for(sub.pixels), sub.pixels
         sign = self._sign(sub.sequence)
         if self._values is None:
@@ -78,10 +79,10 @@ class SlidingDemodulator(Demodulator):
         self._push_ring(frame, self._info(sub, level, update))
         if len(self._ring) < self._n:
             return None
-        return self._make_map(self._values, self._mask(), [i for _, i in self._ring], frame,
+        return self._complete(self._values, self._mask(), [i for _, i in self._ring], frame,
                               [f for f, _ in self._ring])
 
-    def _slide(self, sub: SubFrame, level: float | None, kernels: Kernels) -> DistortionMap:
+    def _slide(self, sub: SubFrame, level: float | None, kernels: Kernels) -> PendingMap:
         assert self._values is not None
         old_frame, old_info = self._ring[0]
         out = np.empty(sub.pixels.shape, dtype=self._dtype)
@@ -92,7 +93,7 @@ class SlidingDemodulator(Demodulator):
             self._before = (old_info.sequence, old_frame)
         self._push_ring(sub.pixels, self._info(sub, level, update))
         self._values = out
-        return self._make_map(out, self._mask(), [i for _, i in self._ring], sub.pixels,
+        return self._complete(out, self._mask(), [i for _, i in self._ring], sub.pixels,
                               [f for f, _ in self._ring])
 
     def _push_ring(self, frame: Array, info: Info) -> None:

@@ -20,7 +20,7 @@ from atris_node.adaptive.assessment import RangeModel, assess
 from atris_node.adaptive.controller import AdaptiveController, withheld
 from atris_node.codes import code_set, walsh_chips
 from atris_node.config import Config
-from atris_node.demod import BlockDemodulator, SlidingDemodulator
+from atris_node.demod import BlockDemodulator, PendingMap, SlidingDemodulator
 from atris_node.errors import DemodulationError
 from atris_node.node.snapshot import obstacle_map, write_snapshot
 from atris_node.node.stats import NodeStats
@@ -90,21 +90,23 @@ class Measurer:
         if self.demod is not None:
             self.demod.reset()
 
-    def demodulate(self, sub: SubFrame) -> DistortionMap | None:
-        """Push ``sub``; the distortion map when its window is complete, else None.
+    def demodulate(self, sub: SubFrame) -> PendingMap | None:
+        """Push ``sub``; the pending map when its window is complete, else None (its
+        distortion map is built and measured by whoever takes it: the map thread, or the
+        loop without one).
 
         Raises:
             DemodulationError: the sub-frame does not fit the calibration or the window.
         """
         assert self.demod is not None
         self._check_sub_frame(sub)
-        dmap = self.demod.push(sub)
+        pending = self.demod.push_pending(sub)
         self._watch_interference(sub)
-        if dmap is not None:
+        if pending is not None:
             self.stats.maps += 1
-            self.stats.dropped_sub_frames += dmap.dropped
-            self.stats.last_lag = dmap.phase
-        return dmap
+            self.stats.dropped_sub_frames += pending.dropped
+            self.stats.last_lag = pending.phase
+        return pending
 
     def _check_sub_frame(self, sub: SubFrame) -> None:
         """Reject a sub-frame that does not fit the calibrated camera (and say so in

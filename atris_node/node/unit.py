@@ -43,6 +43,7 @@ from atris_node.bus.can.publisher import Publisher
 from atris_node.bus.canopen.device import CanopenDevice
 from atris_node.codes import walsh_chips
 from atris_node.config import Config
+from atris_node.demod import PendingMap
 from atris_node.errors import (
     AtrisError,
     BusError,
@@ -60,7 +61,6 @@ from atris_node.node.stats import NodeStats
 from atris_node.node.status import compose_status, negotiated_status, unit_state
 from atris_node.node.worker import MapThread
 from atris_node.types import (
-    DistortionMap,
     FaultBits,
     Measurement,
     SubFrame,
@@ -377,10 +377,10 @@ class Unit:
             self._emcy("emcy_reset")
         self.stats.sub_frames += 1
         lapsed = self._strobe_lapsed()
-        dmap = self._demodulate(sub) if chips is not None and not lapsed else None
-        if dmap is not None:
+        pending = self._demodulate(sub) if chips is not None and not lapsed else None
+        if pending is not None:
             self.faults &= ~FaultBits.DEADLINE_MISS  # a whole window kept its strobe
-            self._on_map(dmap)
+            self._on_map(pending)
         elif chips is None:
             self._publish(None)
         elif self._maps is None or self._maps.idle:
@@ -500,7 +500,7 @@ class Unit:
         self._measure.set_code(key, int(getattr(self._camera, "bits", 8)))
         logger.info("unit %s: code row %d of N=%d", self.label, key[1], key[0])
 
-    def _demodulate(self, sub: SubFrame) -> DistortionMap | None:
+    def _demodulate(self, sub: SubFrame) -> PendingMap | None:
         assert self._measure is not None
         try:
             return self._measure.demodulate(sub)
@@ -508,19 +508,20 @@ class Unit:
             self._on_bad_sub_frame(exc)
             return None
 
-    def _on_map(self, dmap: DistortionMap) -> None:
+    def _on_map(self, pending: PendingMap) -> None:
         if self._maps is None:
-            self._measure_map(dmap, self._epoch)
+            self._measure_map(pending, self._epoch)
             return
-        self._maps.submit(dmap, self._epoch)
+        self._maps.submit(pending, self._epoch)
         self.stats.maps_skipped = self._maps.skipped
 
-    def _measure_map(self, dmap: DistortionMap, epoch: int) -> None:
-        """Measure ``dmap`` (complete in the loop's ``epoch``) and publish it (the map
-        thread, or the loop itself without one)."""
+    def _measure_map(self, pending: PendingMap, epoch: int) -> None:
+        """Take the map (complete in the loop's ``epoch``: built and its gain measured
+        here), measure it and publish it (the map thread, or the loop itself without
+        one)."""
         assert self._measure is not None
         try:
-            measurement = self._measure.measure(dmap, self._camera)
+            measurement = self._measure.measure(pending.take(), self._camera)
         except MapProcessLostError:  # no map can be measured any more: the unit stops
             raise
         except Exception as exc:

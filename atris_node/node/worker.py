@@ -23,12 +23,13 @@ import logging
 import threading
 from collections.abc import Callable
 
-from atris_node.types import DistortionMap
+from atris_node.demod import PendingMap
 
 logger = logging.getLogger(__name__)
 
-#: measures one map of the given epoch (and publishes it if the epoch is still current)
-Measure = Callable[[DistortionMap, int], None]
+#: takes and measures one map of the given epoch (and publishes it if the epoch is
+#: still current)
+Measure = Callable[[PendingMap, int], None]
 
 
 class MapThread:
@@ -48,7 +49,7 @@ class MapThread:
         self._on_error = on_error
         self._name = name
         self._cond = threading.Condition()
-        self._slot: tuple[DistortionMap, int] | None = None
+        self._slot: tuple[PendingMap, int] | None = None
         self._busy = False
         self._stopping = False
         self._thread: threading.Thread | None = None
@@ -64,12 +65,13 @@ class MapThread:
         self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
         self._thread.start()
 
-    def submit(self, dmap: DistortionMap, epoch: int) -> None:
-        """Hand over a complete map; it replaces a map still waiting in the slot."""
+    def submit(self, pending: PendingMap, epoch: int) -> None:
+        """Hand over a complete map; it replaces a map still waiting in the slot (which is
+        then never built)."""
         with self._cond:
             if self._slot is not None:
                 self.skipped += 1
-            self._slot = (dmap, epoch)
+            self._slot = (pending, epoch)
             self._cond.notify()
 
     def wait_idle(self, timeout_s: float) -> bool:
@@ -106,7 +108,7 @@ class MapThread:
             self._busy = False
             self._cond.notify_all()
 
-    def _take(self) -> tuple[DistortionMap, int] | None:
+    def _take(self) -> tuple[PendingMap, int] | None:
         self._set_idle()
         with self._cond:
             self._cond.wait_for(lambda: self._slot is not None or self._stopping)
