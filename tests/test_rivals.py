@@ -12,7 +12,13 @@ import pytest
 
 from atris_node.pipeline.bands import in_image_order
 from atris_node.pipeline.chain import Pipeline, PipelineConfig
-from atris_node.pipeline.rivals import _reference, _to_infinity, stripe_peaks, unique_identity
+from atris_node.pipeline.rivals import (
+    _reference,
+    _to_infinity,
+    _unique,
+    stripe_peaks,
+    unique_identity,
+)
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import Simulator, load_scene
 
@@ -479,3 +485,28 @@ def test_the_identity_hands_on_the_prior_s_counts_of_its_final_rows(pipe: Pipeli
             np.testing.assert_array_equal(g, t)
         np.testing.assert_array_equal(given[2].ambiguous, taken[2].ambiguous)
         np.testing.assert_array_equal(given[2].outranked, taken[2].outranked)
+
+
+@pytest.mark.parametrize(("anchor_shift_px", "tied_lines"), [(0, []), (-20, [1, 2, 3])])
+def test_feature_tied_marks_what_continuity_settled_for_the_nearest_hypothesis(
+        pipe: Pipeline, anchor_shift_px: int, tied_lines: list[int]) -> None:
+    """The box of the tests above (its upper three stripes tied between lines 0-2 and the
+    nearer lines 1-3 without continuity) beside one anchored wall. With the wall's own
+    comb the continuity keeps the box's true lines 0-2, and a rival is nearer: not tied.
+    With a farther wall one spacing higher (its lines 1-3 on the box's rows) it keeps the
+    nearer lines 1-3, every rival farther: ``Identity.tied`` there, and the chain asks
+    those samples for `tied_reflectance` (a far comb taken for a near one is a phantom;
+    a near comb read at the farther range is not). Checked to fail with every sample that
+    had a rival marked (lines 0-2 tied in the first case)."""
+    peaks = np.full((12, 640), -1, np.int64)
+    peaks[:, 100:200] = _column([w + anchor_shift_px for w in WALL])[:, None]
+    peaks[:, 200:240] = _column(BOX_PEAKS)[:, None]
+    separation = PipelineConfig().extractor().min_separation_px
+    identity, _, _ = _unique(peaks, pipe.bands, in_image_order(pipe.bands), separation,
+                             pipe._prior, True, None)
+    kept = identity.rows[:, 200:240]
+    assert all(np.isin(BOX_PEAKS[:3], kept[:, c]).all() for c in range(40))  # kept, not dropped
+    tied = identity.tied[:, 200:240]
+    assert np.flatnonzero(tied.all(axis=1)).tolist() == tied_lines
+    assert not tied[[k for k in range(8) if k not in tied_lines]].any()
+    assert not identity.tied[:, 100:200].any()
