@@ -181,6 +181,16 @@ def test_feature_a_platform_edge_line_is_no_fade() -> None:
     _assert_never_wrong(score_scene("platform_before_wall", MAPS, seed=2).row())
 
 
+def test_feature_a_step_that_passed_the_step_test_in_part_is_no_obstacle() -> None:
+    """flicker_step_at_box_foot on seed 2: the flicker's step at the box's foot, one row
+    above the middle sheet's ground row; the step test set aside its maxima in 14 of the
+    sector's columns and passed them in 21 others, where they read as a 13 cm obstacle at
+    4.1 m (sector 5 VALID in map 0, where no sheet reaches the box). A line's run among
+    set-aside step maxima at its row is the step (peaks.off_step_runs). Checked to fail
+    with STEP_SHARE 1.1 (near phantom)."""
+    _assert_never_wrong(score_scene("flicker_step_at_box_foot", MAPS, seed=2).row())
+
+
 @pytest.mark.parametrize("name", _scenes(stress_scenes()))
 def test_feature_stress_scene_never_wrong(name: str) -> None:
     _assert_never_wrong(_row(name))
