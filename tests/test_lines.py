@@ -165,6 +165,37 @@ def test_feature_a_peak_at_the_edge_of_blinded_pixels_is_no_stripe() -> None:
     assert ex.dropped >= WIDTH // 2
 
 
+def test_feature_a_clipped_patch_longer_than_any_stripe_gives_no_sample() -> None:
+    """Rows 42-79 clip in some sub-frames (a lamp-lit floor, flicker the code does not
+    cancel): they demodulate to a plateau of about 1000 DN with its noise, saturated in
+    the mask. Its noise maxima are flat-topped, so the step test leaves them to the
+    saturated run, which reached the end of its window: the half-way point of that window
+    was taken for a clipped stripe's centre, the same rows in every column, a line read
+    1.3 m ahead of a wall at 14 m in a randomly drawn scene (two lamps at 120 and 300 Hz,
+    sub-frames at 200 Hz). A run cut by its window is no clipped stripe: no sample, the
+    peak is dropped (counted doubtful). A stripe clipped over 11 rows (peak 1,000 times
+    full scale) still gives its samples. Checked to fail with the _open_run condition
+    taken out of peaks_kernels.line_samples (a sample in every column)."""
+    rng = np.random.default_rng(8)
+    values = np.round(rng.normal(0.0, 5.0, (80, WIDTH))).astype(np.int32)
+    values[42:, :] = np.round(rng.normal(1000.0, 25.0, (38, WIDTH))).astype(np.int32)
+    saturated = np.zeros(values.shape, bool)
+    saturated[42:, :] = True
+    ex = extract_lines(values, saturated, (Band(0, 20, 60),),
+                       ExtractorSettings("gaussian", stripe_sigma_px=1.0))
+    assert len(ex.samples) == 0
+    assert ex.dropped >= WIDTH // 4  # the others are lone or off any stripe
+    rows = 30.0 + rng.uniform(-0.5, 0.5, WIDTH)
+    image = stripe_map(80, rows[None, :], np.full((1, WIDTH), 3.0e6), 1.5, noise_dn=5.0,
+                       rng=rng)
+    clipped = image >= 3000.0
+    assert (clipped.sum(axis=0) >= 11).all()
+    ex = extract_lines(np.round(np.minimum(image, 3000.0)).astype(np.int32), clipped,
+                       (Band(0, 10, 50),), ExtractorSettings("gaussian", stripe_sigma_px=1.5))
+    assert len(ex.samples) == WIDTH
+    assert np.abs(ex.samples.row_px - rows[ex.samples.col_px.astype(int)]).max() <= 0.5
+
+
 def test_feature_blinded_pixels_mark_the_bands_they_lie_in() -> None:
     """Saturated pixels that demodulate below the threshold (blinded in every sub-frame)
     hide any line whose band crosses them: ``Extraction.blinded`` marks those (line,

@@ -67,7 +67,10 @@ stripe at 2.05 m as 0.71 m (sector 6 VALID in map 0; tests/test_radiometry.py ru
 ways). low_box_within_ground_rows read free before a low box (sector 1 NO_RETURN in
 maps 1 and 4 of 6 on seed 1, the box at 3.73 m) with the lines seen beyond the range or
 not at all (tops.unseen_tops without ``passing``) taking no part in the walk up from a
-rise near its ground row.
+rise near its ground row. clipped_flicker_plateau read 1.31 m VALID where nothing stands
+before 14 m (maps 1 and 2) with a saturated run followed 8 rows each way from a noise
+maximum of a clipped plateau and its window's middle taken for a stripe's centre (no
+peaks_kernels._open_run, no run length limit in line_samples).
 """
 
 from __future__ import annotations

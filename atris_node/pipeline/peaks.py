@@ -57,7 +57,8 @@ PEAK_METHODS = ("cog", "parabolic", "gaussian", "blais_rioux", "steger")
 IDENTITY_MODES = ("greedy", "aligned")
 #: uncertainty given to the centre of a flat-topped (saturated) stripe, pixels
 SATURATED_SIGMA_PX = 0.5
-#: half window (px) searched for the saturated run of a flat-topped stripe
+#: px; a flat-topped stripe's saturated run is at most 2·SATURATION_WINDOW_PX + 1 rows
+#: long (a longer one is a clipped patch, and its peaks give no sample)
 SATURATION_WINDOW_PX = 8
 #: a peak below WEAK_SNR·snr_min is weak: identity must also stand without it
 WEAK_SNR = 1.5

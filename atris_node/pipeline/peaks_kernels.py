@@ -394,6 +394,15 @@ def _saturated_run(saturated: npt.NDArray[np.bool_], row: int, c: int, r: int
 
 
 @kernel()
+def _open_run(saturated: npt.NDArray[np.bool_], lo: int, hi: int, c: int) -> bool:
+    """True when the saturated run lo..hi of column c (:func:`_saturated_run`) was cut
+    where it was followed: the pixel past one of its ends is saturated too."""
+    height = saturated.shape[0]
+    return bool((lo > 0 and saturated[lo - 1, c])
+                or (hi < height - 1 and saturated[hi + 1, c]))
+
+
+@kernel()
 def _lit_run(values: npt.NDArray[np.generic], lo: int, hi: int, row: int, c: int) -> bool:
     """True when the saturated run lo..hi of column c holds, on average, at least half
     the value at (row, c): a stripe clipped at full scale. Pixels full in the OFF
@@ -538,10 +547,14 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
     dropped. SNR is against the peak's noise tile; the ``method``
     (:data:`METHOD_CODES`) reads the column profile of half width ``r``; a peak next to a
     saturated pixel (looked for only with ``any_saturated``) is flat-topped and takes the
-    centre of its contiguous saturated run (:func:`_saturated_run`, at most
-    ``saturation_window`` rows each way; :func:`_clipped_centre`) and σ_u
-    ``saturated_sigma`` when that run holds laser light (:func:`_lit_run`; a peak at the
-    edge of pixels blinded in every sub-frame is dropped); other peaks σ_u
+    centre of its contiguous saturated run (:func:`_saturated_run`;
+    :func:`_clipped_centre`) and σ_u ``saturated_sigma`` when that run holds laser light
+    (:func:`_lit_run`; a peak at the edge of pixels blinded in every sub-frame is
+    dropped) and is at most 2·``saturation_window`` + 1 rows long (a stripe of σ 2 px
+    clipped at 1,000 times its threshold is 15 rows wide; a longer run is a patch clipped
+    in the sub-frames, a lamp-lit floor whose flicker the code does not cancel, and no
+    point of it is a stripe's centre: the middle of a window cut out of one read a line
+    1.3 m ahead of a wall at 14 m; dropped); other peaks σ_u
     ``crlb / max(SNR, 1)``. A sample is kept when its profile lies inside the image and
     it is flat-topped or a local maximum with an offset within ±1 px."""
     k_count, width = rows.shape
@@ -569,9 +582,10 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
             if not (centre - r >= 0 and centre + r < height):
                 continue
             if flat:
-                lo, hi = _saturated_run(saturated, centre, c, saturation_window)
-                if not _lit_run(values, lo, hi, centre, c):
-                    continue  # next to blinded pixels, not a clipped stripe: dropped
+                lo, hi = _saturated_run(saturated, centre, c, 2 * saturation_window)
+                if (hi - lo > 2 * saturation_window or _open_run(saturated, lo, hi, c)
+                        or not _lit_run(values, lo, hi, centre, c)):
+                    continue  # no clipped stripe (blinded, or longer than the window)
                 row = _clipped_centre(values, lo, hi, c, r, cog_threshold)
                 sigma_u = saturated_sigma
             else:
