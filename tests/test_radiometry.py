@@ -134,19 +134,28 @@ def test_bad_radiometric_calibration_and_setting_are_clear_errors() -> None:
         PipelineConfig(tied_reflectance=1.5)
 
 
-def test_feature_only_the_given_samples_are_tested() -> None:
-    """``only`` restricts the check to the samples continuity identified over a rival
+def test_feature_the_stricter_floor_applies_to_the_given_samples_only() -> None:
+    """``stricter`` raises the floor for the samples continuity identified over a rival
     (the chain passes ``Extraction.tied`` with ``tied_reflectance``): the others keep
-    their verdict at the lower threshold, and an empty ``only`` reads no peak."""
-    rows = [10.0, 20.0, 30.0]
-    values = _map_with(rows, [100, 100, 100])  # ρ cos i 0.1 · 100 / 1600 = 0.00625 at 0.5 m
-    samples, points = _samples(rows), _points_at([0.5, 0.5, 0.5])
-    assert not radiometry.too_faint(values, samples, points, 16, LASER, None).any()
-    only = np.array([False, True, False])
-    flags = radiometry.too_faint(values, samples, points, 16, LASER, None, 0.007, only=only)
-    assert flags.tolist() == [False, True, False]
-    assert not radiometry.too_faint(values, samples, points, 16, LASER, None, 0.007,
-                                    only=np.zeros(3, bool)).any()
+    their verdict at ``min_reflectance``, in the same pass; no sample named, nothing
+    changes, and a floor of 0 everywhere reads no peak."""
+    rows = [10.0, 20.0, 30.0, 40.0]
+    # ρ cos i 0.1 · 100 / 1600 = 0.00625 at 0.5 m; 0.1 · 20 / 1600 = 0.00125
+    values = _map_with(rows, [100, 100, 100, 20])
+    samples, points = _samples(rows), _points_at([0.5, 0.5, 0.5, 0.5])
+    assert radiometry.too_faint(values, samples, points, 16, LASER, None).tolist() == [
+        False, False, False, True]
+    which = np.array([False, True, False, False])
+    flags = radiometry.too_faint(values, samples, points, 16, LASER, None,
+                                 stricter=(0.007, which))
+    assert flags.tolist() == [False, True, False, True]
+    assert radiometry.too_faint(values, samples, points, 16, LASER, None,
+                                stricter=(0.007, np.zeros(4, bool))).tolist() == [
+        False, False, False, True]
+    assert radiometry.too_faint(values, samples, points, 16, LASER, None, 0.0,
+                                stricter=(0.007, which)).tolist() == [
+        False, True, False, False]
+    assert not radiometry.too_faint(values, samples, points, 16, LASER, None, 0.0).any()
 
 
 def _near_phantoms(name: str, config_change: dict[str, float], maps: int = 4,

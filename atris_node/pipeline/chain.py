@@ -380,16 +380,13 @@ class Pipeline:
         pole 0.97 m away), and a return that dark for the near range is no evidence of
         it. Where a rival is nearer, the chosen range is the farther one, and a faint
         return there says nothing against it (a black glossy wall at 3.7 m)."""
-        laser, exposure = self.calibration.laser, dmap.exposure_us or None
-        faint = radiometry.too_faint(dmap.values, samples, points, dmap.code_length, laser,
-                                     exposure, self.config.min_reflectance)
-        tied = extraction.tied
-        if tied is None or self.config.tied_reflectance <= self.config.min_reflectance:
-            return faint
-        col = np.clip(np.rint(samples.col_px).astype(np.int64), 0, tied.shape[1] - 1)
-        return faint | radiometry.too_faint(
-            dmap.values, samples, points, dmap.code_length, laser, exposure,
-            self.config.tied_reflectance, only=tied[samples.line, col])
+        tied, stricter = extraction.tied, None
+        if tied is not None and self.config.tied_reflectance > self.config.min_reflectance:
+            col = np.clip(np.rint(samples.col_px).astype(np.int64), 0, tied.shape[1] - 1)
+            stricter = (self.config.tied_reflectance, tied[samples.line, col])
+        return radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
+                                    self.calibration.laser, dmap.exposure_us or None,
+                                    self.config.min_reflectance, stricter)
 
     def _check_shape(self, dmap: DistortionMap) -> None:
         cam = self.calibration.camera

@@ -303,27 +303,27 @@ class SectorJudge:
             np.ascontiguousarray(valid), expected, np.ascontiguousarray(prior.looks_beyond),
             np.ascontiguousarray(extraction.doubtful_columns, dtype=np.int64),
             np.ascontiguousarray(foreign, dtype=np.bool_), flagged)
-        returned = None if on_ground is None else self._returned(
-            prior, expected if noisy is None else expected & ~noisy, on_ground)
+        returned = ground_snr = None
+        if on_ground is not None:
+            ground_snr = _ground_snr(expected.shape, on_ground)
+            returned = self._returned(prior, expected if noisy is None else expected & ~noisy,
+                                      on_ground, ground_snr > 0.0)
         return ColumnEvidence(self.column_sector, doubtful=doubtful,
                               ambiguous=extraction.ambiguous_columns, missing=missing,
                               seen=seen, noisy=noisy, expected=expected, prior=prior,
                               returned_m=returned,
-                              ground_snr=None if returned is None else _ground_snr(
-                                  returned.shape, on_ground))
+                              ground_snr=None if returned is None else ground_snr)
 
     def _returned(self, prior: VisibilityPrior, quiet: BoolArray,
-                  on_ground: tuple[IntArray, IntArray, FloatArray]) -> FloatArray | None:
+                  on_ground: tuple[IntArray, IntArray, FloatArray], on: BoolArray
+                  ) -> FloatArray | None:
         """(K, W) :attr:`ColumnEvidence.returned_m`: where line k meets the ground
         clearance (horizontal range, m) in the ``quiet`` (K, W) columns where it is
         expected on the ground, for the lines that the ground returns in this map: found
-        on it (``on_ground``: line, column, SNR of the ground samples) in
+        on it (``on`` (K, W); ``on_ground``: line, column, SNR of the ground samples) in
         LOST_RETURNED of those columns with a median SNR of LOST_SNR·snr_min; inf
         elsewhere. None when the ground returns no line so."""
-        line, column, snr = on_ground
-        lines, width = quiet.shape
-        on = np.zeros((lines, width), dtype=np.bool_)
-        on[line, column] = True
+        line, _, snr = on_ground
         count = quiet.sum(axis=1)
         fraction = (on & quiet).sum(axis=1) / np.maximum(count, 1)
         returned = (count > 0) & (fraction >= LOST_RETURNED)
@@ -424,12 +424,12 @@ def expected_on_ground(prior: VisibilityPrior, calibration: Calibration,
     return np.asarray((z <= z_max) & (z >= z_min) & (row >= 0) & (row < cam.height_px))
 
 
-def _ground_snr(shape: tuple[int, ...], on_ground: tuple[IntArray, IntArray, FloatArray] | None
+def _ground_snr(shape: tuple[int, ...], on_ground: tuple[IntArray, IntArray, FloatArray]
                 ) -> FloatArray:
-    """(K, W) the highest SNR of line k's samples on its ground rows in column c (0: none);
-    ``on_ground`` the (line, column, SNR) of those samples."""
+    """(K, W) the highest SNR of line k's samples on its ground rows in column c (0: none;
+    a sample's SNR is at least ``snr_min`` > 0, so the positive entries are where line k
+    is on the ground); ``on_ground`` the (line, column, SNR) of those samples."""
     out = np.zeros(shape, dtype=np.float64)
-    if on_ground is not None:
-        line, column, snr = on_ground
-        np.maximum.at(out, (line, column), np.nan_to_num(snr, nan=0.0))
+    line, column, snr = on_ground
+    np.maximum.at(out, (line, column), np.nan_to_num(snr, nan=0.0))
     return out

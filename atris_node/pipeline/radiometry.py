@@ -101,30 +101,27 @@ def apparent_reflectance(peak_dn: FloatArray, range_m: FloatArray, code_length: 
 
 def too_faint(values: npt.NDArray[Any], samples: LineSamples, points: Points,
               code_length: int, laser: LaserCalibration, exposure_us: float | None,
-              min_reflectance: float = MIN_REFLECTANCE, only: BoolArray | None = None
-              ) -> BoolArray:
-    """(n,) True for the valid, unsaturated samples (of ``only`` (n,), when given) whose
-    peak (:func:`sample_peaks`) stands for an apparent reflectance
-    (:func:`apparent_reflectance` at :func:`source_range_m`) under ``min_reflectance`` at
-    the range their line gives; all False when the check is left out (no calibration,
-    ``min_reflectance`` 0, no sample). One compiled pass
-    (:func:`radiometry_kernels.too_faint`); the numpy functions above are its reference
-    and the calibration's."""
+              min_reflectance: float = MIN_REFLECTANCE,
+              stricter: tuple[float, BoolArray] | None = None) -> BoolArray:
+    """(n,) True for the valid, unsaturated samples whose peak (:func:`sample_peaks`)
+    stands for an apparent reflectance (:func:`apparent_reflectance` at
+    :func:`source_range_m`) under ``min_reflectance`` at the range their line gives, or,
+    for the samples ``stricter`` = (reflectance, which (n,)) names, under the larger of
+    the two; all False when the check is left out (no calibration, both floors 0, no
+    sample). One compiled pass (:func:`radiometry_kernels.too_faint`); the numpy
+    functions above are its reference and the calibration's."""
     out = np.zeros(len(samples), dtype=np.bool_)
-    if not calibrated(laser) or min_reflectance <= 0.0 or not len(samples):
+    floor = np.full(len(samples), max(float(min_reflectance), 0.0))
+    if stricter is not None:
+        floor[stricter[1]] = np.maximum(floor[stricter[1]], float(stricter[0]))
+    test = points.valid & ~samples.saturated & (floor > 0.0)
+    if not calibrated(laser) or not test.any():
         return out
-    test = points.valid & ~samples.saturated
-    if only is not None:
-        test = test & only
-        if not test.any():
-            return out
-    per_map = _per_map_dn_m2(code_length, laser, exposure_us)
     radiometry_kernels.too_faint(
         values, np.ascontiguousarray(samples.row_px, dtype=np.float64),
-        np.ascontiguousarray(samples.col_px, dtype=np.float64),
-        np.ascontiguousarray(test),
+        np.ascontiguousarray(samples.col_px, dtype=np.float64), np.ascontiguousarray(test),
         np.ascontiguousarray(points.xyz_m.reshape(-1, 3), dtype=np.float64),
-        float(laser.baseline_m), per_map, float(min_reflectance), out)
+        float(laser.baseline_m), _per_map_dn_m2(code_length, laser, exposure_us), floor, out)
     return out
 
 

@@ -18,12 +18,12 @@ BoolArray = npt.NDArray[np.bool_]
 @kernel()
 def too_faint(values: npt.NDArray[Any], row_px: FloatArray, col_px: FloatArray,
               test: BoolArray, xyz_m: FloatArray, baseline_m: float, per_map_dn_m2: float,
-              min_reflectance: float, out: BoolArray) -> None:
+              min_reflectance: FloatArray, out: BoolArray) -> None:
     """``out`` (n,) True where a ``test`` sample's peak (the larger of the map pixels on
     the rows around its sub-pixel row, at least 0) times its squared range from the
     projector at (0, -b, 0) over ``per_map_dn_m2`` (N/2 · D at the map's exposure) is
-    under ``min_reflectance``; False elsewhere. ``values`` (H, W) any integer or float
-    map; ``xyz_m`` (n, 3) camera-frame points."""
+    under its ``min_reflectance`` (n,); False elsewhere. ``values`` (H, W) any integer or
+    float map; ``xyz_m`` (n, 3) camera-frame points."""
     height, width = values.shape
     for i in range(row_px.size):
         out[i] = False
@@ -33,7 +33,7 @@ def too_faint(values: npt.NDArray[Any], row_px: FloatArray, col_px: FloatArray,
         col = min(max(int(np.rint(col_px[i])), 0), width - 1)
         peak = max(float(values[row, col]), float(values[min(row + 1, height - 1), col]), 0.0)
         x, y, z = xyz_m[i, 0], xyz_m[i, 1] + baseline_m, xyz_m[i, 2]
-        out[i] = peak * (x * x + y * y + z * z) / per_map_dn_m2 < min_reflectance
+        out[i] = peak * (x * x + y * y + z * z) / per_map_dn_m2 < min_reflectance[i]
 
 
 def warm_up() -> None:
@@ -45,4 +45,4 @@ def warm_up() -> None:
             values = np.ones((2, 2), dtype)
             values.setflags(write=writable)
             too_faint(values, one, one, np.ones(1, np.bool_), np.ones((1, 3)), 0.1, 1.0,
-                      0.002, np.zeros(1, np.bool_))
+                      np.full(1, 0.002), np.zeros(1, np.bool_))
