@@ -12,6 +12,7 @@ from pipeline_scenes import Box, Scene, as_map, oak_calibration, render
 
 from atris_node.errors import ConfigError
 from atris_node.mounting import Mounting
+from atris_node.pipeline import evidence
 from atris_node.pipeline import objects as objects_mod
 from atris_node.pipeline.chain import Pipeline, PipelineConfig, PipelineResult
 from atris_node.pipeline.geometry import range_sigma
@@ -133,7 +134,8 @@ def test_feature_a_line_counts_as_returned_by_the_ground_only_where_it_is() -> N
     def returned(fraction: float, snr: float):
         some = columns[:int(fraction * columns.size)]
         on_ground = (np.ones(some.size, np.int64), some, np.full(some.size, snr))
-        return judge._returned(prior, quiet, on_ground)
+        return judge._returned(prior, quiet, on_ground,
+                               evidence._ground_snr(quiet.shape, on_ground) > 0.0)
 
     hits = returned(0.3, 20.0)
     assert hits is not None and np.all(np.isinf(hits[0]))
