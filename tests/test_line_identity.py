@@ -104,10 +104,10 @@ def _range_errors(scene: str, identity: str, unique: bool = False) -> np.ndarray
 
     sim = Simulator(load_scene(scene), seed=1)
     demod = BlockDemodulator(sim.chips, bits=sim.camera.bits)
-    # the identity stage's own errors: without the later brightness check, which drops
-    # whole columns of a comb taken lines off (more of them in greedy's)
+    # the identity stage's own errors: without the later brightness and still-line checks,
+    # which drop whole columns of a comb taken lines off (more of them in greedy's)
     config = PipelineConfig(identity=identity, unique_identity=unique, min_reflectance=0.0,
-                            tied_reflectance=0.0)
+                            tied_reflectance=0.0, still_lines=False)
     pipe = Pipeline(config, sim.calibration(), sim.mounting, config.layout())
     errors = []
     for seq in range(3 * sim.chips.size):

@@ -70,7 +70,10 @@ not at all (tops.unseen_tops without ``passing``) taking no part in the walk up 
 rise near its ground row. clipped_flicker_plateau read 1.31 m VALID where nothing stands
 before 14 m (maps 1 and 2) with a saturated run followed 8 rows each way from a noise
 maximum of a clipped plateau and its window's middle taken for a stripe's centre (no
-peaks_kernels._open_run, no run length limit in line_samples).
+peaks_kernels._open_run, no run length limit in line_samples). same_code_comb_on_retro_wall
+read 0.56 m VALID for a wall at 6.2 and 7.1 m in sectors 2 and 4 of map 1 (a same-code
+unit's two stripes completing a comb with line 0's shifted by two lines) without
+pipeline.persistence (the flip check taken out of Pipeline.process).
 """
 
 from __future__ import annotations

@@ -27,6 +27,7 @@ from atris_node.pipeline import (
     alignment_kernels,
     identity_kernels,
     peaks_kernels,
+    persistence,
     radiometry,
     radiometry_kernels,
     rivals,
@@ -117,6 +118,9 @@ class PipelineConfig:
     #: drop samples whose line has a rival (atris_node.pipeline.rivals); off only to
     #: measure what it does
     unique_identity: bool = True
+    #: a still stripe keeps its line: the identity checked against the map before
+    #: (:mod:`atris_node.pipeline.persistence`; off only to measure what it does)
+    still_lines: bool = True
     roi_full_every: int = 16  # maps between whole-band searches while narrowing
     #: ρ cos i under which a sample is too faint for its range (pipeline.radiometry; 0 = off)
     min_reflectance: float = radiometry.MIN_REFLECTANCE
@@ -295,6 +299,8 @@ class Pipeline:
         self._counter = 0
         self._width = cam.width_px
         self._no_samples = np.zeros(cam.width_px, dtype=np.int64)  # (W,), read-only
+        #: (K, W) the rows of the last map's samples by line (persistence.rows_by_line)
+        self._earlier_rows: FloatArray | None = None
         self._no_samples.flags.writeable = False
         self._judge = SectorJudge(calibration, mounting, layout, self._sectors,
                                   (config.z_min_m, config.z_max_m), config.ground_clearance_m)
@@ -333,6 +339,20 @@ class Pipeline:
             doubts = _with_doubts(doubts, samples, faint)
             removed = removed + per_column(samples.col_px[faint], self._width)
             samples, points, vehicle = _kept(samples, points, vehicle, ~faint)
+        flip, before = persistence.flipped(
+            samples, self._earlier_rows if self.config.still_lines else None)
+        if flip.any():  # only a flip between lines that give another obstacle counts
+            flip[flip] = persistence.conflicts(
+                Points(rows_where(points.xyz_m, flip), points.valid[flip],
+                       points.sigma_z_m[flip]),
+                self._triangulate(replace(select(samples, flip), line=before[flip]))[0])
+        flipped = radiometry.whole_columns(samples.col_px, flip)
+        if flipped.any():  # a still stripe given another line than a map earlier: doubts
+            doubts = _with_doubts(_with_doubts(doubts, samples, flipped),
+                                  replace(samples, line=before), flip)
+            removed = removed + per_column(samples.col_px[flipped], self._width)
+            samples, points, vehicle = _kept(samples, points, vehicle, ~flipped)
+        self._earlier_rows = persistence.rows_by_line(samples, len(self.bands), self._width)
         timings["triangulate"] = _lap(start)
         if self._ground_due():
             self._update_ground(rows_where(vehicle, points.valid))
