@@ -48,3 +48,34 @@ def test_feature_only_a_flip_to_another_obstacle_conflicts() -> None:
     now = _points([0.56, 8.0, 3.0])
     before = _points([6.2, 8.1, 3.0], [True, True, False])
     assert persistence.conflicts(now, before).tolist() == [True, False, True]
+
+
+def _flipped_numpy(samples: LineSamples, earlier: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The reference form of persistence.flipped (whole-array numpy)."""
+    n, width = len(samples), earlier.shape[1]
+    col = np.clip(np.rint(samples.col_px).astype(np.int64), 0, width - 1)
+    line = samples.line.astype(np.int64)
+    offset = np.abs(earlier[:, col] - samples.row_px[None, :])
+    offset = np.where(np.isnan(offset), np.inf, offset)
+    own = offset[line, np.arange(n)] <= persistence.STILL_PX
+    offset[line, np.arange(n)] = np.inf
+    nearest = np.argmin(offset, axis=0)
+    flip = ~own & (offset[nearest, np.arange(n)] <= persistence.STILL_PX)
+    return flip, np.where(flip, nearest, -1)
+
+
+def test_flipped_is_the_numpy_form() -> None:
+    """The compiled pass against the numpy form on random combs (rows on a 0.5 px grid, so
+    ties and offsets of exactly STILL_PX occur), with gaps in both maps."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        lines, width, n = 5, 40, 120
+        earlier = np.round(rng.uniform(0, 30, (lines, width)) * 2) / 2
+        earlier[rng.random((lines, width)) < 0.3] = np.nan
+        now = LineSamples(rng.integers(0, lines, n), np.round(rng.uniform(0, 30, n) * 2) / 2,
+                          rng.integers(-2, width + 2, n).astype(np.float64), np.ones(n),
+                          np.ones(n), np.zeros(n, bool))
+        flip, before = persistence.flipped(now, earlier)
+        want_flip, want_before = _flipped_numpy(now, earlier)
+        assert np.array_equal(flip, want_flip) and np.array_equal(before, want_before)
+        assert flip.any()

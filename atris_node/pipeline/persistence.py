@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from atris_node.jit import kernel
 from atris_node.pipeline.geometry import Points
 from atris_node.pipeline.peaks import LineSamples
 from atris_node.pipeline.verdicts import DOUBT_ABS_M, DOUBT_REL
@@ -49,22 +50,42 @@ def rows_by_line(samples: LineSamples, lines: int, width: int) -> FloatArray:
 def flipped(samples: LineSamples, earlier: FloatArray | None) -> tuple[BoolArray, IntArray]:
     """(n,) True for the samples whose row held another line's sample in the ``earlier``
     map (:func:`rows_by_line`; None: no earlier map) within STILL_PX while their own line
-    was not there, and (n,) that other line (the nearest in rows; -1 elsewhere)."""
+    was not there, and (n,) that other line (the nearest in rows; -1 elsewhere). One
+    compiled pass (:func:`_flipped`)."""
     n = len(samples)
-    before = np.full(n, -1, dtype=np.int64)
-    if earlier is None or not n:
-        return np.zeros(n, dtype=np.bool_), before
-    width = earlier.shape[1]
-    col = np.clip(np.rint(samples.col_px).astype(np.int64), 0, width - 1)
-    line = samples.line.astype(np.int64)
-    offset = np.abs(earlier[:, col] - samples.row_px[None, :])  # (K, n), NaN where none
-    offset = np.where(np.isnan(offset), np.inf, offset)
-    own = offset[line, np.arange(n)] <= STILL_PX
-    offset[line, np.arange(n)] = np.inf
-    nearest = np.argmin(offset, axis=0)
-    flip = ~own & (offset[nearest, np.arange(n)] <= STILL_PX)
-    before[flip] = nearest[flip]
+    flip, before = np.zeros(n, dtype=np.bool_), np.full(n, -1, dtype=np.int64)
+    if earlier is not None and n:
+        _flipped(np.ascontiguousarray(samples.line, dtype=np.int64),
+                 np.ascontiguousarray(samples.row_px, dtype=np.float64),
+                 np.ascontiguousarray(samples.col_px, dtype=np.float64), earlier, STILL_PX,
+                 flip, before)
     return flip, before
+
+
+@kernel()
+def _flipped(line: IntArray, row_px: FloatArray, col_px: FloatArray, earlier: FloatArray,
+             still_px: float, flip: BoolArray, before: IntArray) -> None:
+    """:func:`flipped` into ``flip`` and ``before`` (n,): per sample, the lines of the
+    ``earlier`` (K, W) rows in its column (rounded, clipped to the image) within
+    ``still_px`` of its row; NaN rows are no sample."""
+    lines, width = earlier.shape
+    for i in range(line.size):
+        c = min(max(int(np.rint(col_px[i])), 0), width - 1)
+        own = abs(earlier[line[i], c] - row_px[i]) <= still_px  # False for NaN
+        best, nearest = np.inf, -1
+        for k in range(lines):
+            offset = abs(earlier[k, c] - row_px[i])
+            if k != line[i] and offset < best:  # False for NaN; the first of equal ones
+                best, nearest = offset, k
+        if not own and best <= still_px:
+            flip[i], before[i] = True, nearest
+
+
+def warm_up() -> None:
+    """Type the kernel's arguments once (the first map does not wait for it)."""
+    one = np.zeros(1)
+    _flipped(np.zeros(1, np.int64), one, one, np.full((1, 1), np.nan), STILL_PX,
+             np.zeros(1, np.bool_), np.full(1, -1, np.int64))
 
 
 def conflicts(now: Points, before: Points) -> BoolArray:
