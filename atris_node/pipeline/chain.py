@@ -339,17 +339,10 @@ class Pipeline:
             doubts = _with_doubts(doubts, samples, faint)
             removed = removed + per_column(samples.col_px[faint], self._width)
             samples, points, vehicle = _kept(samples, points, vehicle, ~faint)
-        flip, before = persistence.flipped(
-            samples, self._earlier_rows if self.config.still_lines else None)
-        if flip.any():  # only a flip between lines that give another obstacle counts
-            flip[flip] = persistence.conflicts(
-                Points(rows_where(points.xyz_m, flip), points.valid[flip],
-                       points.sigma_z_m[flip]),
-                self._triangulate(replace(select(samples, flip), line=before[flip]))[0])
-        flipped = radiometry.whole_columns(samples.col_px, flip)
+        flipped, earlier = self._flipped(samples, points)
         if flipped.any():  # a still stripe given another line than a map earlier: doubts
-            doubts = _with_doubts(_with_doubts(doubts, samples, flipped),
-                                  replace(samples, line=before), flip)
+            doubts = _with_doubts(_with_doubts(doubts, samples, flipped), earlier,
+                                  np.ones(len(earlier), dtype=np.bool_))
             removed = removed + per_column(samples.col_px[flipped], self._width)
             samples, points, vehicle = _kept(samples, points, vehicle, ~flipped)
         self._earlier_rows = persistence.rows_by_line(samples, len(self.bands), self._width)
@@ -407,6 +400,22 @@ class Pipeline:
         return radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
                                     self.calibration.laser, dmap.exposure_us or None,
                                     self.config.min_reflectance, stricter)
+
+    def _flipped(self, samples: LineSamples, points: Points) -> tuple[BoolArray, LineSamples]:
+        """(n,) the samples of the columns where a still stripe was given another line than
+        in the map before, the two lines putting it on different obstacles
+        (:mod:`atris_node.pipeline.persistence`), and the flipped samples under the
+        earlier map's line: every sample of such a column is a doubt, the flipped ones at
+        both lines' ranges (none without an earlier map or with ``still_lines`` off)."""
+        flip, before = persistence.flipped(
+            samples, self._earlier_rows if self.config.still_lines else None)
+        if flip.any():  # only a flip between lines that give another obstacle counts
+            earlier = replace(select(samples, flip), line=before[flip])
+            flip[flip] = persistence.conflicts(
+                Points(rows_where(points.xyz_m, flip), points.valid[flip],
+                       points.sigma_z_m[flip]), self._triangulate(earlier)[0])
+        return (radiometry.whole_columns(samples.col_px, flip),
+                replace(select(samples, flip), line=before[flip]))
 
     def _check_shape(self, dmap: DistortionMap) -> None:
         cam = self.calibration.camera
