@@ -299,7 +299,8 @@ class Pipeline:
         self._counter = 0
         self._width = cam.width_px
         self._no_samples = np.zeros(cam.width_px, dtype=np.int64)  # (W,), read-only
-        #: (K, W) the rows of the last map's samples by line (persistence.rows_by_line)
+        #: (K, W) the rows of the last map's samples by line (persistence.rows_by_line;
+        #: None before the first map and with ``still_lines`` off)
         self._earlier_rows: FloatArray | None = None
         self._no_samples.flags.writeable = False
         self._judge = SectorJudge(calibration, mounting, layout, self._sectors,
@@ -345,7 +346,9 @@ class Pipeline:
                                   np.ones(len(earlier), dtype=np.bool_))
             removed = removed + per_column(samples.col_px[flipped], self._width)
             samples, points, vehicle = _kept(samples, points, vehicle, ~flipped)
-        self._earlier_rows = persistence.rows_by_line(samples, len(self.bands), self._width)
+        if self.config.still_lines:
+            self._earlier_rows = persistence.rows_by_line(samples, len(self.bands),
+                                                          self._width)
         timings["triangulate"] = _lap(start)
         if self._ground_due():
             self._update_ground(rows_where(vehicle, points.valid))
@@ -407,15 +410,15 @@ class Pipeline:
         (:mod:`atris_node.pipeline.persistence`), and the flipped samples under the
         earlier map's line: every sample of such a column is a doubt, the flipped ones at
         both lines' ranges (none without an earlier map or with ``still_lines`` off)."""
-        flip, before = persistence.flipped(
-            samples, self._earlier_rows if self.config.still_lines else None)
-        if flip.any():  # only a flip between lines that give another obstacle counts
-            earlier = replace(select(samples, flip), line=before[flip])
-            flip[flip] = persistence.conflicts(
+        flip, before = persistence.flipped(samples, self._earlier_rows)
+        earlier = replace(select(samples, flip), line=before[flip])
+        if len(earlier):  # only a flip between lines that give another obstacle counts
+            conflict = persistence.conflicts(
                 Points(rows_where(points.xyz_m, flip), points.valid[flip],
                        points.sigma_z_m[flip]), self._triangulate(earlier)[0])
-        return (radiometry.whole_columns(samples.col_px, flip),
-                replace(select(samples, flip), line=before[flip]))
+            flip[flip] = conflict
+            earlier = select(earlier, conflict)
+        return radiometry.whole_columns(samples.col_px, flip), earlier
 
     def _check_shape(self, dmap: DistortionMap) -> None:
         cam = self.calibration.camera

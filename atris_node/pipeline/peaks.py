@@ -421,9 +421,9 @@ def off_step_runs(rows: IntArray, step_rows: IntArray) -> tuple[IntArray, IntArr
     if not line.size:
         return out, removed
     row = rows[line, column]
-    window = np.clip(column[:, None] + np.arange(-STEP_REACH, STEP_REACH + 1), 0, width - 1)
-    inside = np.abs(column[:, None] + np.arange(-STEP_REACH, STEP_REACH + 1)
-                    - window) == 0  # (n, 2R+1): offsets inside the image
+    position = column[:, None] + np.arange(-STEP_REACH, STEP_REACH + 1)  # (n, 2R+1)
+    inside = (position >= 0) & (position < width)
+    window = np.clip(position, 0, width - 1)
     steps = step_rows[:, window]  # (M, n, 2R+1)
     stepped = ((steps >= 0) & (np.abs(steps - row[:, None]) <= STEP_ROW_PX)).any(axis=0)
     own = rows[line[:, None], window]

@@ -712,16 +712,15 @@ def hole_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
     limit = distance_m - doubt_margin_m(distance_m)
     bright = snr >= HOLE_SNR * settings.snr_min
     run, width = LOST_RUN * settings.min_points, seen.shape[1]
-    for k in np.flatnonzero((returned < limit).any(axis=1)):
-        open_ = (np.isfinite(returned[k]) & ~seen[k]).astype(np.int8)
-        edges = np.flatnonzero(np.diff(np.concatenate(([0], open_, [0]))))
-        for start, stop in zip(edges[::2], edges[1::2], strict=True):
-            if (stop - start < run or not (returned[k, start:stop] < limit).all()
-                    or np.count_nonzero(view.columns[s][start:stop]) < settings.min_points):
-                continue
-            if (bright[k, max(start - GAP_RUN, 0):start].any()
-                    and bright[k, stop:min(stop + GAP_RUN, width)].any()):
-                return True
+    asked = np.asarray((returned < limit).any(axis=1))[:, None]
+    for k, start, stop in zip(*verdicts_kernels.runs(
+            np.ascontiguousarray(asked & np.isfinite(returned) & ~seen)), strict=True):
+        if (stop - start < run or not (returned[k, start:stop] < limit).all()
+                or np.count_nonzero(view.columns[s][start:stop]) < settings.min_points):
+            continue
+        if (bright[k, max(start - GAP_RUN, 0):start].any()
+                and bright[k, stop:min(stop + GAP_RUN, width)].any()):
+            return True
     return False
 
 
