@@ -74,6 +74,11 @@ peaks_kernels._open_run, no run length limit in line_samples). same_code_comb_on
 read 0.56 m VALID for a wall at 6.2 and 7.1 m in sectors 2 and 4 of map 1 (a same-code
 unit's two stripes completing a comb with line 0's shifted by two lines) without
 pipeline.persistence (the flip check taken out of Pipeline.process).
+black_box_top_across_view and black_box_top_across_view_right read 2.83 m VALID for a
+black box top 0.88 m ahead (maps 0 and 3; map 2) with a ground line's run that goes on to
+the image's edge taken for no hole (verdicts.hole_before's image-edge flank taken out),
+and dark_box_face_at_its_foot 6.19 m for a box face at 4.35 m in every map with the rises
+at a foot left out of the sectors' reach (evidence.SectorJudge taking tops.unseen only).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ sample at distance d and height h lies f·b·h/(d·0.5) rows from its sheet's gr
 
 Checked to fail without their protections (each taken out once, the tests run, put
 back): with ``unseen_tops`` flagging nothing, the three tests that expect a flag fail;
-with the ``top_m`` condition taken out of ``verdicts._verdict``, the 2 m case of
+with the ``reach_m`` condition taken out of ``verdicts._verdict``, the 2 m case of
 test_feature_unseen_top_nearer_than_the_distance_makes_it_invalid is VALID at the wall;
 with RISE_PX applied to every rise (a version tried first),
 test_feature_kerb_before_the_line_passing_over_is_flagged fails (a 0.7-row rise before
@@ -25,8 +25,20 @@ import pytest
 
 from atris_node.pipeline.obstacles import SectorSettings
 from atris_node.pipeline.sectors import SectorLayout
-from atris_node.pipeline.tops import below_ground, corroborated, rows_off_ground, unseen_tops
-from atris_node.pipeline.verdicts import ColumnEvidence, ObstaclePoints, sector_verdicts
+from atris_node.pipeline.tops import (
+    Tops,
+    below_ground,
+    corroborated,
+    foot_reach_m,
+    rows_off_ground,
+    unseen_tops,
+)
+from atris_node.pipeline.verdicts import (
+    ColumnEvidence,
+    ObstaclePoints,
+    sector_verdicts,
+    top_reach_m,
+)
 from atris_node.types import SectorState
 
 FB = 381.0 * 0.075
@@ -48,13 +60,18 @@ def _column(samples: list[tuple[int, float, float, bool]], columns: int = 10):
             h.astype(float), o.astype(bool))
 
 
-def _tops(samples, columns: int = 10, sigma_m: float = 0.005) -> np.ndarray:
+def _both(samples, columns: int = 10, sigma_m: float = 0.005) -> Tops:
     line, column, d, h, o = _column(samples, columns)
     n = line.size
     return unseen_tops(line, column, d, h, np.full(n, sigma_m), o, np.ones(n, bool),
                        lines=8, width=WIDTH, clearance_m=CLEARANCE, projector_height_m=H0,
                        height_sigma=np.full(n, 0.002),
                        rows_off=rows_off_ground(d, h, H0, FB), focal_baseline_px_m=FB)
+
+
+def _tops(samples, columns: int = 10, sigma_m: float = 0.005) -> np.ndarray:
+    """The samples whose top is unknown (:attr:`Tops.unseen`)."""
+    return _both(samples, columns, sigma_m).unseen
 
 
 def test_feature_kerb_with_no_line_above_is_flagged() -> None:
@@ -112,9 +129,47 @@ def test_feature_stripe_at_a_wall_foot_is_not_a_kerb() -> None:
     triangulates 0.3-0.4 m short of the wall 4 cm up (0.8 rows). The line above meets
     the wall 0.4 m beyond it: more than 10 % of the range, within a pixel and a half of
     range (0.47 m at 3 m), the wall's foot."""
-    assert not _tops([(6, 3.0, 0.04, False), (5, 3.4, 0.15, True)]).any()
-    # with no line above, a 0.8-row rise is what such a stripe makes: not a kerb
-    assert not _tops([(6, 3.0, 0.04, False)]).any()
+    seen = _both([(6, 3.0, 0.04, False), (5, 3.4, 0.15, True)])
+    assert not seen.unseen.any() and not seen.at_foot.any()
+    # with no line above, a 0.8-row rise is what such a stripe makes: not a kerb, but
+    # it may be one's face as well: it stops a distance beyond its tolerance
+    alone = _both([(6, 3.0, 0.04, False)])
+    assert not alone.unseen.any() and alone.at_foot.all()
+
+
+def test_feature_a_rise_at_its_ground_row_stops_a_distance_beyond_its_tolerance() -> None:
+    """Random scene s09016's case: a dark box's face met 3.5 cm up by the lowest line
+    that reaches it, one row off that line's ground row, no line above seen in its
+    columns (the line above too dark on the box): the ground a row off, a wall's foot
+    or a low surface whose top is unknown. It is not a top to stop every distance
+    beyond it (a wall's foot stripe triangulates short of its wall), but a distance
+    more than its phantom tolerance beyond it may be wrong by more than that: the
+    sector read the box's far end, 6.19 m, for its face at 4.35 m. A rise within half
+    a row of its ground row is the ground's stripe and stops nothing. Checked to fail
+    with TOP_ROWS_PX = 1.5 (no rise at a foot); the stress scene
+    dark_box_face_at_its_foot fails with the foot reach taken out of evidence."""
+    rows = rows_off_ground(np.array([2.0, 6.0]), np.array([0.035, 0.035]), H0, FB)
+    assert 0.5 < rows[0] <= 1.5 and rows[1] < 0.5
+    rise = _both([(7, 2.0, 0.035, False)])
+    assert not rise.unseen.any() and rise.at_foot.all()
+    assert not _both([(7, 6.0, 0.035, False)]).at_foot.any()
+    reach = foot_reach_m(np.array([2.0]))
+    assert reach[0] == pytest.approx(2.2)
+    for wall_m, state in [(4.0, SectorState.INVALID), (2.15, SectorState.VALID)]:
+        assert _wall_verdict(wall_m, reach).state is state, wall_m
+
+
+def _wall_verdict(wall_m: float, reach: np.ndarray | None):
+    """The verdict of one sector holding a wall ``wall_m`` away seen by 4 lines over 15
+    columns, with the unseen tops' ``reach`` (None: none)."""
+    n = 60
+    points = ObstaclePoints(np.full(n, wall_m), np.zeros(n, np.int64), np.ones(n, bool),
+                            np.arange(n) % 4, np.arange(n) // 4, np.full(n, 0.01),
+                            np.full(n, 20.0))
+    layout = SectorLayout(1, math.radians(70.0))
+    evidence = ColumnEvidence(np.zeros(WIDTH, np.int64), *(np.zeros(WIDTH, np.int64),) * 3)
+    return sector_verdicts(points, evidence, layout, SectorSettings(), np.full(1, np.inf),
+                           reach)[0]
 
 
 def test_feature_ground_noise_is_not_a_rise() -> None:
@@ -126,7 +181,7 @@ def test_feature_ground_noise_is_not_a_rise() -> None:
                         lines=8, width=WIDTH, clearance_m=CLEARANCE,
                         projector_height_m=H0, height_sigma=np.full(n, 0.02),
                         rows_off=rows_off_ground(d, h, H0, FB), focal_baseline_px_m=FB)
-    assert not noisy.any()
+    assert not noisy.unseen.any() and not noisy.at_foot.any()
 
 
 def test_feature_a_lone_stripe_near_its_ground_row_is_not_an_obstacle() -> None:
@@ -192,16 +247,8 @@ def test_feature_a_sample_under_the_ground_is_no_evidence_of_free() -> None:
 def test_feature_unseen_top_nearer_than_the_distance_makes_it_invalid(top_m, state) -> None:
     """A wall at 4 m; a low surface with an unseen top at 2 m makes the sector INVALID,
     one at 3.95 m (within 3 % of 4 m) leaves the distance standing."""
-    n = 60
-    points = ObstaclePoints(np.full(n, 4.0), np.zeros(n, np.int64), np.ones(n, bool),
-                            np.arange(n) % 4, np.arange(n) // 4, np.full(n, 0.01),
-                            np.full(n, 20.0))
-    layout = SectorLayout(1, math.radians(70.0))
-    evidence = ColumnEvidence(np.zeros(WIDTH, np.int64), *(np.zeros(WIDTH, np.int64),) * 3)
-    tops = None if top_m is None else np.array([top_m])
-    verdict = sector_verdicts(points, evidence, layout, SectorSettings(), np.full(1, np.inf),
-                              tops)[0]
-    assert verdict.state is state
+    reach = None if top_m is None else top_reach_m(np.array([top_m]))
+    assert _wall_verdict(4.0, reach).state is state
 
 
 def test_feature_unseen_top_blocks_free() -> None:
@@ -247,7 +294,7 @@ def test_feature_a_line_with_no_return_within_the_range_passed_over_the_rise() -
                            lines=8, width=WIDTH, clearance_m=CLEARANCE, projector_height_m=H0,
                            height_sigma=np.full(n, 0.002),
                            rows_off=rows_off_ground(d, h, H0, FB), focal_baseline_px_m=FB,
-                           passing=passing)
+                           passing=passing).unseen
 
     assert not tops(None).any()
     assert not tops((unknown, unknown, observed)).any()
@@ -279,4 +326,4 @@ def test_feature_a_line_lost_on_the_wall_above_a_foot_stripe_is_not_passing() ->
                         width=WIDTH, clearance_m=CLEARANCE, projector_height_m=H0,
                         height_sigma=np.full(n, 0.002), rows_off=rows_off_ground(d, h, H0, FB),
                         focal_baseline_px_m=FB, passing=passing)
-    assert not flags.any()
+    assert not flags.unseen.any() and not flags.at_foot.any()

@@ -559,3 +559,26 @@ def test_feature_a_hole_in_a_bright_ground_line_blocks_the_surface_behind() -> N
         points, evidence = _wall_behind_a_ground_line_hole(*args)
         out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
         assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), args
+
+
+def test_feature_a_ground_line_lost_to_the_image_edge_blocks_the_surface_behind() -> None:
+    """Random scene s10176's case: a black box top across most of the view 0.88 m
+    ahead takes the lowest line from the image's left edge to column 20, where the
+    ground returns it at SNR 30 (it would meet the ground at 2 m); the lines above show
+    in every column of the run (the fan reaches there): something that returns no light
+    stands in the lowest line's way, and the wall at 4 m is not the nearest obstacle
+    (the scene read 2.83 m for the box at 0.88 m). Where no other line shows in the run
+    (the fan's edge), or the flank is weak (a ground line fading out), the wall's 4 m
+    stands. Checked to fail with the image's edge taken for no flank (the rule before:
+    VALID 4 m)."""
+    def verdict(fan: bool, snr: float = 30.0):
+        points, evidence = _wall_behind_a_ground_line_hole(list(range(20, WIDTH)), snr)
+        assert evidence.seen is not None
+        seen = evidence.seen.copy()
+        seen[:3, :20] = fan
+        return sector_verdicts(points, dataclasses.replace(evidence, seen=seen), LAYOUT,
+                               SETTINGS)[0]
+
+    assert verdict(True).state is SectorState.INVALID
+    for out in (verdict(False), verdict(True, 12.0)):
+        assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0)

@@ -25,8 +25,10 @@ from atris_node.pipeline.peaks import Extraction
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.pipeline.tops import (
     GROUND_ROW_PX,
+    Tops,
     below_ground,
     corroborated,
+    foot_reach_m,
     height_sigma_m,
     rows_off_ground,
     unseen_tops,
@@ -39,6 +41,7 @@ from atris_node.pipeline.verdicts import (
     SectorColumns,
     doubt_margin_m,
     sector_verdicts,
+    top_reach_m,
 )
 from atris_node.types import SectorDistance
 
@@ -141,7 +144,7 @@ class SectorJudge:
         found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr,
                                points.xyz_m[:, 2][clean])
         doubt_m = self._doubt_ranges(extraction)
-        top_m = np.full(self.layout.count, np.inf)
+        reach_m = np.full(self.layout.count, np.inf)
         flagged = _NO_COLUMNS  # samples that keep their columns from being free
         on_ground: tuple[IntArray, IntArray, FloatArray] | None = None
         if sheet is not None and ground is not None:
@@ -152,13 +155,15 @@ class SectorJudge:
             tops = self._unseen_tops(found, valid, sheet,
                                      self._passing(prior, ground, line[~valid], column[~valid]))
             under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
-            flagged = found.column[tops | under]
+            flagged = found.column[tops.unseen | tops.at_foot | under]
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
                 pick(samples.row_px)[under], pick(samples.col_px)[under]))
-            verdicts_kernels.least_per_sector(top_m, np.where(tops, sector, -1), range_m)
+            verdicts_kernels.least_per_sector(
+                reach_m, np.where(tops.unseen | tops.at_foot, sector, -1),
+                np.where(tops.unseen, top_reach_m(range_m), foot_reach_m(range_m)))
         flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground)])
         evidence = self._evidence(extraction, foreign, prior, points.valid, flagged, on_ground)
-        return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, top_m,
+        return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, reach_m,
                                self._columns)
 
     def _at_the_edge(self, extraction: Extraction, points: Points, clean: BoolArray,
@@ -225,9 +230,9 @@ class SectorJudge:
         return self._heights[1], self._heights[2]
 
     def _unseen_tops(self, found: ObstaclePoints, valid: BoolArray, sheet: Sheet,
-                     passing: tuple[FloatArray, FloatArray, BoolArray]) -> BoolArray:
-        """(n,) the valid samples that are no obstacle point and whose top no line
-        above bounds (``passing``: see :func:`atris_node.pipeline.tops.unseen_tops`)."""
+                     passing: tuple[FloatArray, FloatArray, BoolArray]) -> Tops:
+        """The valid samples that are no obstacle point and whose top no line above
+        bounds (``passing``: see :func:`atris_node.pipeline.tops.unseen_tops`)."""
         return unseen_tops(found.line, found.column, sheet.distance_m, sheet.height_m,
                            found.sigma_m, found.obstacle, valid,
                            lines=len(self.calibration.laser.alpha_rad),

@@ -29,12 +29,19 @@ below that height. The lines above are walked from k − 1 upwards:
   line: a line lost in the noise on a wall the lines above it show was stopped by the
   wall, it did not pass. (A low box under a row above the lowest sheet's ground row,
   the sheet above passing over it to the ground beyond z_max, read free before these
-  two rules: low_box_within_ground_rows.)
+  two rules: low_box_within_ground_rows.) A smaller rise that none of this settles and
+  that lies more than TOP_ROWS_PX rows off its ground row is *at a foot*: the foot of a
+  surface, triangulated short, or a low surface whose top is unknown
+  (dark_box_face_at_its_foot: a dark box's face met 3.2 cm up, one row off, the line
+  above too dark on it; the box's far side was read).
 
 A sample whose top is unknown is an *unseen top*: something may stand there as tall as
 an obstacle, at the sample's range. A sector holding one is not free, and not VALID at a
 distance beyond it (:mod:`atris_node.pipeline.evidence` counts it as doubtful and as a
-doubt range, as an ambiguous peak is).
+doubt range, as an ambiguous peak is). A rise at a foot is not free either, and lets a
+distance stand up to its phantom tolerance beyond it (:func:`foot_reach_m`): a wall's
+foot stripe stops no distance of its wall, and a low surface is not read more than the
+tolerance beyond.
 
 A sample is clearly above the ground when its height exceeds max(RISE_MIN_M,
 RISE_SIGMAS·σ_h), σ_h its height σ (its range σ times the slope of its viewing ray).
@@ -46,6 +53,8 @@ above seen landing beyond the foot does rule it out. Units: metres; arrays (n,).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -63,6 +72,13 @@ RISE_SIGMAS = 4.0
 #: half on the ground, half on a wall's foot peaks up to a pixel off: the measured
 #: quantity is a row, and a pixel far away is a metre of range and centimetres of height)
 RISE_PX = 1.5
+#: a rise that lies RISE_PX rows or less from its ground row (see GROUND_ROW_PX) but more
+#: than TOP_ROWS_PX, and whose top no line bounds, is either the foot of a surface, its
+#: mixed stripe triangulated short, or a low surface whose top is unknown: it lets a
+#: distance stand only up to its phantom tolerance beyond it (:func:`foot_reach_m`; a
+#: dark box's face met 3.2 cm up at 4.35 m, one row off the ground row, the box's far
+#: end at 6.2 m read). Nearer its ground row than this it is the ground's own stripe
+TOP_ROWS_PX = 0.5
 #: a sample above the clearance but within this many rows of where its sheet meets the
 #: ground may be the ground seen a pixel off (a stripe grazing the ground 11 m away, its
 #: peak 0.9 rows off, triangulates 3 m short and 12 cm up): it is an obstacle point only
@@ -93,14 +109,32 @@ def height_sigma_m(range_sigma_m: FloatArray, height_m: FloatArray, camera_heigh
     return np.asarray(range_sigma_m * slope, dtype=np.float64)
 
 
+class Tops(NamedTuple):
+    """The low surfaces whose top no line bounds, (n,) each: ``unseen`` rises whose top
+    is unknown, and ``at_foot`` rises within RISE_PX (and more than TOP_ROWS_PX) rows of
+    their ground row that may be a surface's foot as well (:func:`foot_reach_m`)."""
+
+    unseen: BoolArray
+    at_foot: BoolArray
+
+
+def foot_reach_m(distance_m: FloatArray) -> FloatArray:
+    """(n,) the farthest distance (m) a rise at ``distance_m`` that may be a surface's
+    foot lets stand: its phantom tolerance beyond it, max(FOOT_REL·d, FOOT_M) (the foot
+    of the surface reported, triangulated short; or, for a low surface whose top is
+    unknown, a distance no farther than the tolerance of a distance)."""
+    return np.asarray(distance_m + np.maximum(FOOT_REL * distance_m, FOOT_M),
+                      dtype=np.float64)
+
+
 def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height_m: FloatArray,
                 sigma_m: FloatArray, obstacle: BoolArray, valid: BoolArray, *, lines: int,
                 width: int, clearance_m: float, projector_height_m: float,
                 height_sigma: FloatArray, rows_off: FloatArray, focal_baseline_px_m: float,
                 passing: tuple[FloatArray, FloatArray, BoolArray] | None = None
-                ) -> BoolArray:
-    """(n,) True for the valid samples that stand clearly above the ground, below
-    ``clearance_m``, and whose top no line above them bounds (see the module docstring).
+                ) -> Tops:
+    """The valid samples that stand clearly above the ground, below ``clearance_m``,
+    and whose top no line above them bounds (see the module docstring), as :class:`Tops`.
 
     Args:
         line, column: (n,) the sample's line (0 = top of the image) and image column.
@@ -125,9 +159,10 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
     rise = valid & ~obstacle & (height_m > _off_ground_m(height_sigma))
     strong = rows_off > RISE_PX
     out = np.zeros(n, dtype=np.bool_)
+    at_foot = np.zeros(n, dtype=np.bool_)
     idx = np.flatnonzero(rise)
     if idx.size == 0:
-        return out
+        return Tops(out, at_foot)
     grid_d, grid_h, grid_o = _grids(line[valid], column[valid], distance_m[valid],
                                     height_m[valid], obstacle[valid], lines, width)
     k, c, sure = line[idx], column[idx], strong[idx]
@@ -160,7 +195,8 @@ def unseen_tops(line: IntArray, column: IntArray, distance_m: FloatArray, height
                                        (grid_d, grid_h, grid_o), passing,
                                        projector_height_m, clearance_m)
     out[idx[unknown]] = True
-    return out
+    at_foot[idx[exhausted & ~unknown & (rows_off[idx] > TOP_ROWS_PX)]] = True
+    return Tops(out, at_foot)
 
 
 def _passing_where_missing(dist: FloatArray, high: FloatArray,

@@ -38,7 +38,9 @@ A sector is one of three things (:class:`atris_node.types.SectorState`):
   run of a doubtful identity), the sector is INVALID: they may be the nearest obstacle.
   A low surface whose top no line saw (:mod:`atris_node.pipeline.tops`: a kerb the
   lines only graze below the clearance) more than max(TOP_REL·d, TOP_ABS_M) nearer than
-  d may rise above the clearance there: INVALID.
+  d may rise above the clearance there: INVALID; so does one within a row and a half of
+  its ground row (it may be a surface's foot as well) more than its phantom tolerance
+  nearer (:func:`atris_node.pipeline.tops.foot_reach_m`).
 - NO_RETURN (free up to z_max) only when it is earned: no obstacle point, no ambiguous,
   lone, dropped or saturated sample and no low surface with an unseen top in its
   columns, no foreign light, and every line that meets the ground within z_max was seen
@@ -327,25 +329,34 @@ def _credible(hits: ObstaclePoints, width: int, min_points: int) -> Credible | N
 
 def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: SectorLayout,
                     settings: SectorSettings, doubt_m: FloatArray | None = None,
-                    top_m: FloatArray | None = None, columns: SectorColumns | None = None
+                    reach_m: FloatArray | None = None, columns: SectorColumns | None = None
                     ) -> tuple[SectorDistance, ...]:
     """One :class:`SectorDistance` per sector of ``layout`` (index 0 at the right edge).
     ``doubt_m`` (S,) is the nearest range (m) an ambiguous peak may stand for in each
-    sector (inf: none; None: every ambiguous peak may stand for anything); ``top_m`` (S,)
-    the nearest range of a low surface whose top no line saw (inf or None: none; the
-    samples are in ``evidence.doubtful`` too); ``columns`` the :class:`SectorColumns` of
-    ``evidence.sector`` (None: made here)."""
+    sector (inf: none; None: every ambiguous peak may stand for anything); ``reach_m``
+    (S,) the farthest distance (m) that the low surfaces whose top no line saw let stand
+    (:func:`top_reach_m`, :func:`atris_node.pipeline.tops.foot_reach_m`; inf or None:
+    none; the samples are in ``evidence.doubtful`` too); ``columns`` the
+    :class:`SectorColumns` of ``evidence.sector`` (None: made here)."""
     count = layout.count
     ambiguous, doubtful = evidence.sector_counts(count)
     if doubt_m is None:
         doubt_m = np.where(ambiguous > 0, 0.0, np.inf)
-    if top_m is None:
-        top_m = np.full(count, np.inf)
+    if reach_m is None:
+        reach_m = np.full(count, np.inf)
     view = MapView.of(points, evidence, count, settings, columns)
     return tuple(_verdict(s, view, layout, settings, ambiguous=int(ambiguous[s]),
                           doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]),
-                          top_m=float(top_m[s]))
+                          reach_m=float(reach_m[s]))
                  for s in range(count))
+
+
+def top_reach_m(range_m: FloatArray) -> FloatArray:
+    """(n,) the farthest distance (m) a low surface at ``range_m`` whose top is unknown
+    lets stand: a distance d stands while the surface lies within max(TOP_REL·d,
+    TOP_ABS_M) of it, d <= max(r / (1 - TOP_REL), r + TOP_ABS_M)."""
+    return np.asarray(np.maximum(range_m / (1.0 - TOP_REL), range_m + TOP_ABS_M),
+                      dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -704,7 +715,11 @@ def hole_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
     returns no light stands in its way there (a dark object before a bright floor, met by
     the one line that reaches it), at any range up to that ground hit. Both flanks on the
     ground and bright: not the fan's edge, nor a weak ground line dropping out near its
-    threshold. :func:`lost_before` asks the whole sector."""
+    threshold. A run that goes on to the image's edge needs one such flank, and other
+    lines seen in half of its columns: the fan reaches there (a black box top across
+    most of the view 0.88 m ahead took the lowest line from the image's edge to the
+    ground returns beside it, the wall at 2.83 m read). :func:`lost_before` asks the
+    whole sector."""
     evidence = view.evidence
     returned, seen, snr = evidence.returned_m, evidence.seen, evidence.ground_snr
     if returned is None or seen is None or snr is None:
@@ -718,10 +733,20 @@ def hole_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
         if (stop - start < run or not (returned[k, start:stop] < limit).all()
                 or np.count_nonzero(view.columns[s][start:stop]) < settings.min_points):
             continue
-        if (bright[k, max(start - GAP_RUN, 0):start].any()
-                and bright[k, stop:min(stop + GAP_RUN, width)].any()):
+        left = bool(bright[k, max(start - GAP_RUN, 0):start].any())
+        right = bool(bright[k, stop:min(stop + GAP_RUN, width)].any())
+        to_the_edge = (left and stop == width) or (right and start == 0)
+        if (left and right) or (to_the_edge and _fan_reaches(seen, k, start, stop)):
             return True
     return False
+
+
+def _fan_reaches(seen: BoolArray, k: int, start: int, stop: int) -> bool:
+    """True when lines other than ``k`` show in at least half of the columns [start,
+    stop): the projector's fan reaches them (its edge is the same for every line), so a
+    run of line ``k`` that goes on to the image's edge is no fan's edge."""
+    others = np.delete(seen[:, start:stop], k, axis=0)
+    return bool(2 * np.count_nonzero(others.any(axis=0)) >= stop - start)
 
 
 def at_the_near_end(s: int, view: MapView, settings: SectorSettings) -> bool:
@@ -789,7 +814,7 @@ def _median(values: FloatArray) -> float:
 
 
 def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettings, *,
-             ambiguous: int, doubtful: int, doubt_m: float, top_m: float) -> SectorDistance:
+             ambiguous: int, doubtful: int, doubt_m: float, reach_m: float) -> SectorDistance:
     bearing = layout.bearing_of(s)
     samples = view.sectors[s].size
     if samples < settings.min_points:
@@ -803,8 +828,8 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
                               SectorState.INVALID, 0.0, conf, samples)
     found = view.credible(s)
     if found is None or found.nearer >= settings.min_points or doubt_m < (
-            found.distance_m + doubt_margin_m(found.distance_m)) or top_m < (
-            found.distance_m - max(TOP_REL * found.distance_m, TOP_ABS_M)):
+            found.distance_m + doubt_margin_m(found.distance_m)) or (
+            found.distance_m > reach_m):
         # nothing credible, or something nearer that is not credible, or a peak whose
         # line could not be told may stand as near (the cluster found may be one such
         # guess itself), or a low surface nearer may rise above the clearance unseen:
