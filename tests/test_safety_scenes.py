@@ -79,6 +79,9 @@ black box top 0.88 m ahead (maps 0 and 3; map 2) with a ground line's run that g
 the image's edge taken for no hole (verdicts.hole_before's image-edge flank taken out),
 and dark_box_face_at_its_foot 6.19 m for a box face at 4.35 m in every map with the rises
 at a foot left out of the sectors' reach (evidence.SectorJudge taking tops.unseen only).
+hanging_ball_on_sector_boundary read the wall behind a hanging ball (8.0 and 8.8 m for
+4.42 m) in 6 sector-frames of 32 with only a neighbour's credible objects counted across
+a sector boundary (verdicts.straddles without the points of both sides together).
 """
 
 from __future__ import annotations

@@ -528,6 +528,30 @@ def test_feature_a_surface_one_line_shows_across_the_boundary_stands_in_both() -
     assert out.state is SectorState.VALID and out.distance_m == pytest.approx(5.0, abs=0.05)
 
 
+def test_feature_few_points_on_both_sides_of_a_boundary_make_both_invalid() -> None:
+    """Random scene s11090's case: a ball 0.27 m wide hanging 4.4 m ahead, met by one
+    line, leaves 4 points in sector 0 and 4 in sector 1 at its boundary, a wall at 8 m
+    behind in both. In one sector 8 such points nearer than the wall, not credible (one
+    line over 8 columns), would make it INVALID; split 4 and 4, both sectors read the
+    wall (8.0 and 8.8 m for the ball at 4.42 m, in 6 sector-frames of 32). Together
+    they stand in both sectors' edges: both INVALID. Two points on each side (4 in all,
+    under min_points) leave the wall standing. Checked to fail with only the
+    neighbour's credible objects counted (the rule before: VALID 8 m)."""
+    wall = _join(_points([8.0] * 64, np.arange(64) % 2, np.arange(64) % 32),
+                 _points([8.0] * 64, np.arange(64) % 2, 32 + np.arange(64) % 32, sector=1))
+
+    def verdicts(per_side: int):
+        left = _points([4.42 + 0.01 * i for i in range(per_side)], [0] * per_side,
+                       31 - np.arange(per_side))
+        right = _points([4.42 + 0.01 * i for i in range(per_side)], [0] * per_side,
+                        32 + np.arange(per_side), sector=1)
+        return sector_verdicts(_join(wall, left, right), _evidence(), LAYOUT, SETTINGS)
+
+    assert [v.state for v in verdicts(4)] == [SectorState.INVALID] * 2
+    for out in verdicts(2):
+        assert out.state is SectorState.VALID and out.distance_m == pytest.approx(8.0, abs=0.05)
+
+
 def _wall_behind_a_ground_line_hole(shown: list[int], snr: float = 30.0,
                                     ground_m: float = 2.0) -> tuple[ObstaclePoints,
                                                                      ColumnEvidence]:

@@ -769,8 +769,14 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     of a neighbouring sector within STRADDLE_COLUMNS columns and the cluster window of
     range of one of them, from more than one line or at the range of that sector's own
     nearest credible cluster (a surface that one line alone shows, over the columns
-    that make it credible there). A thin pole on a sector boundary stands in both
-    sectors; the one holding its edge must not read what stands behind."""
+    that make it credible there); or, credible or not, that makes ``min_points`` points
+    with this sector's nearer points within STRADDLE_COLUMNS columns and that window: in
+    one sector they would be points nearer than the distance, not credible, which make
+    it INVALID, and the boundary must not split them into two sectors that both read
+    what stands behind (a ball 0.27 m wide hanging 4.4 m ahead, 4 points of one line on
+    either side of a boundary: the wall at 8.0 and 8.8 m read in both). A thin pole on
+    a sector boundary stands in both sectors; the one holding its edge must not read
+    what stands behind."""
     hits = view.sectors[s].hits
     near = np.flatnonzero(hits.range_m < distance_m - doubt_margin_m(distance_m))
     if near.size == 0:
@@ -788,9 +794,14 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
         window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * hits.sigma_m[i])
         mine = ((np.abs(other_range - r) <= window)
                 & (np.abs(other_column - hits.column[i]) <= STRADDLE_COLUMNS))
-        if np.count_nonzero(mine) >= settings.min_points and (
+        beside = np.count_nonzero(mine)
+        if beside >= settings.min_points and (
                 np.unique(other_line[mine]).size > 1
                 or any(abs(c - r) <= window for c in credible)):
+            return True
+        own = np.count_nonzero((np.abs(hits.range_m[near] - r) <= window) & (
+            np.abs(hits.column[near] - hits.column[i]) <= STRADDLE_COLUMNS))
+        if beside and own + beside >= settings.min_points:
             return True
     return False
 
