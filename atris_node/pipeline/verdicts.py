@@ -794,14 +794,14 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
         window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * hits.sigma_m[i])
         mine = ((np.abs(other_range - r) <= window)
                 & (np.abs(other_column - hits.column[i]) <= STRADDLE_COLUMNS))
-        beside = np.count_nonzero(mine)
-        if beside >= settings.min_points and (
+        across = int(np.count_nonzero(mine))
+        if across >= settings.min_points and (
                 np.unique(other_line[mine]).size > 1
                 or any(abs(c - r) <= window for c in credible)):
             return True
-        own = np.count_nonzero((np.abs(hits.range_m[near] - r) <= window) & (
-            np.abs(hits.column[near] - hits.column[i]) <= STRADDLE_COLUMNS))
-        if beside and own + beside >= settings.min_points:
+        own = int(np.count_nonzero((np.abs(hits.range_m[near] - r) <= window) & (
+            np.abs(hits.column[near] - hits.column[i]) <= STRADDLE_COLUMNS)))
+        if across and own + across >= settings.min_points:
             return True
     return False
 
