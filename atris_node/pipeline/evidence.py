@@ -155,11 +155,12 @@ class SectorJudge:
             tops = self._unseen_tops(found, valid, sheet,
                                      self._passing(prior, ground, line[~valid], column[~valid]))
             under = below_ground(sheet.height_m, sheet.rows_off, sheet.height_sigma_m, valid)
-            flagged = found.column[tops.unseen | tops.at_foot | under]
+            low = tops.unseen | tops.at_foot
+            flagged = found.column[low | under]
             doubt_m = np.minimum(doubt_m, self._any_line_ranges(
                 pick(samples.row_px)[under], pick(samples.col_px)[under]))
             verdicts_kernels.least_per_sector(
-                reach_m, np.where(tops.unseen | tops.at_foot, sector, -1),
+                reach_m, np.where(low, sector, -1),
                 np.where(tops.unseen, top_reach_m(range_m), foot_reach_m(range_m)))
         flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground)])
         evidence = self._evidence(extraction, foreign, prior, points.valid, flagged, on_ground)

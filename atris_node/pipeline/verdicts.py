@@ -799,9 +799,10 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
                 np.unique(other_line[mine]).size > 1
                 or any(abs(c - r) <= window for c in credible)):
             return True
-        own = int(np.count_nonzero((np.abs(hits.range_m[near] - r) <= window) & (
-            np.abs(hits.column[near] - hits.column[i]) <= STRADDLE_COLUMNS)))
-        if across and own + across >= settings.min_points:
+        if across and across + np.count_nonzero(
+                (np.abs(hits.range_m[near] - r) <= window)
+                & (np.abs(hits.column[near] - hits.column[i]) <= STRADDLE_COLUMNS)
+        ) >= settings.min_points:
             return True
     return False
 
