@@ -82,6 +82,10 @@ at a foot left out of the sectors' reach (evidence.SectorJudge taking tops.unsee
 hanging_ball_on_sector_boundary read the wall behind a hanging ball (8.0 and 8.8 m for
 4.42 m) in 6 sector-frames of 32 with only a neighbour's credible objects counted across
 a sector boundary (verdicts.straddles without the points of both sides together).
+sphere_nearer_than_the_range read 0.48-0.52 m VALID in sectors 0-3 of every map (16
+sector-frames of 32; a sphere met 0.24-0.27 m away, nearer than the range) with the rows
+above the bands not read (the chain's near guard taken out; tests/test_near.py runs both
+ways).
 """
 
 from __future__ import annotations

@@ -27,8 +27,9 @@ def test_feature_sim_json_has_measured_and_true_sectors(
         assert (s["distance_m"] is None) == (s["state"] != "VALID")  # null unless VALID
         assert (s["sigma_m"] is None) == (s["state"] != "VALID")
     assert {"nearest_m", "closing_speed_mps", "ttc_s", "interference", "ambiguous_samples",
-            "too_faint_samples", "pipeline_ms"} <= set(record)
+            "too_faint_samples", "near_stripes", "pipeline_ms"} <= set(record)
     assert record["too_faint_samples"] == 0  # a lit wall and ground: nothing too faint
+    assert record["near_stripes"] == 0  # nothing nearer than the range
     assert record["interference"] is False and record["pipeline_ms"] > 0
     assert record["sectors"][3]["truth_m"] == pytest.approx(3.0, abs=0.01)
     assert record["truth_line_samples"] > 1000 and record["line_samples"] > 0

@@ -88,13 +88,14 @@ def _map_fields(result: Any) -> dict[str, Any]:
     """The per-map keys of the JSON record (None where the chain did not run)."""
     if result is None:
         return dict.fromkeys(("nearest_m", "closing_speed_mps", "ttc_s", "interference",
-                              "ambiguous_samples", "too_faint_samples", "pipeline_ms"))
+                              "ambiguous_samples", "too_faint_samples", "near_stripes",
+                              "pipeline_ms"))
     m, d = result.measurement, result.diagnostics
     return {"nearest_m": None if m.nearest is None else round(m.nearest.distance_m, 4),
             "closing_speed_mps": _rounded(m.closing_speed_mps, 3),
             "ttc_s": _rounded(m.time_to_collision_s, 3),
             "interference": bool(d.interference), "ambiguous_samples": int(d.ambiguous),
-            "too_faint_samples": int(d.too_faint),
+            "too_faint_samples": int(d.too_faint), "near_stripes": int(d.near),
             "pipeline_ms": round(d.timings_ms.get("total", 0.0), 3)}
 
 

@@ -39,6 +39,7 @@ from atris_node.pipeline.evidence import SectorJudge
 from atris_node.pipeline.faint import faint_sectors
 from atris_node.pipeline.geometry import Points, rows_where, triangulate_pixels
 from atris_node.pipeline.identity import VisibilityPrior
+from atris_node.pipeline.near import near_stripes, topmost
 from atris_node.pipeline.obstacles import (
     ClosingTracker,
     GroundPlane,
@@ -200,6 +201,9 @@ class Diagnostics:
     #: samples too faint for the range their line gives: doubts, not points
     #: (atris_node.pipeline.radiometry)
     too_faint: int = 0
+    #: stripes above every band, of a surface nearer than z_min: doubts
+    #: (atris_node.pipeline.near)
+    near: int = 0
 
 
 @dataclass(frozen=True)
@@ -259,6 +263,20 @@ def _with_doubts(doubts: tuple[IntArray, IntArray, IntArray], samples: LineSampl
     return (np.concatenate([row, np.rint(samples.row_px[which]).astype(np.int64)]),
             np.concatenate([col, np.rint(samples.col_px[which]).astype(np.int64)]),
             np.concatenate([line, samples.line[which].astype(np.int64)]))
+
+
+def _with_near(doubts: tuple[IntArray, IntArray, IntArray],
+               stripes: tuple[IntArray, IntArray], top: Band | None, width: int
+               ) -> tuple[tuple[IntArray, IntArray, IntArray], IntArray]:
+    """``doubts`` (row, column, line) with the near guard's ``stripes`` (rows, columns)
+    added on the ``top`` band's line (a range nearer than z_min: a sector they look into
+    can be neither VALID nor free), and (W,) int64 the stripes per column."""
+    row, col = stripes
+    if top is None or not row.size:
+        return doubts, np.zeros(width, dtype=np.int64)
+    return ((np.concatenate([doubts[0], row]), np.concatenate([doubts[1], col]),
+             np.concatenate([doubts[2], np.full(row.size, top.line, dtype=np.int64)])),
+            per_column(col.astype(np.float64), width))
 
 
 def _kept(samples: LineSamples, points: Points, vehicle: FloatArray, keep: BoolArray
@@ -335,7 +353,8 @@ class Pipeline:
         points, vehicle = self._triangulate(samples)
         faint = radiometry.whole_columns(samples.col_px,
                                          self._too_faint(dmap, extraction, samples, points))
-        doubts = extraction.doubts
+        doubts, near = _with_near(extraction.doubts, self._near_stripes(dmap),
+                                  topmost(self.bands), self._width)
         if faint.any():  # not at the range their line gives: doubts, not points
             doubts = _with_doubts(doubts, samples, faint)
             removed = removed + per_column(samples.col_px[faint], self._width)
@@ -355,8 +374,8 @@ class Pipeline:
         # the samples dropped by the cleaning count as doubtful in their columns
         result = self._assemble(dmap, replace(
             extraction, samples=samples, dropped=extraction.dropped + int(removed.sum()),
-            doubtful_columns=extraction.doubtful_columns + removed, doubts=doubts,
-            too_faint=int(faint.sum())), points, vehicle, timings)
+            doubtful_columns=extraction.doubtful_columns + removed + near, doubts=doubts,
+            too_faint=int(faint.sum()), near=int(near.sum())), points, vehicle, timings)
         timings["sectors"] = _lap(start)
         if self.roi is not None:
             self.roi.update(extraction.samples, whole, result.diagnostics.interference)
@@ -403,6 +422,15 @@ class Pipeline:
         return radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
                                     self.calibration.laser, dmap.exposure_us or None,
                                     self.config.min_reflectance, stricter)
+
+    def _near_stripes(self, dmap: DistortionMap) -> tuple[IntArray, IntArray]:
+        """(rows, columns) of the stripes above every band: a surface nearer than z_min
+        (:mod:`atris_node.pipeline.near`; none where no row lies above the bands)."""
+        return near_stripes(dmap.values, dmap.saturated, self.bands, self._extractor,
+                            self.calibration.camera, self.calibration.laser,
+                            code_length=dmap.code_length,
+                            exposure_us=dmap.exposure_us or None,
+                            min_reflectance=self.config.min_reflectance, window=dmap.window)
 
     def _flipped(self, samples: LineSamples, points: Points) -> tuple[BoolArray, LineSamples]:
         """(n,) the samples of the columns where a still stripe was given another line than
@@ -512,7 +540,7 @@ class Pipeline:
             interference=max(energy, foreign_unassigned) > self.config.foreign_limit,
             ground=self._ground, timings_ms=timings,
             moving_fraction=extraction.moving / slots, step_fraction=extraction.steps / slots,
-            too_faint=extraction.too_faint)
+            too_faint=extraction.too_faint, near=extraction.near)
 
     def _objects(self, obstacle_points: FloatArray) -> tuple[objects_mod.ObjectBox, ...]:
         return objects_mod.cluster_objects(obstacle_points, self.config.object_eps_m,

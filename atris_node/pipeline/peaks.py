@@ -167,6 +167,9 @@ class Extraction:
     #: samples too faint for the range their line gives (atris_node.pipeline.radiometry):
     #: kept as doubts, not points (counted by the chain after triangulation)
     too_faint: int = 0
+    #: stripes above every band (atris_node.pipeline.near): a surface nearer than z_min;
+    #: kept as doubts at the topmost line's range (counted by the chain)
+    near: int = 0
     #: (K, W) True where line k's sample in column c was identified by continuity over
     #: farther rivals the physics could not rule out
     #: (:attr:`atris_node.pipeline.rivals.Identity.tied`); None: no rival test
