@@ -1002,7 +1002,7 @@ def test_lines_per_column_is_the_sum_over_lines() -> None:
 
 def _shadowed_columns_numpy(s: int, view: Any, distance_m: float) -> int:
     """verdicts.shadowed_columns as numpy steps (its form before the compiled pass)."""
-    from atris_node.pipeline.verdicts import SHADOW_LINES, doubt_margin_m
+    from atris_node.pipeline.verdicts import GAP_RUN, SHADOW_LINES, doubt_margin_m
 
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None or not holes.line.size:
@@ -1013,10 +1013,15 @@ def _shadowed_columns_numpy(s: int, view: Any, distance_m: float) -> int:
             & ~holes.noisy & (holes.start <= span[1]) & (holes.stop > span[0])
             & holes.bright)
     count = np.zeros(view.evidence.sector.size, dtype=np.int64)
-    for start, stop in zip(holes.start[mine], holes.stop[mine], strict=True):
-        count[start:stop] += 1
-    shadow = (count >= SHADOW_LINES) & view.columns[s]
     hits = view.sectors[s].hits
+    beside = 2 * GAP_RUN
+    for h in np.flatnonzero(mine):
+        start, stop = holes.start[h], holes.stop[h]
+        others = ((hits.line != holes.line[h]) & (hits.column >= start - beside)
+                  & (hits.column < stop + beside)
+                  & (np.abs(hits.range_m - holes.nearer_m[h]) <= margin))
+        count[start:stop] += 1 if others.any() else SHADOW_LINES
+    shadow = (count >= SHADOW_LINES) & view.columns[s]
     shadow[hits.column[hits.range_m <= limit]] = False
     return int(shadow.sum())
 

@@ -85,7 +85,9 @@ a sector boundary (verdicts.straddles without the points of both sides together)
 sphere_nearer_than_the_range read 0.48-0.52 m VALID in sectors 0-3 of every map (16
 sector-frames of 32; a sphere met 0.24-0.27 m away, nearer than the range) with the rows
 above the bands not read (the chain's near guard taken out; tests/test_near.py runs both
-ways).
+ways). edge_on_plate_one_sheet_on_the_wall read a retro wall at 8.13-8.15 m through a
+plate edge-on at 5.96 m in sector 6 of every map (4 far sector-frames) with a lone bright
+line's hole counted once (verdicts_kernels.shadowed without ``alone``).
 """
 
 from __future__ import annotations

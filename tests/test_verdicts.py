@@ -275,6 +275,43 @@ def test_feature_bright_lines_stopping_together_mid_surface_block_it() -> None:
     assert out.state is SectorState.VALID and out.distance_m == pytest.approx(3.5)
 
 
+def _one_line_on_a_wall(others_on_wall: bool):
+    """Sector 0 (columns 0-31): line 0 on a wall at 8 m (SNR 80) in every column but 12-16
+    (its hole, nothing in them); lines 1-2 on the ground at 2.5 m (weak, no obstacle
+    points), or, with ``others_on_wall``, on the wall too (SNR 20) in every column."""
+    cols = [c for c in range(32) if not 12 <= c <= 16]
+    wall = _points(np.full(len(cols), 8.0), np.zeros(len(cols)), cols)
+    wall = ObstaclePoints(wall.range_m, wall.sector, wall.obstacle, wall.line, wall.column,
+                          wall.sigma_m, np.full(len(cols), 80.0))
+    ground = _points(np.full(64, 2.5), np.arange(64) % 2 + 1, np.arange(64) % 32,
+                     obstacle=False)
+    parts = [wall, ground]
+    if others_on_wall:
+        on = _points(np.full(64, 8.0), np.arange(64) % 2 + 1, np.arange(64) % 32)
+        parts.append(ObstaclePoints(on.range_m, on.sector, on.obstacle, on.line, on.column,
+                                    on.sigma_m, np.full(64, 20.0)))
+    points = _join(*parts)
+    seen = np.zeros((3, WIDTH), bool)
+    seen[points.line, points.column] = True
+    zero = np.zeros(WIDTH, np.int64)
+    return points, ColumnEvidence(_evidence().sector, zero, zero, zero, seen=seen)
+
+
+def test_feature_the_only_bright_line_on_a_surface_stopping_blocks_it() -> None:
+    """A two-sheet unit: the top line alone meets a wall at 8 m (the other on the ground)
+    and stops over five columns of it with SNR 80 on both sides: something edge-on stands
+    in its rays there (s12155 of a random batch: a pale plate 6 m ahead seen edge-on,
+    the wall at 8.15 m read in 4 maps), so sector 0 is INVALID. With the other lines on
+    the wall too and not stopping there, the hole is one line's dropout: the wall stands.
+    Checked to fail with a lone line's hole counted once (verdicts_kernels.shadowed
+    without ``alone``: sector 0 VALID at 8 m)."""
+    points, evidence = _one_line_on_a_wall(others_on_wall=False)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    points, evidence = _one_line_on_a_wall(others_on_wall=True)
+    out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+    assert out.state is SectorState.VALID and out.distance_m == pytest.approx(8.0)
+
+
 def test_feature_a_line_lost_in_noise_is_no_evidence_of_free() -> None:
     """Line 0 meets nothing within z_max (it is not expected on the ground) and is not
     seen: that says nothing stands in its way only where its band is quiet enough to

@@ -557,9 +557,10 @@ def shadowed_columns(s: int, view: MapView, distance_m: float) -> int:
     margin = doubt_margin_m(distance_m)
     hits = view.sectors[s].hits
     return int(verdicts_kernels.shadowed(
-        holes.nearer_m, holes.farther_m, holes.noisy, holes.bright, holes.start, holes.stop,
-        span[0], span[1], distance_m + margin, margin, SHADOW_LINES, view.columns[s],
-        _ints(hits.column), _floats(hits.range_m)))
+        holes.nearer_m, holes.farther_m, holes.noisy, holes.bright, holes.line, holes.start,
+        holes.stop, span[0], span[1], distance_m + margin, margin, SHADOW_LINES,
+        2 * GAP_RUN, view.columns[s], _ints(hits.line), _ints(hits.column),
+        _floats(hits.range_m)))
 
 
 def missing_on_surface(s: int, view: MapView, distance_m: float, settings: SectorSettings

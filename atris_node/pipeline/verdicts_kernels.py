@@ -444,25 +444,36 @@ _F, _I, _B = (types.Array(dtype, 1, "A") for dtype in (types.float64, types.int6
                                                        types.boolean))
 
 
-@kernel(_with_mask((_F, _F, _B, _B, _I, _I, types.int64, types.int64, types.float64,
-                    types.float64, types.int64), (_I, _F)))
+@kernel(_with_mask((_F, _F, _B, _B, _I, _I, _I, types.int64, types.int64, types.float64,
+                    types.float64, types.int64, types.int64), (_I, _I, _F)))
 def shadowed(nearer: FloatArray, farther: FloatArray, noisy: BoolArray, bright: BoolArray,
-             start: IntArray, stop: IntArray, first: int, last: int, limit: float,
-             margin: float, lines: int, inside: BoolArray, hit_column: IntArray,
-             hit_range: FloatArray) -> int:
+             line: IntArray, start: IntArray, stop: IntArray, first: int, last: int,
+             limit: float, margin: float, lines: int, beside: int, inside: BoolArray,
+             hit_line: IntArray, hit_column: IntArray, hit_range: FloatArray) -> int:
     """:func:`atris_node.pipeline.verdicts.shadowed_columns`: how many of the sector's
     columns (``inside`` (W,), spanning ``first`` .. ``last``) lie in holes (``nearer``,
-    ``farther`` m, ``noisy``, ``bright``, ``start``, ``stop``; (h,) each) of ``lines`` or
-    more lines whose flanks lie within ``margin`` of each other and not beyond
-    ``limit`` (m), quiet and bright, with no obstacle point (``hit_column``,
-    ``hit_range`` (n,)) at most ``limit`` away in them."""
+    ``farther`` m, ``noisy``, ``bright``, ``line``, ``start``, ``stop``; (h,) each) of
+    ``lines`` or more lines whose flanks lie within ``margin`` of each other and not
+    beyond ``limit`` (m), quiet and bright, with no obstacle point (``hit_line``,
+    ``hit_column``, ``hit_range`` (n,)) at most ``limit`` away in them. A hole whose line
+    is the only one with obstacle points within ``margin`` of its near flank within
+    ``beside`` columns of it counts as ``lines`` holes: no other line is on that surface
+    there to stop with it."""
     width = inside.size
     count = np.zeros(width, dtype=np.int64)
     for h in range(nearer.size):
         if (nearer[h] <= limit and farther[h] <= nearer[h] + margin and not noisy[h]
                 and start[h] <= last and stop[h] > first and bright[h]):
+            alone = True
+            for i in range(hit_column.size):
+                if (hit_line[i] != line[h] and hit_column[i] >= start[h] - beside
+                        and hit_column[i] < stop[h] + beside
+                        and abs(hit_range[i] - nearer[h]) <= margin):
+                    alone = False
+                    break
+            weight = lines if alone else 1
             for c in range(start[h], stop[h]):
-                count[c] += 1
+                count[c] += weight
     shadow = np.zeros(width, dtype=np.bool_)
     for c in range(width):
         shadow[c] = count[c] >= lines and inside[c]
@@ -825,7 +836,8 @@ def warm_up() -> None:
                     flag, column)
     two, flag = np.ones(2), np.zeros(2, dtype=np.bool_)
     pair = np.array([0, 1], dtype=np.int64)
-    shadowed(two, two, flag, flag, pair, pair + 1, 0, 1, 1.0, 0.2, 2, flag, pair, two)
+    shadowed(two, two, flag, flag, pair, pair, pair + 1, 0, 1, 1.0, 0.2, 2, 6, flag, pair,
+             pair, two)
     unseen(two, flag, pair, pair, pair + 1, 0, 1, 1.0, 1.0, 1.0, flag, pair, pair, two, two,
            pair, two, 3)
     runs(np.ones((1, 2), dtype=np.bool_))
