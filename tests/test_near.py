@@ -79,6 +79,20 @@ def test_a_short_run_dim_stripe_or_noise_is_no_near_surface() -> None:
         assert _near(_map(40.0, range(0), 0.0, seed=seed))[0].size == 0
 
 
+def test_a_blinded_or_huge_guard_gives_no_stripe_and_no_nan() -> None:
+    """Extremes: a guard at full scale in every pixel (a sky that saturates every
+    sub-frame) has no maximum; a stripe at the int32 map's largest value over 30 columns
+    is kept with finite rows and columns (the brightness check takes its clipped value)."""
+    flat = np.full((200, 160), 2**31 - 1, np.int32)
+    sat = np.ones(flat.shape, dtype=np.bool_)
+    assert near.near_stripes(flat, sat, BANDS, SETTINGS, CAMERA, LASER, code_length=8,
+                             exposure_us=None, min_reflectance=MIN_REFLECTANCE)[0].size == 0
+    huge = _map(40.0, range(60, 90), 0.0)
+    huge[40, 60:90] = 2**31 - 1
+    row, col = _near(huge)
+    assert set(row.tolist()) == {40} and sorted(set(col.tolist())) == list(range(60, 90))
+
+
 def test_the_flank_of_a_stripe_in_the_topmost_band_is_no_near_stripe() -> None:
     """A bright stripe on the topmost band's first row: its flank rises to the guard's
     last row, which is no maximum of the guard."""
