@@ -49,6 +49,7 @@ from atris_node.pipeline.peaks import (
     read_padding,
     saturation_mask,
     strong_maxima,
+    true_runs,
 )
 from atris_node.pipeline.rivals import set_aside, stripe_peaks
 from atris_node.pipeline.temporal import not_own_light
@@ -139,11 +140,10 @@ def _bright_enough(values: npt.NDArray[Any], row: IntArray,
 def _in_long_runs(col: IntArray, width: int, run: int) -> BoolArray:
     """(n,) True for the entries of ``col`` whose column lies in a run of ``run`` or more
     adjacent columns that all hold an entry."""
-    held = np.zeros(width + 2, dtype=np.int64)
-    held[col + 1] = 1
-    edges = np.flatnonzero(np.diff(held))
+    held = np.zeros(width, dtype=np.bool_)
+    held[col] = True
     long = np.zeros(width, dtype=np.bool_)
-    for start, stop in zip(edges[0::2], edges[1::2], strict=True):
+    for start, stop in true_runs(held):
         if stop - start >= run:
             long[start:stop] = True
     return long[col]

@@ -261,8 +261,8 @@ def _median_per_line(line: IntArray, snr: FloatArray, count: int) -> tuple[float
     return tuple(float(m) for m in medians)
 
 
-def _runs(mask: BoolArray) -> list[tuple[int, int]]:
-    """Intervals ``[lo, hi)`` where the (H,) ``mask`` is True."""
+def true_runs(mask: BoolArray) -> list[tuple[int, int]]:
+    """Intervals ``[lo, hi)`` where the 1-D ``mask`` is True."""
     edges = np.flatnonzero(np.diff(np.concatenate(([False], mask, [False]))))
     return [(int(lo), int(hi)) for lo, hi in zip(edges[::2], edges[1::2], strict=True)]
 
@@ -292,7 +292,7 @@ def _search_rows(spans: list[tuple[int, int]], search: list[tuple[int, int]] | N
         inside[max(lo, 0):max(hi, 0)] = True
         scan[max(lo - sep, 0):max(hi + sep, 0)] = True
     inside &= read
-    return _Search(_runs(scan & read), inside, tuple(_runs(read & ~inside)))
+    return _Search(true_runs(scan & read), inside, tuple(true_runs(read & ~inside)))
 
 
 def _above_elsewhere(values: npt.NDArray[Any], noise: NoiseMap, snr_min: float,
