@@ -58,6 +58,11 @@ class LaserCalibration:
     ``return_dn_m2 · ρ · cos i / r²`` DN per on sub-frame), at the exposure
     ``return_exposure_us`` (µs). 0 when not calibrated: the pipeline then cannot tell a
     return too faint for its range (:mod:`atris_node.pipeline.radiometry`).
+
+    ``stripe_sigma_px`` is the stripes' width across the rows as the three-point Gaussian
+    peak fit reads it (px, σ of ``ln`` of the peak and its two neighbours; optics and
+    pixel together), on a flat target facing the unit. 0 when not measured: the pipeline
+    then cannot tell a stripe cut by an edge (:mod:`atris_node.pipeline.peaks`).
     """
 
     baseline_m: float
@@ -66,6 +71,7 @@ class LaserCalibration:
     alpha_sigma_rad: tuple[float, ...] = field(default_factory=tuple)
     return_dn_m2: float = 0.0
     return_exposure_us: float = 0.0
+    stripe_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.baseline_m) and self.baseline_m > 0):
@@ -81,6 +87,9 @@ class LaserCalibration:
                                             and self.return_exposure_us > 0.0):
             raise CalibrationError("return_exposure_us must be > 0 when return_dn_m2 is "
                                    f"given, got {self.return_exposure_us}")
+        if not (np.isfinite(self.stripe_sigma_px) and self.stripe_sigma_px >= 0.0):
+            raise CalibrationError(f"stripe_sigma_px must be a number >= 0 (0: not "
+                                   f"measured), got {self.stripe_sigma_px}")
 
 
 @dataclass(frozen=True)

@@ -60,7 +60,8 @@ MAX_DISTORTION_COEFFS = 14
 _CAMERA_KEYS = {"width_px", "height_px", "focal_px", "cx_px", "cy_px", "distortion",
                 "rms_px", "focal_sigma_px", "cx_sigma_px", "cy_sigma_px"}
 _LASER_KEYS = {"baseline_m", "baseline_sigma_m", "alpha_rad", "alpha_sigma_rad",
-               "residual_rms_px", "residual_rms_mm", "return_dn_m2", "return_exposure_us"}
+               "residual_rms_px", "residual_rms_mm", "return_dn_m2", "return_exposure_us",
+               "stripe_sigma_px"}
 
 
 @dataclass(frozen=True)
@@ -127,6 +128,8 @@ def _laser_table(laser: LaserCalibration, meta: Mapping[str, object]) -> dict[st
     if laser.return_dn_m2 > 0.0:
         table["return_dn_m2"] = float(laser.return_dn_m2)
         table["return_exposure_us"] = float(laser.return_exposure_us)
+    if laser.stripe_sigma_px > 0.0:
+        table["stripe_sigma_px"] = float(laser.stripe_sigma_px)
     for key in ("residual_rms_px", "residual_rms_mm"):
         if key in meta:
             table[key] = float(meta[key])  # type: ignore[arg-type]
@@ -266,7 +269,8 @@ def _parse_laser(table: Mapping[str, object], where: str) -> LaserCalibration:
         alpha_rad=tuple(alpha), alpha_sigma_rad=tuple(sigma),
         return_dn_m2=_number(table, "return_dn_m2", where, (0.0, 1e12), default=0.0),
         return_exposure_us=_number(table, "return_exposure_us", where, (0.0, 1e7),
-                                   default=0.0))
+                                   default=0.0),
+        stripe_sigma_px=_number(table, "stripe_sigma_px", where, (0.0, 100.0), default=0.0))
 
 
 def _check_size(camera: CameraModel, expected_size: tuple[int, int] | None, where: Path) -> None:

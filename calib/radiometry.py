@@ -11,6 +11,11 @@ the samples' 90th percentile; their spread is reported. The pipeline then reads 
 sample too faint for the range its line gives as a wrong identity
 (:mod:`atris_node.pipeline.radiometry`).
 
+The same samples give the stripes' width (:attr:`atris_node.calibration.LaserCalibration
+.stripe_sigma_px`): the σ of the parabola through the logarithms of each peak and its two
+neighbours, ``(2 ln A - ln a - ln c)^-1/2`` px, their median. A flat target facing the
+unit shows whole stripes; the pipeline reads a narrower one as cut by an edge.
+
 Units: DN, metres, µs. Albedo: a matte white card or paper is 0.8-0.9; an unknown one
 taken too high makes D too low and the check more lenient, never stricter.
 """
@@ -44,11 +49,13 @@ class RadiometryReport:
     exposure_us: float
     samples: int
     spread: tuple[float, float]
+    stripe_sigma_px: float = 0.0
 
     def as_dict(self) -> dict[str, object]:
         """The numbers, for ``--json``."""
         return {"return_dn_m2": self.return_dn_m2, "return_exposure_us": self.exposure_us,
-                "samples": self.samples, "spread": list(self.spread)}
+                "samples": self.samples, "spread": list(self.spread),
+                "stripe_sigma_px": self.stripe_sigma_px}
 
 
 def measure_return(calibration: Calibration, values: npt.NDArray[np.generic],
@@ -76,14 +83,33 @@ def measure_return(calibration: Calibration, values: npt.NDArray[np.generic],
         raise CalibrationError("the target's line peaks are not positive: is the map "
                                "demodulated with the unit's own code?")
     low, high = np.quantile(each, [0.1, 0.9]) / value
-    return RadiometryReport(value, exposure_us, int(ok.sum()), (float(low), float(high)))
+    return RadiometryReport(value, exposure_us, int(ok.sum()), (float(low), float(high)),
+                            stripe_width_px(np.asarray(values), rows[ok], column[ok]))
+
+
+def stripe_width_px(values: npt.NDArray[np.generic], rows: npt.NDArray[np.floating],
+                    columns: npt.NDArray[np.integer]) -> float:
+    """Median σ (px) of the three-point Gaussian fit at each sample (sub-pixel ``rows``,
+    integer ``columns``) of ``values`` (H, W): ``(2 ln A - ln a - ln c)^-1/2`` of the
+    peak A and its two neighbours. Samples with a neighbour <= 0 or off the image have
+    no width; none at all is an error (the target shows no stripe)."""
+    centre = np.rint(rows).astype(np.int64)
+    inside = (centre >= 1) & (centre < values.shape[0] - 1)
+    centre, columns = centre[inside], np.asarray(columns, dtype=np.int64)[inside]
+    a, b, c = (values[centre + d, columns].astype(np.float64) for d in (-1, 0, 1))
+    ok = (a > 0) & (c > 0) & (b > a) & (b > c)
+    if not ok.any():
+        raise CalibrationError("no stripe on the target has a width: its peaks have no "
+                               "positive neighbours (is the map demodulated?)")
+    curvature = 2.0 * np.log(b[ok]) - np.log(a[ok]) - np.log(c[ok])
+    return float(np.median(1.0 / np.sqrt(curvature)))
 
 
 def with_return(calibration: Calibration, report: RadiometryReport) -> Calibration:
     """``calibration`` with the lines' radiometric calibration of ``report``."""
     return replace(calibration, laser=replace(
         calibration.laser, return_dn_m2=report.return_dn_m2,
-        return_exposure_us=report.exposure_us))
+        return_exposure_us=report.exposure_us, stripe_sigma_px=report.stripe_sigma_px))
 
 
 def _check_target(code_length: int, distance_m: float, albedo: float,

@@ -108,3 +108,19 @@ def test_radiometric_calibration_round_trip(tmp_path: Path) -> None:
     assert load_calibration(bare).laser.return_dn_m2 == 0.0
     with pytest.raises(CalibrationError, match="return_dn_m2"):
         load_calibration(_edit(path, "return_dn_m2 = 641.25", "return_dn_m2 = -3.0"))
+
+
+def test_stripe_width_round_trip(tmp_path: Path) -> None:
+    """stripe_sigma_px is written when measured and read back; a file without it loads as
+    not measured (0), and a negative one is a clear error naming the key."""
+    calibration = _calibration()
+    measured = Calibration(calibration.camera, LaserCalibration(
+        0.075, (1.45, 1.52), 1e-4, (2e-4, 3e-4), stripe_sigma_px=0.66))
+    path = save_calibration(tmp_path / "unit.calib.toml", measured, {})
+    assert "stripe_sigma_px = 0.66" in path.read_text()
+    assert load_calibration(path) == measured
+    bare = save_calibration(tmp_path / "bare.calib.toml", calibration, {})
+    assert "stripe_sigma_px" not in bare.read_text()
+    assert load_calibration(bare).laser.stripe_sigma_px == 0.0
+    with pytest.raises(CalibrationError, match="stripe_sigma_px"):
+        load_calibration(_edit(path, "stripe_sigma_px = 0.66", "stripe_sigma_px = -1.0"))

@@ -88,14 +88,15 @@ def test_calibration_for_another_resolution_stops_the_live_check(
 def test_radiometry_from_a_live_target_matches_the_renderer(
         capsys: pytest.CaptureFixture[str], tmp_path: Path, wall: tuple) -> None:
     """``atris calib radiometry`` on the simulated wall (albedo 0.7 at 1.2 m, noise on):
-    the measured return_dn_m2 is the simulator's own within 10 %, and the written file
-    keeps the laser planes and holds it."""
+    the measured return_dn_m2 is the simulator's own within 10 %, the stripes' width its
+    own within 10 %, and the written file keeps the laser planes and holds both."""
     from dataclasses import replace
 
     from calib.files import load_calibration
 
     scene, truth = wall
-    bare = replace(truth, laser=replace(truth.laser, return_dn_m2=0.0, return_exposure_us=0.0))
+    bare = replace(truth, laser=replace(truth.laser, return_dn_m2=0.0, return_exposure_us=0.0,
+                                        stripe_sigma_px=0.0))
     path = save_calibration(tmp_path / "unit.calib.toml", bare, {"rms_px": 0.2})
     out = tmp_path / "with_return.calib.toml"
     code = main(["calib", "radiometry", "--calibration", str(path), "--backend", "sim",
@@ -109,6 +110,9 @@ def test_radiometry_from_a_live_target_matches_the_renderer(
     assert written.laser.alpha_rad == truth.laser.alpha_rad
     assert written.laser.return_dn_m2 == pytest.approx(report["return_dn_m2"])
     assert written.laser.return_exposure_us == 1000.0
+    assert truth.laser.stripe_sigma_px > 0.0
+    assert report["stripe_sigma_px"] == pytest.approx(truth.laser.stripe_sigma_px, rel=0.1)
+    assert written.laser.stripe_sigma_px == pytest.approx(report["stripe_sigma_px"])
 
 
 def test_radiometry_needs_a_target(capsys: pytest.CaptureFixture[str], tmp_path: Path,

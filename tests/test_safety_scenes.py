@@ -88,6 +88,10 @@ above the bands not read (the chain's near guard taken out; tests/test_near.py r
 ways). edge_on_plate_one_sheet_on_the_wall read a retro wall at 8.13-8.15 m through a
 plate edge-on at 5.96 m in sector 6 of every map (4 far sector-frames) with a lone bright
 line's hole counted once (verdicts_kernels.shadowed without ``alone``).
+retro_wall_foot_sheet_tail and retro_wall_foot_drawn read a sheet's tail on a retro wall's
+foot, a one-row maximum 1.9 px off the sheet's centre, as a stripe (near phantoms in 13-16
+and 1-2 sector-frames of 48 on seeds 1-3) with the cut test taken out of
+peaks_kernels.line_samples (tests/test_cut_stripes.py runs both ways).
 """
 
 from __future__ import annotations

@@ -55,6 +55,7 @@ from atris_node.pipeline.peaks import (
     ExtractorSettings,
     LineSamples,
     extract_lines,
+    narrowest_stripe_px,
     per_column,
     select,
     smooth_along_lines,
@@ -309,7 +310,8 @@ class Pipeline:
         cam, laser = calibration.camera, calibration.laser
         self.bands: tuple[Band, ...] = line_bands(cam, laser, config.z_min_m, config.z_max_m,
                                                   config.band_margin_px)
-        self._extractor = config.extractor()
+        self._extractor = replace(config.extractor(), narrowest_sigma_px=narrowest_stripe_px(
+            calibration.laser.stripe_sigma_px))
         self._sectors = config.sectors()
         self._tracker = ClosingTracker()
         self._ground = GroundPlane()

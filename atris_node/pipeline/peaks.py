@@ -84,6 +84,9 @@ class ExtractorSettings:
     min_separation_px: int = 3
     identity: str = "aligned"
     unique: bool = True  # drop samples whose line has a rival (atris_node.pipeline.rivals)
+    #: px; a peak narrower than a stripe of this σ is cut (0 = no test;
+    #: :func:`narrowest_stripe_px` of the calibration's stripe width)
+    narrowest_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
         if self.peak_method not in PEAK_METHODS:
@@ -92,6 +95,9 @@ class ExtractorSettings:
             raise ConfigError(f"identity {self.identity!r} is not one of {IDENTITY_MODES}")
         if not self.stripe_sigma_px > 0:
             raise ConfigError(f"stripe_sigma_px must be > 0, got {self.stripe_sigma_px}")
+        if not (np.isfinite(self.narrowest_sigma_px) and self.narrowest_sigma_px >= 0.0):
+            raise ConfigError(f"narrowest_sigma_px must be a number >= 0 (0: no test), got "
+                              f"{self.narrowest_sigma_px}")
 
     @property
     def radius(self) -> int:
@@ -237,8 +243,22 @@ def _samples(values: npt.NDArray[np.generic], saturated: BoolArray | None, rows:
         saturated is not None, np.asarray(rows, dtype=np.int64),
         local.tile_row, local.background_tiles, local.sigma_tiles, NOISE_TILE_PX,
         float(settings.snr_min), kernels.METHOD_CODES[settings.peak_method], settings.radius,
-        3.0 * noise, settings.stripe_sigma_px, crlb, SATURATED_SIGMA_PX, SATURATION_WINDOW_PX)
+        3.0 * noise, settings.stripe_sigma_px, crlb, SATURATED_SIGMA_PX, SATURATION_WINDOW_PX,
+        settings.narrowest_sigma_px)
     return LineSamples(line, row, col, snr, sigma, flat), int(strong), int(dropped)
+
+
+#: how much narrower than the calibrated stripes a whole stripe may be (a surface that the
+#: camera sees more obliquely than the sheet meets it: near and slanted)
+NARROWING = 1.6
+
+
+def narrowest_stripe_px(stripe_sigma_px: float) -> float:
+    """σ (px) of the narrowest whole stripe, for stripes of width ``stripe_sigma_px`` (the
+    calibration's, px, as the three-point Gaussian fit reads it); a narrower peak is cut
+    by an edge (:func:`atris_node.pipeline.peaks_kernels._cut`). 0.0 (no test) when the
+    width was not measured (0)."""
+    return stripe_sigma_px / NARROWING if stripe_sigma_px > 0.0 else 0.0
 
 
 #: no ambiguous peaks (identity without the rival test)

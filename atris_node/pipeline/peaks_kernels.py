@@ -363,7 +363,7 @@ def _sample_signatures() -> list[Any]:
     return [out(types.Array(dtype, 2, "C", readonly=readonly), types.Array(b1, 2, "A"), b1,
                 types.Array(i64, 2, "A"), types.Array(i64, 1, "A"),
                 types.Array(f32, 2, "A"), types.Array(f32, 2, "A"), i64, f64,
-                i64, i64, f64, f64, f64, f64, i64)
+                i64, i64, f64, f64, f64, f64, i64, f64)
             for dtype in (types.int16, types.int32, f32, f64)
             for readonly in (False, True)]
 
@@ -532,13 +532,38 @@ def _flat_top(saturated: npt.NDArray[np.bool_], row: int, c: int) -> bool:
     return False
 
 
+#: σ of the noise by which a profile must fall short of the narrowest stripe to be cut
+CUT_SIGMAS = 3.0
+
+
+@kernel()
+def _cut(window: FloatArray, r: int, background: float, noise: float, narrowest: float
+         ) -> bool:
+    """True when the peak at the centre of ``window`` (2r + 1,) is narrower than a stripe
+    of σ ``narrowest`` px. Three samples of a Gaussian of σ, A at the maximum and a, c
+    beside it, hold a·c = A²·exp(-1/σ²) wherever its centre lies between them: the
+    smaller neighbour of a stripe that wide is at least A²·exp(-1/σ²) over the larger
+    (all over the ``background``; the larger raised by CUT_SIGMAS times the ``noise``,
+    so that a weak stripe's noisy flank cuts nothing). Cut when the smaller neighbour
+    falls short of that by more than CUT_SIGMAS times the noise. A stripe cut by an edge
+    (a corner, an object's outline, the end of a retro-reflector) keeps one flank: its
+    maximum is the last lit row, off the sheet's centre by up to the stripe's width (the
+    tail of a sheet whose centre fell on the ground before a retro-reflective wall, 1.9
+    px off, read 5.2 m for 6.5 m)."""
+    peak = window[r] - background
+    high = max(window[r - 1], window[r + 1]) - background + CUT_SIGMAS * noise
+    low = min(window[r - 1], window[r + 1]) - background
+    need = peak * peak * np.exp(-1.0 / (narrowest * narrowest)) / high
+    return need - low > CUT_SIGMAS * noise
+
+
 @kernel(_sample_signatures())
 def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool_],
                  any_saturated: bool, rows: IntArray, tile_row: IntArray,
                  background_tiles: npt.NDArray[np.float32],
                  sigma_tiles: npt.NDArray[np.float32], tile_px: int, snr_min: float,
                  method: int, r: int, cog_threshold: float, sigma: float, crlb: float,
-                 saturated_sigma: float, saturation_window: int
+                 saturated_sigma: float, saturation_window: int, narrowest: float
                  ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray, FloatArray,
                             npt.NDArray[np.bool_], int, int]:
     """The line samples of the identified peaks ``rows`` (K, W) (-1 = none), line by
@@ -556,7 +581,8 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
     point of it is a stripe's centre: the middle of a window cut out of one read a line
     1.3 m ahead of a wall at 14 m; dropped); other peaks σ_u
     ``crlb / max(SNR, 1)``. A sample is kept when its profile lies inside the image and
-    it is flat-topped or a local maximum with an offset within ±1 px."""
+    it is flat-topped or a local maximum with an offset within ±1 px, and not cut
+    (:func:`_cut`, narrower than a stripe of σ ``narrowest`` px; 0: no test)."""
     k_count, width = rows.shape
     height = values.shape[0]
     size = k_count * width
@@ -592,6 +618,9 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
                 offset, good = _offset(window, method, r, cog_threshold, sigma)
                 if not (good and abs(offset) <= 1.0 and window[r] >= window[r - 1]
                         and window[r] >= window[r + 1]):
+                    continue
+                if narrowest > 0.0 and _cut(window, r, np.float64(background_tiles[tile]),
+                                            np.float64(sigma_tiles[tile]), narrowest):
                     continue
                 row, sigma_u = centre + offset, crlb / max(snr, 1.0)
             out_line[n], out_row[n], out_col[n] = k, row, c
@@ -1124,7 +1153,7 @@ def warm_up() -> None:
     line_samples(np.zeros((4, 1), dtype=np.int16), np.zeros((1, 1), dtype=np.bool_), False,
                  np.array([[2]], dtype=i64), np.zeros(4, dtype=i64),
                  np.zeros((1, 1), dtype=np.float32), np.ones((1, 1), dtype=np.float32), 32,
-                 6.0, 2, 1, 0.0, 1.5, 1.0, 0.5, 8)
+                 6.0, 2, 1, 0.0, 1.5, 1.0, 0.5, 8, 0.0)
     line_medians(line, np.zeros(1), 1)
     signed_energy(np.zeros((4, 3), dtype=np.int16), np.zeros((4, 3), dtype=np.bool_),
                   np.array([[0, 4]], dtype=i64), np.float32(0.0), np.float32(1.0),

@@ -92,6 +92,14 @@ def line_return_dn_m2(camera: CameraSpec, pattern: LinePattern) -> float:
     return electrons * camera.gain_dn_per_e
 
 
+def stripe_sigma_px(camera: CameraSpec, pattern: LinePattern) -> float:
+    """The stripes' width (:class:`atris_node.calibration.LaserCalibration`
+    ``stripe_sigma_px``): the sheet's σ across the rows of a facing surface, the pixel's
+    box (variance 1/12 px²) and the lens's PSF, added in variance (px)."""
+    return math.sqrt((pattern.line_sigma_rad * camera.focal_px) ** 2 + 1.0 / 12.0
+                     + camera.psf_sigma_px**2)
+
+
 def lux_to_w_m2(lux: float, filter_factor: float) -> float:
     """In-band irradiance (W/m²) of ``lux`` passed by a filter of ``filter_factor``."""
     return lux / LUMINOUS_EFFICACY_LM_PER_W * filter_factor

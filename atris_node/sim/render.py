@@ -43,7 +43,7 @@ from atris_node.mounting import Mounting
 from atris_node.pipeline.geometry import distort_pixels
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.sim import layers
-from atris_node.sim.optics import line_return_dn_m2, sheet_angles
+from atris_node.sim.optics import line_return_dn_m2, sheet_angles, stripe_sigma_px
 from atris_node.sim.raycast import Shape, occluded
 from atris_node.sim.scene import LinePattern, Scene
 from atris_node.sim.sensor import Pixels, Sensor
@@ -360,7 +360,8 @@ class Simulator:
         return Calibration(self.camera.model, LaserCalibration(
             laser.baseline_m, laser.alpha_rad,
             return_dn_m2=line_return_dn_m2(self.camera, laser),
-            return_exposure_us=self.camera.exposure_us))
+            return_exposure_us=self.camera.exposure_us,
+            stripe_sigma_px=stripe_sigma_px(self.camera, laser)))
 
     def calibration(self) -> Calibration:
         """The calibration the unit's pipeline gets: the truth off by the scene's
