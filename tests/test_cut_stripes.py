@@ -46,8 +46,8 @@ def _stripe(centre: float, peak_dn: float, sigma_px: float = SIGMA_PX) -> dict[i
     return {d: peak_dn * math.exp(-0.5 * ((d - centre) / sigma_px) ** 2) for d in range(-4, 5)}
 
 
-def _rows(values: np.ndarray, narrowest: float) -> np.ndarray:
-    settings = ExtractorSettings(unique=False, narrowest_sigma_px=narrowest)
+def _rows(values: np.ndarray, narrowest: float, method: str = "gaussian") -> np.ndarray:
+    settings = ExtractorSettings(method, unique=False, narrowest_sigma_px=narrowest)
     samples = extract_lines(values, np.zeros(values.shape, dtype=np.bool_), BANDS, settings,
                             roi_bands=False).samples
     return samples.row_px
@@ -72,6 +72,17 @@ def test_a_one_sided_maximum_is_dropped_as_cut() -> None:
     assert _rows(cut, 0.0).size == WIDTH
     assert np.allclose(_rows(cut, 0.0), ROW - 0.15, atol=0.05)
     assert _rows(cut, narrowest_stripe_px(SIGMA_PX)).size == 0
+
+
+def test_a_noiseless_one_row_peak_is_cut_a_whole_stripe_kept() -> None:
+    """A noiseless map (nothing beside the peak, no noise): one lit row is cut, a whole
+    stripe of the calibrated width kept, with the parabolic method (which, unlike the
+    Gaussian one, takes a peak without positive neighbours); no division by zero."""
+    lone = _map({0: 1000.0}, noise_dn=0.0)
+    assert _rows(lone, 0.0, "parabolic").size == WIDTH
+    assert _rows(lone, narrowest_stripe_px(SIGMA_PX), "parabolic").size == 0
+    whole = _map(_stripe(0.2, 1000.0), noise_dn=0.0)
+    assert _rows(whole, narrowest_stripe_px(SIGMA_PX), "parabolic").size == WIDTH
 
 
 @pytest.mark.parametrize("centre", [-0.5, -0.25, 0.0, 0.3, 0.5])

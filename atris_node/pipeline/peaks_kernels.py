@@ -553,6 +553,8 @@ def _cut(window: FloatArray, r: int, background: float, noise: float, narrowest:
     peak = window[r] - background
     high = max(window[r - 1], window[r + 1]) - background + CUT_SIGMAS * noise
     low = min(window[r - 1], window[r + 1]) - background
+    if high <= 0.0:  # no light beside the peak at all (a noiseless map): one row lit
+        return peak > CUT_SIGMAS * noise
     need = peak * peak * np.exp(-1.0 / (narrowest * narrowest)) / high
     return need - low > CUT_SIGMAS * noise
 
