@@ -94,33 +94,25 @@ def test_non_finite_value_is_never_written(tmp_path: Path) -> None:
         save_camera_file(tmp_path / "c.toml", _calibration().camera, math.inf, {}, {})
 
 
-def test_radiometric_calibration_round_trip(tmp_path: Path) -> None:
-    """return_dn_m2 and its exposure are written when calibrated and read back; a file
-    without them loads as not calibrated (0), and a negative value is a clear error."""
-    calibration = _calibration()
-    calibrated = Calibration(calibration.camera, LaserCalibration(
-        0.075, (1.45, 1.52), 1e-4, (2e-4, 3e-4), return_dn_m2=641.25, return_exposure_us=800.0))
-    path = save_calibration(tmp_path / "unit.calib.toml", calibrated, {})
-    assert "return_dn_m2" in path.read_text()
-    assert load_calibration(path) == calibrated
-    bare = save_calibration(tmp_path / "bare.calib.toml", calibration, {})
-    assert "return_dn_m2" not in bare.read_text()
-    assert load_calibration(bare).laser.return_dn_m2 == 0.0
-    with pytest.raises(CalibrationError, match="return_dn_m2"):
-        load_calibration(_edit(path, "return_dn_m2 = 641.25", "return_dn_m2 = -3.0"))
-
-
-def test_stripe_width_round_trip(tmp_path: Path) -> None:
-    """stripe_sigma_px is written when measured and read back; a file without it loads as
-    not measured (0), and a negative one is a clear error naming the key."""
+@pytest.mark.parametrize(("key", "given", "written", "bad"), [
+    ("return_dn_m2", {"return_dn_m2": 641.25, "return_exposure_us": 800.0},
+     "return_dn_m2 = 641.25", "return_dn_m2 = -3.0"),
+    ("stripe_sigma_px", {"stripe_sigma_px": 0.66}, "stripe_sigma_px = 0.66",
+     "stripe_sigma_px = -1.0"),
+])
+def test_optional_laser_values_round_trip(tmp_path: Path, key: str, given: dict[str, float],
+                                          written: str, bad: str) -> None:
+    """The radiometric calibration (return_dn_m2 and its exposure) and the stripes' width
+    (stripe_sigma_px) are written when measured and read back; a file without them loads
+    as not measured (0), and a negative value is a clear error naming the key."""
     calibration = _calibration()
     measured = Calibration(calibration.camera, LaserCalibration(
-        0.075, (1.45, 1.52), 1e-4, (2e-4, 3e-4), stripe_sigma_px=0.66))
+        0.075, (1.45, 1.52), 1e-4, (2e-4, 3e-4), **given))
     path = save_calibration(tmp_path / "unit.calib.toml", measured, {})
-    assert "stripe_sigma_px = 0.66" in path.read_text()
+    assert written in path.read_text()
     assert load_calibration(path) == measured
     bare = save_calibration(tmp_path / "bare.calib.toml", calibration, {})
-    assert "stripe_sigma_px" not in bare.read_text()
-    assert load_calibration(bare).laser.stripe_sigma_px == 0.0
-    with pytest.raises(CalibrationError, match="stripe_sigma_px"):
-        load_calibration(_edit(path, "stripe_sigma_px = 0.66", "stripe_sigma_px = -1.0"))
+    assert key not in bare.read_text()
+    assert getattr(load_calibration(bare).laser, key) == 0.0
+    with pytest.raises(CalibrationError, match=key):
+        load_calibration(_edit(path, written, bad))

@@ -537,25 +537,25 @@ CUT_SIGMAS = 3.0
 
 
 @kernel()
-def _cut(window: FloatArray, r: int, background: float, noise: float, narrowest: float
+def _cut(window: FloatArray, r: int, background: float, noise: float, product: float
          ) -> bool:
     """True when the peak at the centre of ``window`` (2r + 1,) is narrower than a stripe
-    of σ ``narrowest`` px. Three samples of a Gaussian of σ, A at the maximum and a, c
-    beside it, hold a·c = A²·exp(-1/σ²) wherever its centre lies between them: the
-    smaller neighbour of a stripe that wide is at least A²·exp(-1/σ²) over the larger
-    (all over the ``background``; the larger raised by CUT_SIGMAS times the ``noise``,
-    so that a weak stripe's noisy flank cuts nothing). Cut when the smaller neighbour
-    falls short of that by more than CUT_SIGMAS times the noise. A stripe cut by an edge
-    (a corner, an object's outline, the end of a retro-reflector) keeps one flank: its
-    maximum is the last lit row, off the sheet's centre by up to the stripe's width (the
-    tail of a sheet whose centre fell on the ground before a retro-reflective wall, 1.9
-    px off, read 5.2 m for 6.5 m)."""
+    of σ px, ``product`` = exp(-1/σ²) (taken once per map). Three samples of a Gaussian
+    of σ, A at the maximum and a, c beside it, hold a·c = A²·exp(-1/σ²) wherever its
+    centre lies between them: the smaller neighbour of a stripe that wide is at least
+    A²·exp(-1/σ²) over the larger (all over the ``background``; the larger raised by
+    CUT_SIGMAS times the ``noise``, so that a weak stripe's noisy flank cuts nothing).
+    Cut when the smaller neighbour falls short of that by more than CUT_SIGMAS times the
+    noise. A stripe cut by an edge (a corner, an object's outline, the end of a
+    retro-reflector) keeps one flank: its maximum is the last lit row, off the sheet's
+    centre by up to the stripe's width (the tail of a sheet whose centre fell on the
+    ground before a retro-reflective wall, 1.9 px off, read 5.2 m for 6.5 m)."""
     peak = window[r] - background
     high = max(window[r - 1], window[r + 1]) - background + CUT_SIGMAS * noise
     low = min(window[r - 1], window[r + 1]) - background
     if high <= 0.0:  # no light beside the peak at all (a noiseless map): one row lit
         return peak > CUT_SIGMAS * noise
-    need = peak * peak * np.exp(-1.0 / (narrowest * narrowest)) / high
+    need = peak * peak * product / high
     return need - low > CUT_SIGMAS * noise
 
 
@@ -592,6 +592,7 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
     out_row, out_snr, out_sigma = np.empty(size), np.empty(size), np.empty(size)
     out_flat = np.empty(size, dtype=np.bool_)
     window = np.empty(2 * r + 1)  # one column profile, float64
+    product = np.exp(-1.0 / (narrowest * narrowest)) if narrowest > 0.0 else 0.0  # _cut
     n = strong = 0
     for k in range(k_count):
         for c in range(width):
@@ -622,7 +623,7 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
                         and window[r] >= window[r + 1]):
                     continue
                 if narrowest > 0.0 and _cut(window, r, np.float64(background_tiles[tile]),
-                                            np.float64(sigma_tiles[tile]), narrowest):
+                                            np.float64(sigma_tiles[tile]), product):
                     continue
                 row, sigma_u = centre + offset, crlb / max(snr, 1.0)
             out_line[n], out_row[n], out_col[n] = k, row, c
