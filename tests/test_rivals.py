@@ -163,6 +163,29 @@ def test_feature_a_far_line_median_vouches_only_for_the_comb_on_it() -> None:
     assert ref[:, 520] == pytest.approx(np.array(WALL, float))
 
 
+def test_feature_a_lone_stripe_takes_no_line_median() -> None:
+    """A stripe alone in its column lies on every line's median row at some range: the
+    medians (the rows of a wall seen elsewhere) cannot tell its line, so beyond the
+    anchors' reach it has no continuity reference, and a tie the physics left stays a
+    tie (box_top_at_camera_height_drawn: five sheets merged into one stripe on a box top
+    3 cm below the camera lay on line 0's median and were settled as line 0, 1.50 m for
+    1.09 m, VALID in 6-9 sector-frames of 48 on seeds 1-3). A lone stripe within reach
+    of an anchored column keeps that column's row, and a comb on the medians keeps
+    them. Checked to fail with the _lone_stripe condition taken out of
+    rivals_kernels._continuity_columns (column 500 got line 0's median)."""
+    rows = np.full((8, 640), -1, np.int64)
+    rows[:, 100:300] = np.array(WALL)[:, None]
+    anchored = np.zeros(640, bool)
+    anchored[100:300] = True
+    rows[0, 500] = WALL[0] + 1
+    rows[0, 310] = WALL[0] + 1
+    rows[:, 520] = np.array(WALL) + 2
+    ref = _reference(rows, anchored)
+    assert np.isinf(ref[:, 500]).all()
+    assert ref[0, 310] == WALL[0]
+    assert ref[:, 520] == pytest.approx(np.array(WALL, float))
+
+
 def test_feature_a_line_may_take_a_stripe_from_beyond_z_max_in_the_rival_test(
         pipe: Pipeline) -> None:
     """A line's band ends at its z_max row, but its stripe on a surface beyond the range

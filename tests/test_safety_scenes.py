@@ -92,6 +92,10 @@ retro_wall_foot_sheet_tail and retro_wall_foot_drawn read a sheet's tail on a re
 foot, a one-row maximum 1.9 px off the sheet's centre, as a stripe (near phantoms in 13-16
 and 1-2 sector-frames of 48 on seeds 1-3) with the cut test taken out of
 peaks_kernels.line_samples (tests/test_cut_stripes.py runs both ways).
+box_top_at_camera_height_drawn read 1.50 m VALID for a box top at 1.09 m (far in 4
+sector-frames of 32 on seed 1) with a stripe alone in its column settled by a line's
+median row elsewhere (the _lone_stripe condition taken out of
+rivals_kernels._continuity_columns).
 """
 
 from __future__ import annotations

@@ -272,7 +272,12 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     inf where none of these holds. Between anchors that disagree the line's median is
     no reference: it mixes surfaces at different ranges, and a comb shifted by one line
     can match it better than the true one (a wall turned away, its far part a line
-    spacing higher in the image: a phantom at 1.4 m for a wall at 5.7 m)."""
+    spacing higher in the image: a phantom at 1.4 m for a wall at 5.7 m). Nor is it for
+    a stripe alone in its column (one line's row at most): every line explains it at its
+    own range, and lying on one line's median row says only that another surface shows
+    that line there (five sheets merged into one stripe on a box top 3 cm below the
+    camera lay on line 0's median and read 1.50 m, the farthest of their readings, for
+    1.09 m)."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     return np.asarray(rivals_kernels.continuity(
         rows, np.ascontiguousarray(anchored, dtype=np.bool_),

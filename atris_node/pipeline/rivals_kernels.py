@@ -507,6 +507,16 @@ def _medians_memo(k_count: int, width: int, block: int) -> tuple[FloatArray, Int
             np.full((k_count, n_blocks + 1), -1, dtype=np.int64))
 
 
+@uncounted
+def _lone_stripe(rows: IntArray, c: int) -> bool:
+    """True when column c of ``rows`` (K, W) holds one line's row at most: a stripe
+    alone in its column, which every line explains at its own range."""
+    held = 0
+    for k in range(rows.shape[0]):
+        held += rows[k, c] >= 0
+    return held <= 1
+
+
 @kernel()
 def _continuity_columns(rows: IntArray, anchored: BoolArray, held: IntArray,
                         n_held: IntArray, medians: FloatArray, taken: IntArray,
@@ -572,7 +582,9 @@ def _continuity_columns(rows: IntArray, anchored: BoolArray, held: IntArray,
                 if not np.isfinite(ref):
                     ref = _far_or_bridged(row, c, c if good else before, c if good else after,
                                           bridge_px)
-                if np.isnan(ref):
+                if np.isnan(ref) and _lone_stripe(rows, c):
+                    ref = np.inf  # a line's rows elsewhere cannot tell a lone stripe's line
+                elif np.isnan(ref):
                     if taken[k, n_blocks] != n_good:
                         medians[k, n_blocks] = _line_median(row, goods, n_good, min_line,
                                                             values)
@@ -607,7 +619,9 @@ def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: in
       else inf;
     - the upper median of all the line's anchored rows (at least ``min_line``; inf
       otherwise), and inf for every line of a column where some line of this case has a
-      row more than ``median_px`` off (or no) median.
+      row more than ``median_px`` off (or no) median, or that holds one line's row at
+      most (:func:`_lone_stripe`: a stripe alone in its column lies on every line's
+      median row at some range, and the medians are other surfaces' rows).
 
     inf in the other columns. The block and line medians are taken only where they are
     needed."""
