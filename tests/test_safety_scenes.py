@@ -96,6 +96,9 @@ box_top_at_camera_height_drawn read 1.50 m VALID for a box top at 1.09 m (far in
 sector-frames of 32 on seed 1) with a stripe alone in its column settled by a line's
 median row elsewhere (the _lone_stripe condition taken out of
 rivals_kernels._continuity_columns).
+dark_pole_crossing_drawn and black_pole_crossing_before_wall read the wall behind a black
+pole crossing before it (4.79 m for 4.39-4.43 m in every map; 3.49-3.50 m for 3.17-3.19 m
+in 2 maps) with a bright line's dim not dropped (tests/test_dimming.py runs both ways).
 """
 
 from __future__ import annotations

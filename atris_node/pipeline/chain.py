@@ -25,6 +25,7 @@ from atris_node.errors import ConfigError, check_setting
 from atris_node.mounting import Mounting
 from atris_node.pipeline import (
     alignment_kernels,
+    dimming,
     identity_kernels,
     peaks_kernels,
     persistence,
@@ -370,6 +371,12 @@ class Pipeline:
         if self.config.still_lines:
             self._earlier_rows = persistence.rows_by_line(samples, len(self.bands),
                                                           self._width)
+        dim = dimming.dimmed(samples, len(self.bands), self._width, self.config.snr_min)
+        dims = None
+        if dim.any():  # a bright line dimmed over a few columns: its rays partly blocked
+            removed = removed + per_column(samples.col_px[dim], self._width)
+            dims = dimming.grid(samples, dim, len(self.bands), self._width)
+            samples, points, vehicle = _kept(samples, points, vehicle, ~dim)
         timings["triangulate"] = _lap(start)
         if self._ground_due():
             self._update_ground(rows_where(vehicle, points.valid))
@@ -377,7 +384,8 @@ class Pipeline:
         result = self._assemble(dmap, replace(
             extraction, samples=samples, dropped=extraction.dropped + int(removed.sum()),
             doubtful_columns=extraction.doubtful_columns + removed + near, doubts=doubts,
-            too_faint=int(faint.sum()), near=int(near.sum())), points, vehicle, timings)
+            too_faint=int(faint.sum()), near=int(near.sum()), dimmed=dims), points, vehicle,
+            timings)
         timings["sectors"] = _lap(start)
         if self.roi is not None:
             self.roi.update(extraction.samples, whole, result.diagnostics.interference)

@@ -318,7 +318,8 @@ class SectorJudge:
                               ambiguous=extraction.ambiguous_columns, missing=missing,
                               seen=seen, noisy=noisy, expected=expected, prior=prior,
                               returned_m=returned,
-                              ground_snr=None if returned is None else ground_snr)
+                              ground_snr=None if returned is None else ground_snr,
+                              dimmed=extraction.dimmed)
 
     def _returned(self, prior: VisibilityPrior, quiet: BoolArray,
                   on_ground: tuple[IntArray, IntArray, FloatArray], on: BoolArray

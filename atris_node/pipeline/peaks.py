@@ -180,6 +180,9 @@ class Extraction:
     #: farther rivals the physics could not rule out
     #: (:attr:`atris_node.pipeline.rivals.Identity.tied`); None: no rival test
     tied: BoolArray | None = None
+    #: (K, W) True where line k's sample in column c was dropped as a dim of a bright line
+    #: (atris_node.pipeline.dimming; set by the chain); None: none
+    dimmed: BoolArray | None = None
 
 
 # --------------------------------------------------------------------------- rows read

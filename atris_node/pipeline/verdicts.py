@@ -251,6 +251,9 @@ class ColumnEvidence:
     #: (K, W) the highest SNR of line k's samples on its ground rows in column c (0:
     #: none); None where ``returned_m`` is (:func:`hole_before`)
     ground_snr: FloatArray | None = None
+    #: (K, W) line k's sample in column c was a dim of a bright line, dropped
+    #: (:mod:`atris_node.pipeline.dimming`); None: none
+    dimmed: BoolArray | None = None
 
     @property
     def unclean(self) -> IntArray:
@@ -367,8 +370,9 @@ class LineHoles:
     stop exclusive), ``nearer_m`` and ``farther_m`` (the flanks' ranges, inf where not
     flanked), ``noisy`` (the line's band is too noisy to show it in most of the run) and
     ``bright`` (the line has an obstacle point of SNR ``bright_snr`` or more in each of
-    the GAP_RUN columns before the run and from its stop on: bright flanks) per run, (n,)
-    each."""
+    the GAP_RUN columns before the run and from its stop on: bright flanks; or a dim of
+    a bright line in the run, :mod:`atris_node.pipeline.dimming`, whose flanks a moving
+    occluder dims too) per run, (n,) each."""
 
     line: IntArray
     start: IntArray
@@ -380,13 +384,15 @@ class LineHoles:
 
     @classmethod
     def of(cls, points: ObstaclePoints, seen: BoolArray, noisy: BoolArray | None = None,
-           bright_snr: float = np.inf) -> LineHoles:
+           bright_snr: float = np.inf, dimmed: BoolArray | None = None) -> LineHoles:
         """The holes of every line of ``seen`` (K, W) (``noisy`` (K, W): where its band
-        is too noisy to show it; None: nowhere), bright at ``bright_snr``; one compiled
-        pass (:func:`atris_node.pipeline.verdicts_kernels.line_holes`). A flank is the
+        is too noisy to show it; None: nowhere), bright at ``bright_snr`` or where they
+        hold a ``dimmed`` (K, W) sample (None: none); one compiled pass
+        (:func:`atris_node.pipeline.verdicts_kernels.line_holes`). A flank is the
         line's last obstacle point in the column."""
         return cls(*verdicts_kernels.line_holes(
             seen, _NOWHERE if noisy is None else noisy,
+            _NOWHERE if dimmed is None else dimmed,
             np.asarray(points.line, dtype=np.int64), np.asarray(points.column, dtype=np.int64),
             np.asarray(points.range_m, dtype=np.float64), points.obstacle,
             np.asarray(points.snr, dtype=np.float64), float(bright_snr), GAP_RUN))
@@ -450,7 +456,8 @@ class MapView:
             columns = SectorColumns.of(evidence.sector, count)
         width = int(points.column.max()) + 1 if points.size else 1
         holes = None if evidence.seen is None else LineHoles.of(
-            points, evidence.seen, evidence.noisy, SHADOW_SNR * settings.snr_min)
+            points, evidence.seen, evidence.noisy, SHADOW_SNR * settings.snr_min,
+            evidence.dimmed)
         sectors = by_sector(points, count)
         found = np.full((0, 4), np.nan)
         if sectors:

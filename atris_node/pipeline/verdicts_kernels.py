@@ -573,18 +573,21 @@ def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
 
 
 @kernel("Tuple((int64[:], int64[:], int64[:], float64[:], float64[:], boolean[:], "
-        "boolean[:]))(boolean[:, :], boolean[:, :], int64[:], int64[:], float64[:], "
-        "boolean[:], float64[:], float64, int64)")
-def line_holes(seen: BoolArray, noisy: BoolArray, line: IntArray, column: IntArray,
-               range_m: FloatArray, obstacle: BoolArray, snr: FloatArray, bright_snr: float,
-               gap: int) -> tuple[IntArray, IntArray, IntArray, FloatArray, FloatArray,
-                                  BoolArray, BoolArray]:
+        "boolean[:]))(boolean[:, :], boolean[:, :], boolean[:, :], int64[:], int64[:], "
+        "float64[:], boolean[:], float64[:], float64, int64)")
+def line_holes(seen: BoolArray, noisy: BoolArray, dimmed: BoolArray, line: IntArray,
+               column: IntArray, range_m: FloatArray, obstacle: BoolArray, snr: FloatArray,
+               bright_snr: float, gap: int
+               ) -> tuple[IntArray, IntArray, IntArray, FloatArray, FloatArray, BoolArray,
+                          BoolArray]:
     """:class:`atris_node.pipeline.verdicts.LineHoles` of ``seen`` (K, W) under ``noisy``
     ((K, W), or (0, 0) for nowhere) from the points (``line``, ``column``, ``range_m``,
     ``obstacle``, ``snr``; (n,) each): per hole its line, start, stop, nearer and farther
     flank (m), noisy, and bright (its line has an obstacle point of SNR ``bright_snr`` or
     more in ``gap`` of the 2·``gap`` columns on either side: a single dropout beside the
-    hole leaves it bright). A flank is the last obstacle
+    hole leaves it bright; or ``dimmed`` ((K, W), or (0, 0) for nowhere) in a column of
+    the run: a bright line's dim, whose flanks a moving occluder dims too). A flank is the
+    last obstacle
     point of the line in the column, as a numpy assignment leaves it."""
     lines, width = seen.shape
     flank = np.full((lines, width), np.nan)
@@ -622,6 +625,8 @@ def line_holes(seen: BoolArray, noisy: BoolArray, line: IntArray, column: IntArr
             nearer[h], farther[h] = min(left, right), max(left, right)
         lit[h] = (_count_true(bright[k], a - 2 * gap, a) >= gap
                   and _count_true(bright[k], b, b + 2 * gap) >= gap)
+        if not lit[h] and k < dimmed.shape[0]:
+            lit[h] = _count_true(dimmed[k], a, b) > 0
     return (row[out], start[out], stop[out], nearer[out], farther[out], hidden[out],
             lit[out])
 
@@ -842,8 +847,9 @@ def warm_up() -> None:
            pair, two, 3)
     runs(np.ones((1, 2), dtype=np.bool_))
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
-               np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1),
-               np.ones(1, dtype=np.bool_), np.ones(1), 1.0, 3)
+               np.zeros((0, 0), dtype=np.bool_), np.zeros(1, dtype=np.int64),
+               np.zeros(1, dtype=np.int64), np.ones(1), np.ones(1, dtype=np.bool_),
+               np.ones(1), 1.0, 3)
     one = np.zeros(1, dtype=np.int64)
     expected_on_surface(one, np.ones(1), one, one, np.ones(1), np.ones((1, 1)),
                         np.zeros((0, 0), dtype=np.bool_), np.ones(6))
