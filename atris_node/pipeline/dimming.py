@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from atris_node.jit import kernel
+from atris_node.jit import kernel, uncounted
 from atris_node.pipeline.peaks import LineSamples
 
 BoolArray = npt.NDArray[np.bool_]
@@ -62,28 +62,37 @@ def grid(samples: LineSamples, which: BoolArray, lines: int, width: int) -> Bool
     return out
 
 
-@kernel()
-def _upper_quartile(values: FloatArray, count: int) -> float:
-    """The upper quartile (the value at rank floor(3(count - 1)/4), from 0) of the first
-    ``count`` of ``values`` (sorted in place)."""
-    part = values[:count]
-    part.sort()
-    return float(part[(3 * (count - 1)) // 4])
-
-
-@kernel()
-def _side_level(row: FloatArray, start: int, stop: int, scratch: FloatArray,
+@uncounted
+def _side_level(grid: FloatArray, k: int, start: int, stop: int, scratch: FloatArray,
                 need: int) -> float:
-    """The upper quartile of the finite values of ``row[start:stop]`` (clipped to the
-    row); NaN with fewer than ``need`` of them."""
+    """The upper quartile (the value at rank floor(3(n - 1)/4) from the lowest) of the n
+    finite values of ``grid[k, start:stop]`` (clipped to the row), sorted into
+    ``scratch`` by insertion; NaN when n < ``need``."""
     n = 0
-    for c in range(max(start, 0), min(stop, row.size)):
-        if np.isfinite(row[c]):
-            scratch[n] = row[c]
-            n += 1
+    for c in range(max(start, 0), min(stop, grid.shape[1])):
+        value = grid[k, c]
+        if not np.isfinite(value):
+            continue
+        j = n
+        while j > 0 and scratch[j - 1] > value:
+            scratch[j] = scratch[j - 1]
+            j -= 1
+        scratch[j] = value
+        n += 1
     if n < need:
         return np.nan
-    return _upper_quartile(scratch, n)
+    return scratch[(3 * (n - 1)) // 4]
+
+
+@uncounted
+def _window_max(grid: FloatArray, k: int, c: int, reach: int) -> float:
+    """The largest finite value of ``grid[k]`` within ``reach`` columns of c, c left
+    out (-inf: none)."""
+    top = -np.inf
+    for j in range(max(c - reach, 0), min(c + reach + 1, grid.shape[1])):
+        if j != c and grid[k, j] > top:  # False for NaN
+            top = grid[k, j]
+    return top
 
 
 @kernel()
@@ -93,19 +102,25 @@ def _dimmed(line: IntArray, column: IntArray, snr: FloatArray, lines: int, width
     ``lines`` lines over ``width`` columns: SNR below ``fraction`` of the upper quartile
     of the line's samples' SNR within ``reach`` columns on each side (``need`` of them at
     least), both ``bright`` or more. Columns outside [0, width) or lines outside
-    [0, lines) are no dims."""
+    [0, lines) are no dims. A sample at ``fraction`` of the largest SNR beside it or more
+    is none either (no quartile is larger): the quartiles are taken only below that."""
     grid = np.full((lines, width), np.nan)
+    most = np.full(lines, -np.inf)  # each line's largest SNR
     for i in range(line.size):
         if 0 <= line[i] < lines and 0 <= column[i] < width:
             grid[line[i], column[i]] = snr[i]
+            most[line[i]] = max(most[line[i]], snr[i])
     scratch = np.empty(reach)
     out = np.zeros(line.size, dtype=np.bool_)
     for i in range(line.size):
         k, c = line[i], column[i]
-        if not (0 <= k < lines and 0 <= c < width):
+        if not (0 <= k < lines and 0 <= c < width) or not snr[i] < fraction * most[k]:
             continue
-        left = _side_level(grid[k], c - reach, c, scratch, need)
-        right = _side_level(grid[k], c + 1, c + 1 + reach, scratch, need)
+        top = _window_max(grid, k, c, reach)
+        if not (top >= bright and snr[i] < fraction * top):
+            continue
+        left = _side_level(grid, k, c - reach, c, scratch, need)
+        right = _side_level(grid, k, c + 1, c + 1 + reach, scratch, need)
         if left >= bright and right >= bright:  # False where a side is NaN
             out[i] = snr[i] < fraction * min(left, right)
     return out
