@@ -118,7 +118,8 @@ def _local_by_definition(rows: np.ndarray, anchored: np.ndarray, reach: int) -> 
 
 def _reference_by_definition(rows: np.ndarray, anchored: np.ndarray) -> np.ndarray:
     """rivals._reference as it was composed before its single kernel: the local row, the
-    block median, the bridge, the line's median where the comb lies on the medians."""
+    block median, the bridge, the line's median where the comb lies on the medians and
+    the column holds more than one line's row (a lone stripe takes no line median)."""
     from atris_node.pipeline import identity_kernels
     from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
     from atris_node.pipeline.rivals import CONTINUITY_REACH, MEDIAN_PX
@@ -132,7 +133,8 @@ def _reference_by_definition(rows: np.ndarray, anchored: np.ndarray) -> np.ndarr
     bridge, sides = _bridge_by_definition(rows, good)
     far = ~np.isfinite(local) & ~np.isfinite(block) & (sides < 2)
     off = far & (rows >= 0) & (np.abs(rows - line) > MEDIAN_PX)
-    line = np.where(off.any(axis=0)[None, :], np.inf, line)
+    lone = (rows >= 0).sum(axis=0) <= 1
+    line = np.where((off.any(axis=0) | lone)[None, :], np.inf, line)
     wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
     return np.where(np.isfinite(local), local, wide)
 
