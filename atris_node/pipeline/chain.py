@@ -330,7 +330,7 @@ class Pipeline:
             full_every=config.roi_full_every)) if config.roi_narrowing and config.roi_bands
             else None)
         for kernels in (peaks_kernels, identity_kernels, alignment_kernels, rivals,
-                        verdicts_kernels, radiometry_kernels, persistence):
+                        verdicts_kernels, radiometry_kernels, persistence, dimming):
             kernels.warm_up()  # the first map does not wait for the compiled code
         logger.debug("pipeline bands: %s", self.bands)
         if config.min_reflectance > 0.0 and not radiometry.calibrated(calibration.laser):

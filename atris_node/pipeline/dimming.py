@@ -13,9 +13,8 @@ doubtful (never evidence of free space): its columns become the line's hole, and
 lines stopping together over a few columns of one surface make the sector INVALID.
 
 A dim wider than about DIM_REACH columns leaves one side's quartile inside it and is no
-dim:
-a line crossing onto a darker surface, or a noise tile of another σ (the SNR is against
-the tile's σ, tiles are 32 columns wide), changes its SNR over many more columns.
+dim: a line crossing onto a darker surface, or a noise tile of another σ (the SNR is
+against the tile's σ, tiles are 32 columns wide), changes its SNR over many more columns.
 """
 
 from __future__ import annotations
@@ -50,6 +49,12 @@ def dimmed(samples: LineSamples, lines: int, width: int, snr_min: float) -> Bool
         np.rint(samples.col_px).astype(np.int64), np.ascontiguousarray(samples.snr,
                                                                       dtype=np.float64),
         lines, width, DIM_REACH, DIM_SIDE, DIM_FRACTION, DIM_BRIGHT * snr_min))
+
+
+def warm_up() -> None:
+    """Type the kernel's arguments once (the first map does not wait for it)."""
+    one = np.zeros(1, dtype=np.int64)
+    _dimmed(one, one, np.ones(1), 1, 1, DIM_REACH, DIM_SIDE, DIM_FRACTION, 1.0)
 
 
 def grid(samples: LineSamples, which: BoolArray, lines: int, width: int) -> BoolArray:
