@@ -7,7 +7,7 @@ import pytest
 
 from atris_node.bench.safety import score_scene
 from atris_node.pipeline import chain, dimming
-from atris_node.pipeline.peaks import LineSamples
+from atris_node.pipeline.peaks import LineSamples, select
 
 SNR_MIN = 6.0
 WIDTH = 200
@@ -70,10 +70,7 @@ def test_no_dim_without_enough_samples_on_both_sides() -> None:
     snr[0, 110] = 10.0
     snr[0, 111:113] = 100.0  # two samples on the right only
     samples = _samples(np.nan_to_num(snr, nan=0.0))
-    keep = np.isfinite(snr.reshape(-1))
-    kept = LineSamples(line=samples.line[keep], row_px=samples.row_px[keep],
-                       col_px=samples.col_px[keep], snr=samples.snr[keep],
-                       sigma_u_px=samples.sigma_u_px[keep], saturated=samples.saturated[keep])
+    kept = select(samples, np.isfinite(snr.reshape(-1)))
     assert not dimming.dimmed(kept, 1, WIDTH, SNR_MIN).any()
 
 

@@ -587,8 +587,7 @@ def line_holes(seen: BoolArray, noisy: BoolArray, dimmed: BoolArray, line: IntAr
     more in ``gap`` of the 2·``gap`` columns on either side: a single dropout beside the
     hole leaves it bright; or ``dimmed`` ((K, W), or (0, 0) for nowhere) in a column of
     the run: a bright line's dim, whose flanks a moving occluder dims too). A flank is the
-    last obstacle
-    point of the line in the column, as a numpy assignment leaves it."""
+    last obstacle point of the line in the column, as a numpy assignment leaves it."""
     lines, width = seen.shape
     flank = np.full((lines, width), np.nan)
     bright_lines, bright_width = lines, width
