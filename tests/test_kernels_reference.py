@@ -119,7 +119,8 @@ def _local_by_definition(rows: np.ndarray, anchored: np.ndarray, reach: int) -> 
 def _reference_by_definition(rows: np.ndarray, anchored: np.ndarray) -> np.ndarray:
     """rivals._reference as it was composed before its single kernel: the local row, the
     block median, the bridge, the line's median where the comb lies on the medians and
-    the column holds more than one line's row (a lone stripe takes no line median)."""
+    the column holds more than one line's row (a lone stripe takes no line median) and,
+    for a line the column does not hold, some line it holds has a reference."""
     from atris_node.pipeline import identity_kernels
     from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
     from atris_node.pipeline.rivals import CONTINUITY_REACH, MEDIAN_PX
@@ -136,7 +137,9 @@ def _reference_by_definition(rows: np.ndarray, anchored: np.ndarray) -> np.ndarr
     lone = (rows >= 0).sum(axis=0) <= 1
     line = np.where((off.any(axis=0) | lone)[None, :], np.inf, line)
     wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
-    return np.where(np.isfinite(local), local, wide)
+    ref = np.where(np.isfinite(local), local, wide)
+    tied = ((rows >= 0) & np.isfinite(ref)).any(axis=0)
+    return np.where(far & (rows < 0) & ~tied[None, :], np.inf, ref)
 
 
 def _random_rows(rng: np.random.Generator, k_count: int, width: int) -> np.ndarray:

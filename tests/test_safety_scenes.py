@@ -99,6 +99,12 @@ rivals_kernels._continuity_columns).
 dark_pole_crossing_drawn and black_pole_crossing_before_wall read the wall behind a black
 pole crossing before it (4.79 m for 4.39-4.43 m in every map; 3.49-3.50 m for 3.17-3.19 m
 in 2 maps) with a bright line's dim not dropped (tests/test_dimming.py runs both ways).
+comb_lost_low_line_before_box_drawn and comb_lost_low_line_steady_lamp read 2.6 m for a
+surface at 3.66 m (4 near phantoms of 32 sector-frames each on seed 1) with
+rivals.MEDIAN_PX at its former 6 px and a line the column does not hold taking its
+median whatever the column holds (both protections taken out; with MEDIAN_PX at 2 px
+alone both scenes pass, with the left-out-line rule alone the drawn one;
+tests/test_rivals.py checks each rule on its own).
 """
 
 from __future__ import annotations

@@ -594,9 +594,14 @@ def _continuity_columns(rows: IntArray, anchored: BoolArray, held: IntArray,
                     far[k, i] = True
                     off[i] |= row[c] >= 0 and abs(row[c] - line) > median_px
                 out[k, i] = ref
-    for k in range(k_count):
-        for i in range(n):
+    for i in range(n):
+        tied = False  # some line the column holds has a reference
+        for k in range(k_count):
             if far[k, i] and off[i]:
+                out[k, i] = np.inf
+            tied |= rows[k, columns[i]] >= 0 and np.isfinite(out[k, i])
+        for k in range(k_count):
+            if far[k, i] and rows[k, columns[i]] < 0 and not tied:
                 out[k, i] = np.inf
     return out
 
@@ -621,7 +626,12 @@ def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: in
       otherwise), and inf for every line of a column where some line of this case has a
       row more than ``median_px`` off (or no) median, or that holds one line's row at
       most (:func:`_lone_stripe`: a stripe alone in its column lies on every line's
-      median row at some range, and the medians are other surfaces' rows).
+      median row at some range, and the medians are other surfaces' rows); and inf for
+      a line the column does not hold unless some line it holds has a reference (the
+      median of a left-out line only prices a rival that gives it a peak; with no held
+      line tied to a surface it would decide alone: a far comb with its lowest line
+      lost was settled one line low, 2.6 m for 3.66 m, by line 0's median from nearer
+      surfaces).
 
     inf in the other columns. The block and line medians are taken only where they are
     needed."""
