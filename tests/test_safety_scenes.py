@@ -105,6 +105,9 @@ rivals.MEDIAN_PX at its former 6 px and a line the column does not hold taking i
 median whatever the column holds (both protections taken out; with MEDIAN_PX at 2 px
 alone both scenes pass, with the left-out-line rule alone the drawn one;
 tests/test_rivals.py checks each rule on its own).
+pole_edge_beside_ambiguous_drawn read the wall (2.48 m) for a dark pole at 1.89 m on a
+sector boundary (far in 1 sector-frame of 32 on seed 1) with the neighbour's ambiguous
+peaks not counted by verdicts.straddles (tests/test_verdicts.py checks the rule alone).
 """
 
 from __future__ import annotations

@@ -369,6 +369,28 @@ def test_feature_a_pole_on_a_sector_boundary_stands_in_both_sectors() -> None:
     assert out.state is SectorState.INVALID
 
 
+def test_feature_an_edge_beside_ambiguous_samples_stands_in_its_sector() -> None:
+    """A surface at 1.15 m straddles the boundary: two points of one line in sector 0,
+    too few to be credible there; on the other side its peaks could not be identified
+    (six ambiguous peaks in columns 32-37, their nearest hypothesis 1.0 m): sector 0
+    must not read the car behind at 2.5 m (s15003 of a random batch: 2.48 m for a
+    surface at 1.89 m, its other side ambiguous, that sector INVALID). Where the
+    ambiguous peaks may stand no nearer than 2 m they do not vouch for the edge, and
+    sector 0 reads the car. Checked to fail with the ambiguous count taken out of
+    verdicts.straddles (sector 0 VALID at 2.5 m)."""
+    car = _points([2.5] * 150, np.arange(150) % 3, np.arange(150) % 28)
+    edge = _points([1.15, 1.16], [1, 1], [30, 31])
+    ambiguous = np.zeros(WIDTH, np.int64)
+    ambiguous[32:38] = 1
+    evidence = _evidence(ambiguous=ambiguous)
+    out = sector_verdicts(_join(car, edge), evidence, LAYOUT, SETTINGS,
+                          doubt_m=np.array([np.inf, 1.0]))[0]
+    assert out.state is SectorState.INVALID
+    far = sector_verdicts(_join(car, edge), evidence, LAYOUT, SETTINGS,
+                          doubt_m=np.array([np.inf, 2.0]))[0]
+    assert far.state is SectorState.VALID and far.distance_m == pytest.approx(2.5, abs=0.05)
+
+
 def _wall_over_a_low_box(lowest_ground_m: float, lowest_columns: range,
                          other_columns: range = range(32), lowest_beyond_m: float | None = None,
                          under: int = 0, lowest_snr: float = 20.0, beyond_column: int = 16

@@ -350,7 +350,7 @@ def sector_verdicts(points: ObstaclePoints, evidence: ColumnEvidence, layout: Se
     view = MapView.of(points, evidence, count, settings, columns)
     return tuple(_verdict(s, view, layout, settings, ambiguous=int(ambiguous[s]),
                           doubtful=int(doubtful[s]), doubt_m=float(doubt_m[s]),
-                          reach_m=float(reach_m[s]))
+                          reach_m=float(reach_m[s]), doubt_all=doubt_m)
                  for s in range(count))
 
 
@@ -770,7 +770,8 @@ def at_the_near_end(s: int, view: MapView, settings: SectorSettings) -> bool:
     return bool(np.count_nonzero(near) >= settings.min_points)
 
 
-def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
+def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings,
+              doubt_m: FloatArray | None = None) -> bool:
     """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
     max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
     object that is credible across the boundary: ``min_points`` or more obstacle points
@@ -784,7 +785,11 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     what stands behind (a ball 0.27 m wide hanging 4.4 m ahead, 4 points of one line on
     either side of a boundary: the wall at 8.0 and 8.8 m read in both). A thin pole on
     a sector boundary stands in both sectors; the one holding its edge must not read
-    what stands behind."""
+    what stands behind. A neighbour's ambiguous peaks within STRADDLE_COLUMNS count as
+    such points where that sector's ``doubt_m`` (S,; its nearest range an ambiguous peak
+    may stand for, None: any) lies within the window or nearer: a surface whose other
+    side's samples could not be identified (a surface at 1.89 m straddling a boundary, 2
+    points of one line on this side, ambiguous ones on the other: 2.48 m read)."""
     hits = view.sectors[s].hits
     near = np.flatnonzero(hits.range_m < distance_m - doubt_margin_m(distance_m))
     if near.size == 0:
@@ -793,10 +798,11 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     beside = [view.sectors[t].hits for t in others]
     credible = [c.distance_m for c in map(view.credible, others) if c is not None]
     other_range = np.concatenate([b.range_m for b in beside])
-    if other_range.size < settings.min_points:
-        return False
     other_column = np.concatenate([b.column for b in beside])
     other_line = np.concatenate([b.line for b in beside])
+    unsure = _ambiguous_beside(view, others, doubt_m)
+    if other_range.size + int(unsure[0].sum()) < settings.min_points:
+        return False
     for i in near:
         r = hits.range_m[i]
         window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * hits.sigma_m[i])
@@ -807,12 +813,30 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
                 np.unique(other_line[mine]).size > 1
                 or any(abs(c - r) <= window for c in credible)):
             return True
+        close = np.abs(np.arange(unsure[0].size) - hits.column[i]) <= STRADDLE_COLUMNS
+        across += int(unsure[0][close & (unsure[1] <= r + window)].sum())
         if across and across + np.count_nonzero(
                 (np.abs(hits.range_m[near] - r) <= window)
                 & (np.abs(hits.column[near] - hits.column[i]) <= STRADDLE_COLUMNS)
         ) >= settings.min_points:
             return True
     return False
+
+
+def _ambiguous_beside(view: MapView, others: list[int], doubt_m: FloatArray | None
+                      ) -> tuple[IntArray, FloatArray]:
+    """(W,) the ambiguous peaks of each column in the sectors ``others`` (0 elsewhere) and
+    (W,) the nearest range (m) they may stand for (their sector's ``doubt_m``; 0 with
+    None: any range; inf elsewhere)."""
+    sector = view.evidence.sector
+    beside = np.isin(sector, others)
+    count = np.where(beside, view.evidence.ambiguous, 0)
+    nearest = np.full(sector.size, np.inf)
+    if doubt_m is None:
+        nearest[beside] = 0.0
+    else:
+        nearest[beside] = np.asarray(doubt_m)[sector[beside]]
+    return count, nearest
 
 
 def doubt_margin_m(distance_m: float) -> float:
@@ -834,7 +858,8 @@ def _median(values: FloatArray) -> float:
 
 
 def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettings, *,
-             ambiguous: int, doubtful: int, doubt_m: float, reach_m: float) -> SectorDistance:
+             ambiguous: int, doubtful: int, doubt_m: float, reach_m: float,
+             doubt_all: FloatArray) -> SectorDistance:
     bearing = layout.bearing_of(s)
     samples = view.sectors[s].size
     if samples < settings.min_points:
@@ -875,7 +900,7 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
     if at_the_near_end(s, view, settings):
         # a surface reaching the near end of the range may stand nearer, unseen
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
-    if straddles(s, view, found.distance_m, settings):
+    if straddles(s, view, found.distance_m, settings, doubt_all):
         # an object credible across the boundary stands nearer in this sector's edge
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     return SectorDistance(s, bearing, SectorState.VALID, found.distance_m, conf,
