@@ -595,13 +595,14 @@ def _continuity_columns(rows: IntArray, anchored: BoolArray, held: IntArray,
                     off[i] |= row[c] >= 0 and abs(row[c] - line) > median_px
                 out[k, i] = ref
     for i in range(n):
+        c = columns[i]
         tied = False  # some line the column holds has a reference
         for k in range(k_count):
             if far[k, i] and off[i]:
                 out[k, i] = np.inf
-            tied |= rows[k, columns[i]] >= 0 and np.isfinite(out[k, i])
+            tied |= rows[k, c] >= 0 and np.isfinite(out[k, i])
         for k in range(k_count):
-            if far[k, i] and rows[k, columns[i]] < 0 and not tied:
+            if far[k, i] and rows[k, c] < 0 and not tied:
                 out[k, i] = np.inf
     return out
 

@@ -771,7 +771,7 @@ def at_the_near_end(s: int, view: MapView, settings: SectorSettings) -> bool:
 
 
 def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings,
-              doubt_m: FloatArray | None = None) -> bool:
+              doubt_m: FloatArray) -> bool:
     """True when obstacle points of sector ``s`` nearer than ``distance_m`` by more than
     max(DOUBT_REL·d, DOUBT_ABS_M) (too few to be credible in ``s`` alone) belong to an
     object that is credible across the boundary: ``min_points`` or more obstacle points
@@ -787,7 +787,7 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     a sector boundary stands in both sectors; the one holding its edge must not read
     what stands behind. A neighbour's ambiguous peaks within STRADDLE_COLUMNS count as
     such points where that sector's ``doubt_m`` (S,; its nearest range an ambiguous peak
-    may stand for, None: any) lies within the window or nearer: a surface whose other
+    may stand for) lies within the window or nearer: a surface whose other
     side's samples could not be identified (a surface at 1.89 m straddling a boundary, 2
     points of one line on this side, ambiguous ones on the other: 2.48 m read)."""
     hits = view.sectors[s].hits
@@ -800,9 +800,10 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     other_range = np.concatenate([b.range_m for b in beside])
     other_column = np.concatenate([b.column for b in beside])
     other_line = np.concatenate([b.line for b in beside])
-    unsure = _ambiguous_beside(view, others, doubt_m)
-    if other_range.size + int(unsure[0].sum()) < settings.min_points:
+    unsure, unsure_m = _ambiguous_beside(view, others, doubt_m)
+    if other_range.size + int(unsure.sum()) < settings.min_points:
         return False
+    columns = np.arange(unsure.size)
     for i in near:
         r = hits.range_m[i]
         window = max(CLUSTER_REL * r, CLUSTER_ABS_M, SPREAD_SIGMAS * hits.sigma_m[i])
@@ -813,8 +814,8 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
                 np.unique(other_line[mine]).size > 1
                 or any(abs(c - r) <= window for c in credible)):
             return True
-        close = np.abs(np.arange(unsure[0].size) - hits.column[i]) <= STRADDLE_COLUMNS
-        across += int(unsure[0][close & (unsure[1] <= r + window)].sum())
+        close = np.abs(columns - hits.column[i]) <= STRADDLE_COLUMNS
+        across += int(unsure[close & (unsure_m <= r + window)].sum())
         if across and across + np.count_nonzero(
                 (np.abs(hits.range_m[near] - r) <= window)
                 & (np.abs(hits.column[near] - hits.column[i]) <= STRADDLE_COLUMNS)
@@ -823,19 +824,16 @@ def straddles(s: int, view: MapView, distance_m: float, settings: SectorSettings
     return False
 
 
-def _ambiguous_beside(view: MapView, others: list[int], doubt_m: FloatArray | None
+def _ambiguous_beside(view: MapView, others: list[int], doubt_m: FloatArray
                       ) -> tuple[IntArray, FloatArray]:
     """(W,) the ambiguous peaks of each column in the sectors ``others`` (0 elsewhere) and
-    (W,) the nearest range (m) they may stand for (their sector's ``doubt_m``; 0 with
-    None: any range; inf elsewhere)."""
+    (W,) the nearest range (m) they may stand for (their sector's ``doubt_m``; inf
+    elsewhere)."""
     sector = view.evidence.sector
     beside = np.isin(sector, others)
     count = np.where(beside, view.evidence.ambiguous, 0)
     nearest = np.full(sector.size, np.inf)
-    if doubt_m is None:
-        nearest[beside] = 0.0
-    else:
-        nearest[beside] = np.asarray(doubt_m)[sector[beside]]
+    nearest[beside] = np.asarray(doubt_m)[sector[beside]]
     return count, nearest
 
 
