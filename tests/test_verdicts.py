@@ -630,18 +630,50 @@ def test_feature_a_hole_in_a_bright_ground_line_blocks_the_surface_behind() -> N
     2 m, is returned by the ground at SNR 30 on both sides of a 12-column run of sector 0
     and seen at no row in it: something that returns no light stands in its way there,
     and the sector is INVALID (a randomly drawn scene read the wall at 4.45 m for a dark
-    object at 0.63 m, 4 maps of 4). The wall's 4 m stands for a run of 8 columns (too
-    few), flanks at SNR 12 (a weak ground line drops out near its threshold), a run open
-    on one side (the fan's edge, or the ground line fading), and a ground hit within the
-    wall's margin. Checked to fail with hole_before taken out of _verdict (VALID 4 m)."""
+    object at 0.63 m, 4 maps of 4). The wall's 4 m stands for a run of 2 columns (under
+    GAP_RUN: a dropout), flanks at SNR 12 (a weak ground line drops out near its
+    threshold), a run open on one side (the fan's edge, or the ground line fading), and a
+    ground hit within the wall's margin. Checked to fail with hole_before taken out of
+    _verdict (VALID 4 m)."""
     hole = [c for c in range(WIDTH) if not 10 <= c < 22]
     points, evidence = _wall_behind_a_ground_line_hole(hole)
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
-    for args in [([c for c in range(WIDTH) if not 10 <= c < 18],),
+    for args in [([c for c in range(WIDTH) if not 10 <= c < 12],),
                  (hole, 12.0), (list(range(20)),), (hole, 30.0, 3.7)]:
         points, evidence = _wall_behind_a_ground_line_hole(*args)
         out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
         assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), args
+
+
+def test_feature_a_short_hole_between_steady_bright_ground_returns_blocks_the_surface() -> None:
+    """Random scene s17142's case: a dark glossy pole 4.5 cm thick, 2.74 m ahead on a
+    sector boundary, cuts the ground lines over 6-7 columns (4 on one side of the
+    boundary, 2-3 on the other), a wall at 7 m read through it over the pole (the top
+    sheet passes over the pole): far in both sectors, every map. A hole of GAP_RUN or
+    more columns, fewer than LOST_RUN·min_points, in a line the ground returns at
+    HOLE_SNR·snr_min in each of the GAP_RUN columns on both sides, makes every sector
+    holding a column of it INVALID. The wall stands when one flank column is weak (a
+    ground line near its threshold drops out for a few columns) and for a 2-column
+    dropout. Checked to fail with the short holes left out of hole_before (VALID 4 m in
+    both cases)."""
+    for hole in (range(10, 16), range(30, 36)):  # inside the sector; 2 of 6 columns in it
+        shown = [c for c in range(WIDTH) if c not in hole]
+        points, evidence = _wall_behind_a_ground_line_hole(shown)
+        out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+        assert out.state is SectorState.INVALID, hole
+    for shown in ([c for c in range(WIDTH) if not 10 <= c < 12],
+                  [c for c in range(WIDTH) if not 8 <= c < 16 and c != 7]):
+        points, evidence = _wall_behind_a_ground_line_hole(shown)
+        assert evidence.ground_snr is not None
+        if 7 not in shown:  # column 7 seen, but weak
+            ground_snr = evidence.ground_snr.copy()
+            ground_snr[3, 7] = 12.0
+            seen = evidence.seen.copy() if evidence.seen is not None else None
+            assert seen is not None
+            seen[3, 7] = True
+            evidence = dataclasses.replace(evidence, ground_snr=ground_snr, seen=seen)
+        out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+        assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), shown
 
 
 def test_feature_a_ground_line_lost_to_the_image_edge_blocks_the_surface_behind() -> None:
@@ -664,4 +696,34 @@ def test_feature_a_ground_line_lost_to_the_image_edge_blocks_the_surface_behind(
 
     assert verdict(True).state is SectorState.INVALID
     for out in (verdict(False), verdict(True, 12.0)):
+        assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0)
+
+
+def test_feature_columns_where_no_line_can_be_seen_block_the_distance_beside_them() -> None:
+    """Random scene s18026's case: a bright pole 1.5 m ahead under a lamp flickering at
+    100 Hz; the flicker's residual on it raises the noise of every line's band over 90
+    columns of two sectors and no line is found there, while the wall at 6-7 m is seen
+    in the sector's other columns and was read (far, 4 sector-frames of 16). Sector 0
+    (columns 0-31) holds lines 0-2 on a dim wall at 4 m (SNR 10: too weak for
+    unseen_columns to ask what stops them) except in 6 blind columns (every line unseen,
+    every band noisy): INVALID. The wall stands with 4 blind columns (under
+    min_points), and where only two of the three bands are noisy (the third line, not
+    seen with a quiet band, passed nothing: the other rules' case). Checked to fail with
+    blind_columns taken out of _verdict (VALID 4 m)."""
+    def verdict(blind: range, noisy_lines: int = 3):
+        cells = [(k, c) for k in range(3) for c in range(32) if c not in blind]
+        line, column = (np.array(v, np.int64) for v in zip(*cells, strict=True))
+        seen = np.zeros((3, WIDTH), bool)
+        seen[line, column] = True
+        noisy = np.zeros((3, WIDTH), bool)
+        noisy[:noisy_lines, list(blind)] = True
+        zero = np.zeros(WIDTH, np.int64)
+        evidence = ColumnEvidence(_evidence().sector, zero, zero, zero, seen=seen,
+                                  noisy=noisy)
+        wall = dataclasses.replace(_points([4.0] * line.size, line, column),
+                                   snr=np.full(line.size, 10.0))
+        return sector_verdicts(wall, evidence, LAYOUT, SETTINGS)[0]
+
+    assert verdict(range(10, 16)).state is SectorState.INVALID
+    for out in (verdict(range(10, 14)), verdict(range(10, 16), noisy_lines=2)):
         assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0)
