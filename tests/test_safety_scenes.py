@@ -117,6 +117,8 @@ at 6.0-7.2 m for a pale pole at 1.49 m in 4 sector-frames of 16 without
 verdicts.blind_columns, which also made hanging_sphere_lone_stripe pass (its lone stripe
 taken for the lowest line, 0.67 m for 1.32 m in map 1, lies in a sector with 10 or more
 columns the flicker blinds; the identity itself is still a guess, docs/pipeline.md).
+low_box_at_hidden_foot_drawn read free before a dark box met 0.3 rows off its sheet's
+ground row (sector 4 NO_RETURN in map 2) with evidence.hidden_feet returning no column.
 """
 
 from __future__ import annotations

@@ -327,3 +327,29 @@ def test_feature_a_line_lost_on_the_wall_above_a_foot_stripe_is_not_passing() ->
                         height_sigma=np.full(n, 0.002), rows_off=rows_off_ground(d, h, H0, FB),
                         focal_baseline_px_m=FB, passing=passing)
     assert not flags.unseen.any() and not flags.at_foot.any()
+
+
+def test_feature_a_foot_no_row_resolves_under_a_tall_gap_keeps_the_column_from_free() -> None:
+    """Random scene s18195's case: a unit 0.84 m up, f·b = 374 px x 0.057 m, one sheet
+    meeting the ground 5 m ahead, the other above the horizon; a dark box 34 cm tall at
+    4.7 m is met 5 cm up, 0.3 rows off the sheet's ground row (the ground's own stripe to
+    the rows), and the sheet above passes over it: the sector read free. Such a column
+    (hidden_feet) counts as doubtful: no free verdict. Where the next sheet passes
+    within the clearance over the unresolved foot (dense sheets), or the sheet meets the
+    ground beyond the range (not expected), the column is not flagged. The stress scene
+    low_box_at_hidden_foot_drawn read free (1 sector-frame of 32) with hidden_feet
+    returning no column; here, with the gap test taken out, the dense case fails."""
+    from atris_node.pipeline.evidence import hidden_feet
+
+    h0, fb, clearance = 0.84, 374.0 * 0.057, 0.1
+    at_clearance = 5.0 * (h0 - clearance) / h0  # camera z where the sheet is 10 cm up
+    assert rows_off_ground(np.array([4.7]), np.array([0.05]), h0, fb)[0] < 0.5
+    two = np.array([[at_clearance], [np.inf]])
+    assert hidden_feet(two, np.array([[True], [False]]), h0, fb, clearance).all()
+    assert not hidden_feet(two, np.array([[False], [False]]), h0, fb, clearance).any()
+    # each next sheet meets the ground 5 cm farther: under 10 cm over where the foot below
+    # it is unresolved (the third meets it beyond the range: not expected)
+    dense = np.array([[g * (h0 - clearance) / h0] for g in (5.0, 5.05, 5.1)])
+    expected = np.array([[True], [True], [False]])
+    assert not hidden_feet(dense, expected, h0, fb, clearance).any()
+    assert hidden_feet(dense[:2], expected[:2], h0, fb, clearance).all()  # nothing above

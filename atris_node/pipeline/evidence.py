@@ -25,6 +25,7 @@ from atris_node.pipeline.peaks import Extraction
 from atris_node.pipeline.sectors import SectorLayout
 from atris_node.pipeline.tops import (
     GROUND_ROW_PX,
+    TOP_ROWS_PX,
     Tops,
     below_ground,
     corroborated,
@@ -118,6 +119,8 @@ class SectorJudge:
         self._exits: tuple[VisibilityPrior, FloatArray, FloatArray, BoolArray] | None = None
         #: the last prior and where each sheet meets the ground clearance (:meth:`_ground_hits`)
         self._hits: tuple[VisibilityPrior, FloatArray] | None = None
+        #: the last prior and its columns with hidden feet (:meth:`_hidden_feet`)
+        self._feet: tuple[VisibilityPrior, IntArray] | None = None
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
@@ -170,7 +173,8 @@ class SectorJudge:
             verdicts_kernels.least_per_sector(
                 reach_m, np.where(data.obstacle & ~obstacle & valid, sector, -1),
                 foot_reach_m(range_m))
-        flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground)])
+        flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground),
+                                  self._hidden_feet(prior)])
         evidence = self._evidence(extraction, foreign, prior, points.valid, flagged, on_ground)
         return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, reach_m,
                                self._columns)
@@ -361,6 +365,20 @@ class SectorJudge:
             self._hits = (prior, np.where(meets, hits, np.inf))
         return self._hits[1]
 
+    def _hidden_feet(self, prior: VisibilityPrior) -> IntArray:
+        """(m,) the columns where a line meets the ground within the range with a foot
+        no row resolves under a gap to the sheet above taller than the clearance
+        (:func:`hidden_feet`), kept while the prior is the same."""
+        if self._feet is None or self._feet[0] is not prior:
+            feet = np.flatnonzero(hidden_feet(
+                prior.ground_range_m, self._expected_on_ground(prior),
+                float(self.projector_m[2]),
+                self.calibration.camera.focal_px * self.calibration.laser.baseline_m,
+                self.clearance_m)).astype(np.int64)
+            feet.flags.writeable = False
+            self._feet = (prior, feet)
+        return self._feet[1]
+
     def _expected_on_ground(self, prior: VisibilityPrior) -> BoolArray:
         """:func:`expected_on_ground` of ``prior``, kept while the prior is the same."""
         if self._expected is None or self._expected[0] is not prior:
@@ -437,6 +455,38 @@ def expected_on_ground(prior: VisibilityPrior, calibration: Calibration,
         row = cam.cy_px + cam.focal_px * cot - cam.focal_px * prior.baseline_m / z
     z_min, z_max = z_range_m
     return np.asarray((z <= z_max) & (z >= z_min) & (row >= 0) & (row < cam.height_px))
+
+
+def hidden_feet(ground_range_m: FloatArray, expected: BoolArray, projector_height_m: float,
+                focal_baseline_px_m: float, clearance_m: float) -> BoolArray:
+    """(W,) True in the columns where a line that meets the ground within the range
+    (``expected`` (K, W)) has a *hidden foot*: a face it meets near where it meets the
+    ground lies less than TOP_ROWS_PX rows off its ground row (f·b·h/(d·h0) rows at
+    height h, distance d), which the ground's own stripe cannot be told from, and the
+    sheet above passes there higher than the clearance, so an obstacle standing in that
+    gap is met only at its unresolved foot. Such a column cannot show that nothing
+    stands within the range (a dark low box 34 cm tall 4.7 m ahead, met 5 cm up by the
+    one sheet that meets the ground, 0.3 rows off its ground row, the other sheet above
+    the horizon: the sector read free).
+
+    Geometry in each column's vertical plane, camera z for range (a coarse bound: the
+    pitch and the plane the ground fit gives are left out): a sheet meeting the
+    clearance at z_c (``ground_range_m``, inf: never) meets the ground at
+    g = z_c·h0/(h0 − c) and is at h0·(1 − d/g) at d; its foot is unresolved from
+    d_r = 1/(1/g + TOP_ROWS_PX/(f·b)) on; the sheet above is the one meeting the ground
+    next farther (at h0 or higher when none does)."""
+    h0 = float(projector_height_m)
+    if h0 <= clearance_m or focal_baseline_px_m <= 0.0:
+        return np.zeros(expected.shape[1], dtype=np.bool_)
+    z = np.asarray(ground_range_m, dtype=np.float64)
+    meets = np.isfinite(z) & (z > 0.0)
+    ground = np.where(meets, z, np.inf) * (h0 / (h0 - clearance_m))
+    resolved_to = 1.0 / (1.0 / ground + TOP_ROWS_PX / focal_baseline_px_m)
+    farther = np.where(ground[None, :, :] > ground[:, None, :], ground[None, :, :], np.inf)
+    above = farther.min(axis=1)
+    with np.errstate(invalid="ignore"):
+        gap = np.where(np.isfinite(above), h0 * (1.0 - resolved_to / above), h0)
+    return np.asarray((expected & meets & (gap > clearance_m)).any(axis=0))
 
 
 def _ground_snr(shape: tuple[int, ...], on_ground: tuple[IntArray, IntArray, FloatArray]
