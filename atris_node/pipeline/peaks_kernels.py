@@ -1145,6 +1145,37 @@ def subsample_tiles(block: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
 ORDER_COUNTS = 1024
 
 
+@kernel()
+def _picked(tile: npt.NDArray[np.integer[Any]], picks: IntArray,
+            counts: npt.NDArray[np.int32], out: npt.NDArray[np.integer[Any]]) -> None:
+    """``out[j]`` = ``np.sort(tile)[picks[j]]``, by counting the values of ``tile`` from
+    its least in ``counts`` (ORDER_COUNTS zeros, left zero); sorted where a pick lies in
+    the last, shared count."""
+    n, last = tile.size, ORDER_COUNTS - 1
+    low = high = tile[0]
+    for i in range(n):
+        low = tile[i] if tile[i] < low else low
+        high = tile[i] if tile[i] > high else high
+    for i in range(n):
+        d = np.int64(tile[i]) - np.int64(low)
+        counts[d if d < last else last] += 1
+    below, b, wide = 0, 0, False
+    for j in range(picks.size):
+        if picks[j] < below:  # a pick before the one above: count again
+            below, b = 0, 0
+        while below + counts[b] <= picks[j]:
+            below += counts[b]
+            b += 1
+        wide = wide or b == last
+        out[j] = low + b
+    top = np.int64(high) - np.int64(low)
+    counts[:(top if top < last else last) + 1] = 0
+    if wide:
+        ordered = np.sort(tile)
+        for j in range(picks.size):
+            out[j] = ordered[picks[j]]
+
+
 def _order_signatures() -> list[Any]:
     """Signatures of :func:`tile_order_statistics`, per integer map dtype."""
     return [types.Array(dtype, 3, "C")(types.Array(dtype, 3, "C", readonly=readonly),
@@ -1157,40 +1188,15 @@ def tile_order_statistics(tiles: npt.NDArray[np.integer[Any]], picks: IntArray
                           ) -> npt.NDArray[np.integer[Any]]:
     """(nr, nc, P) the values at the positions ``picks`` (each below n; fastest ascending)
     of each tile of ``tiles`` (nr, nc, n) sorted: ``np.sort(tiles, axis=-1)[..., picks]``,
-    by counting each tile's values from its least (ORDER_COUNTS counts, cleared after
-    each tile by the same values); a tile whose pick lies in the last, shared count is
-    sorted.
-    Several times faster than numpy's sort of 16-bit values on a CPU without its
-    AVX-512 sort."""
-    nr, nc, n = tiles.shape
+    by counting each tile's values from its least (ORDER_COUNTS counts; a tile whose pick
+    lies in the last, shared count is sorted). Several times faster than numpy's sort of
+    16-bit values on a CPU without its AVX-512 sort."""
+    nr, nc, _ = tiles.shape
     out = np.empty((nr, nc, picks.size), dtype=tiles.dtype)
     counts = np.zeros(ORDER_COUNTS, dtype=np.int32)
-    last = ORDER_COUNTS - 1
     for r in range(nr):
         for c in range(nc):
-            tile = tiles[r, c]
-            low = tile[0]
-            for i in range(n):
-                low = tile[i] if tile[i] < low else low
-            for i in range(n):
-                d = np.int64(tile[i]) - np.int64(low)
-                counts[d if d < last else last] += 1
-            below, b, wide = 0, 0, False
-            for j in range(picks.size):
-                if picks[j] < below:  # a pick before the one above: count again
-                    below, b = 0, 0
-                while below + counts[b] <= picks[j]:
-                    below += counts[b]
-                    b += 1
-                wide = wide or b == last
-                out[r, c, j] = low + b
-            for i in range(n):
-                d = np.int64(tile[i]) - np.int64(low)
-                counts[d if d < last else last] = 0
-            if wide:
-                ordered = np.sort(tile)
-                for j in range(picks.size):
-                    out[r, c, j] = ordered[picks[j]]
+            _picked(tiles[r, c], picks, counts, out[r, c])
     return out
 
 
