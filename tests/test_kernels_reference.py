@@ -657,6 +657,59 @@ def test_tile_order_statistics_are_the_numpy_sort(dtype: type) -> None:
             np.testing.assert_array_equal(q, low + frac * (high - low) if frac else low)
 
 
+def _off_step_runs_numpy(rows: npt.NDArray[np.int64], step_rows: npt.NDArray[np.int64]
+                         ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """peaks.off_step_runs in the numpy form it had before its compiled pass."""
+    reach, row_px, share = peaks.STEP_REACH, peaks.STEP_ROW_PX, peaks.STEP_SHARE
+    out = rows.copy()
+    width = rows.shape[1]
+    removed = np.zeros(width, dtype=np.int64)
+    has_step = (step_rows >= 0).any(axis=0)
+    if not has_step.any():
+        return out, removed
+    total = np.concatenate(([0], np.cumsum(has_step)))
+    columns = np.arange(width)
+    near = (total[np.minimum(columns + reach + 1, width)]
+            - total[np.maximum(columns - reach, 0)]) > 0
+    line, column = np.nonzero((rows >= 0) & near)
+    if not line.size:
+        return out, removed
+    row = rows[line, column]
+    position = column[:, None] + np.arange(-reach, reach + 1)
+    inside = (position >= 0) & (position < width)
+    window = np.clip(position, 0, width - 1)
+    steps = step_rows[:, window]
+    stepped = ((steps >= 0) & (np.abs(steps - row[:, None]) <= row_px)).any(axis=0)
+    own = rows[line[:, None], window]
+    on_line = (own >= 0) & (np.abs(own - row[:, None]) <= row_px)
+    stepped &= inside
+    either = np.count_nonzero((stepped | on_line) & inside, axis=1)
+    count = np.count_nonzero(stepped, axis=1)
+    off = (count >= 2) & (count >= share * either)
+    out[line[off], column[off]] = -1
+    np.add.at(removed, column[off], 1)
+    return out, removed
+
+
+def test_off_step_runs_is_the_numpy_form() -> None:
+    """Random rows and step maxima (none, sparse, dense; rows within a few px of each
+    other, widths from one column up): the compiled pass keeps and counts the peaks the
+    numpy form kept and counted."""
+    rng = np.random.default_rng(33)
+    for _ in range(400):
+        width, k_count, m_count = (int(rng.integers(1, 90)), int(rng.integers(1, 6)),
+                                   int(rng.integers(1, 8)))
+        rows = np.where(rng.random((k_count, width)) < 0.6,
+                        rng.integers(95, 106, (k_count, width)), -1).astype(np.int64)
+        steps = np.where(rng.random((m_count, width)) < rng.random() * 0.4,
+                         rng.integers(95, 106, (m_count, width)), -1).astype(np.int64)
+        got = peaks.off_step_runs(rows, steps)
+        want = _off_step_runs_numpy(rows, steps)
+        for have, expected in zip(got, want, strict=True):
+            assert have.dtype == expected.dtype
+            np.testing.assert_array_equal(have, expected)
+
+
 def _above_elsewhere_numpy(values: npt.NDArray[Any], local: NoiseMap, snr_min: float,
                            elsewhere: tuple[tuple[int, int], ...]) -> bool:
     """peaks._above_elsewhere in the numpy form it had before its compiled pass."""

@@ -1200,6 +1200,50 @@ def tile_order_statistics(tiles: npt.NDArray[np.integer[Any]], picks: IntArray
     return out
 
 
+@kernel("Tuple((int64[:, :], int64[:]))(int64[:, :], int64[:, :], int64, int64, float64)")
+def off_steps(rows: IntArray, step_rows: IntArray, reach: int, row_px: int, share: float
+              ) -> tuple[IntArray, IntArray]:
+    """The rule of :func:`atris_node.pipeline.peaks.off_step_runs`: ``rows`` (K, W) without
+    each peak that has step maxima (``step_rows`` (M, W), -1 = none) within ``row_px`` of
+    its row in at least two, and ``share`` or more, of the columns within ``reach`` that
+    hold either them or its own line within ``row_px`` of that row; and (W,) the peaks
+    taken out per column."""
+    k_count, width = rows.shape
+    out = rows.copy()
+    removed = np.zeros(width, dtype=np.int64)
+    has_step = np.zeros(width, dtype=np.bool_)
+    for m in range(step_rows.shape[0]):  # along the rows of ``step_rows``
+        for c in range(width):
+            has_step[c] |= step_rows[m, c] >= 0
+    total = np.zeros(width + 1, dtype=np.int64)  # columns holding a step maximum, cumulated
+    for c in range(width):
+        total[c + 1] = total[c] + has_step[c]
+    if total[width] == 0:
+        return out, removed
+    for c in range(width):
+        lo, hi = max(c - reach, 0), min(c + reach + 1, width)
+        if total[hi] == total[lo]:
+            continue  # no step maximum within reach
+        for k in range(k_count):
+            row = rows[k, c]
+            if row < 0:
+                continue
+            count = either = 0
+            for q in range(lo, hi):
+                stepped = False
+                if has_step[q]:
+                    for m in range(step_rows.shape[0]):
+                        step = step_rows[m, q]
+                        stepped |= step >= 0 and abs(step - row) <= row_px
+                own = rows[k, q] >= 0 and abs(rows[k, q] - row) <= row_px
+                count += stepped
+                either += stepped or own
+            if count >= 2 and count >= share * either:
+                out[k, c] = -1
+                removed[c] += 1
+    return out, removed
+
+
 def warm_up() -> None:
     """Call every kernel once on a tiny input (see
     :func:`atris_node.pipeline.identity_kernels.warm_up`)."""
@@ -1241,3 +1285,4 @@ def warm_up() -> None:
     covered_per_column(np.array([[2, -1]], dtype=i64), np.ones(3, dtype=np.bool_))
     subsample_tiles(np.zeros((4, 3), dtype=np.int16))
     tile_order_statistics(np.zeros((1, 1, 2), dtype=np.int16), np.zeros(1, dtype=i64))
+    off_steps(np.array([[1]], dtype=i64), np.array([[1]], dtype=i64), 6, 1, 0.25)
