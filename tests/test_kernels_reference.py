@@ -657,6 +657,36 @@ def test_tile_order_statistics_are_the_numpy_sort(dtype: type) -> None:
             np.testing.assert_array_equal(q, low + frac * (high - low) if frac else low)
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.int32])
+def test_tile_noise_is_the_numpy_form(dtype: type) -> None:
+    """Random blocks (every size from one row or column up, spreads from a few DN to the
+    whole int16 range): the noise tiles' median and σ are those of the numpy form, the
+    tiles sorted and the percentiles interpolated in float32."""
+    from atris_node.pipeline import noise
+
+    rng = np.random.default_rng(34)
+    for trial in range(150):
+        spread = (3, 50, 600, 3000, 30000)[trial % 5]
+        block = np.clip(rng.normal(0.0, spread, (int(rng.integers(1, 80)),
+                                                 int(rng.integers(1, 140)))),
+                        -32768, 32767).astype(dtype)
+        tiles = _subsample_tiles_numpy(block)
+        n = tiles.shape[-1]
+        ordered = np.sort(tiles, axis=-1)
+        lo25, f25 = divmod((n - 1) * 0.25, 1.0)
+        lo50, f50 = divmod((n - 1) * 0.5, 1.0)
+        q25, median = (ordered[..., int(lo)].astype(np.float32) + frac * (
+            ordered[..., min(int(lo) + 1, n - 1)].astype(np.float32)
+            - ordered[..., int(lo)].astype(np.float32)) for lo, frac in ((lo25, f25),
+                                                                         (lo50, f50)))
+        sigma = np.maximum((median - q25) / noise.QUARTILE_TO_SIGMA,
+                           np.float32(noise.MIN_NOISE_DN))
+        got = noise._tile_statistics(block)
+        for have, want in zip(got, (median, sigma), strict=True):
+            assert have.dtype == want.dtype == np.float32
+            np.testing.assert_array_equal(have, want)
+
+
 def _off_step_runs_numpy(rows: npt.NDArray[np.int64], step_rows: npt.NDArray[np.int64]
                          ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """peaks.off_step_runs in the numpy form it had before its compiled pass."""

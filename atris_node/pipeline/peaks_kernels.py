@@ -1200,6 +1200,50 @@ def tile_order_statistics(tiles: npt.NDArray[np.integer[Any]], picks: IntArray
     return out
 
 
+def _noise_signatures() -> list[Any]:
+    """Signatures of :func:`tile_noise`, per integer map dtype."""
+    f32 = types.Array(types.float32, 2, "C")
+    return [types.Tuple((f32, f32))(types.Array(dtype, 3, "C", readonly=readonly),
+                                    types.Array(types.int64, 1, "C"),
+                                    types.Array(types.float32, 1, "C"), types.float32,
+                                    types.float32)
+            for dtype in (types.int16, types.int32) for readonly in (False, True)]
+
+
+@kernel()
+def _between(low: np.float32, high: np.float32, fraction: np.float32) -> np.float32:
+    """``low + fraction · (high - low)`` in float32 (numpy's float32 array arithmetic
+    with a Python float fraction), ``low`` for a fraction of 0."""
+    if fraction == 0:
+        return low
+    return low + fraction * (high - low)
+
+
+@kernel(_noise_signatures())
+def tile_noise(tiles: npt.NDArray[np.integer[Any]], picks: IntArray,
+               fractions: npt.NDArray[np.float32], to_sigma: np.float32,
+               least: np.float32) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """(median, σ) (nr, nc) float32 of each tile of ``tiles`` (nr, nc, n): from the
+    values at ``picks`` (the lower and upper neighbours of the 25th percentile, then of
+    the median) of the sorted tile (:func:`_picked`), each percentile interpolated by
+    its ``fractions`` as numpy's float32 arithmetic does, σ = max((median - q25) /
+    ``to_sigma``, ``least``) in float32."""
+    nr, nc, _ = tiles.shape
+    median = np.empty((nr, nc), dtype=np.float32)
+    sigma = np.empty((nr, nc), dtype=np.float32)
+    counts = np.zeros(ORDER_COUNTS, dtype=np.int32)
+    at = np.empty(picks.size, dtype=tiles.dtype)
+    for r in range(nr):
+        for c in range(nc):
+            _picked(tiles[r, c], picks, counts, at)
+            q25 = _between(np.float32(at[0]), np.float32(at[1]), fractions[0])
+            middle = _between(np.float32(at[2]), np.float32(at[3]), fractions[1])
+            median[r, c] = middle
+            spread = (middle - q25) / to_sigma
+            sigma[r, c] = spread if spread > least else least
+    return median, sigma
+
+
 @kernel("Tuple((int64[:, :], int64[:]))(int64[:, :], int64[:, :], int64, int64, float64)")
 def off_steps(rows: IntArray, step_rows: IntArray, reach: int, row_px: int, share: float
               ) -> tuple[IntArray, IntArray]:
@@ -1285,4 +1329,6 @@ def warm_up() -> None:
     covered_per_column(np.array([[2, -1]], dtype=i64), np.ones(3, dtype=np.bool_))
     subsample_tiles(np.zeros((4, 3), dtype=np.int16))
     tile_order_statistics(np.zeros((1, 1, 2), dtype=np.int16), np.zeros(1, dtype=i64))
+    tile_noise(np.zeros((1, 1, 2), dtype=np.int16), np.zeros(4, dtype=i64),
+               np.zeros(2, dtype=np.float32), np.float32(1.0), np.float32(0.5))
     off_steps(np.array([[1]], dtype=i64), np.array([[1]], dtype=i64), 6, 1, 0.25)
