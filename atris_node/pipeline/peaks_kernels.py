@@ -1140,7 +1140,7 @@ def subsample_tiles(block: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
     return out
 
 
-#: counts per tile in :func:`tile_order_statistics`: values this far above the tile's
+#: counts per tile in :func:`_picked`: values this far above the tile's
 #: least share the last count (a pick there is read from a sort of the tile instead)
 ORDER_COUNTS = 1024
 
@@ -1176,30 +1176,6 @@ def _picked(tile: npt.NDArray[np.integer[Any]], picks: IntArray,
             out[j] = ordered[picks[j]]
 
 
-def _order_signatures() -> list[Any]:
-    """Signatures of :func:`tile_order_statistics`, per integer map dtype."""
-    return [types.Array(dtype, 3, "C")(types.Array(dtype, 3, "C", readonly=readonly),
-                                       types.Array(types.int64, 1, "C"))
-            for dtype in (types.int16, types.int32) for readonly in (False, True)]
-
-
-@kernel(_order_signatures())
-def tile_order_statistics(tiles: npt.NDArray[np.integer[Any]], picks: IntArray
-                          ) -> npt.NDArray[np.integer[Any]]:
-    """(nr, nc, P) the values at the positions ``picks`` (each below n; fastest ascending)
-    of each tile of ``tiles`` (nr, nc, n) sorted: ``np.sort(tiles, axis=-1)[..., picks]``,
-    by counting each tile's values from its least (ORDER_COUNTS counts; a tile whose pick
-    lies in the last, shared count is sorted). Several times faster than numpy's sort of
-    16-bit values on a CPU without its AVX-512 sort."""
-    nr, nc, _ = tiles.shape
-    out = np.empty((nr, nc, picks.size), dtype=tiles.dtype)
-    counts = np.zeros(ORDER_COUNTS, dtype=np.int32)
-    for r in range(nr):
-        for c in range(nc):
-            _picked(tiles[r, c], picks, counts, out[r, c])
-    return out
-
-
 def _noise_signatures() -> list[Any]:
     """Signatures of :func:`tile_noise`, per integer map dtype."""
     f32 = types.Array(types.float32, 2, "C")
@@ -1227,7 +1203,9 @@ def tile_noise(tiles: npt.NDArray[np.integer[Any]], picks: IntArray,
     values at ``picks`` (the lower and upper neighbours of the 25th percentile, then of
     the median) of the sorted tile (:func:`_picked`), each percentile interpolated by
     its ``fractions`` as numpy's float32 arithmetic does, σ = max((median - q25) /
-    ``to_sigma``, ``least``) in float32."""
+    ``to_sigma``, ``least``) in float32. Counting is several times faster than numpy's
+    sort of the (tiles, n) 16-bit values on a CPU without numpy's AVX-512 sort (about
+    7 against 0.5 ms at 1280x800)."""
     nr, nc, _ = tiles.shape
     median = np.empty((nr, nc), dtype=np.float32)
     sigma = np.empty((nr, nc), dtype=np.float32)
@@ -1328,7 +1306,6 @@ def warm_up() -> None:
     ambient_level(np.zeros((2, 1)), np.array([0, 1], dtype=i64))
     covered_per_column(np.array([[2, -1]], dtype=i64), np.ones(3, dtype=np.bool_))
     subsample_tiles(np.zeros((4, 3), dtype=np.int16))
-    tile_order_statistics(np.zeros((1, 1, 2), dtype=np.int16), np.zeros(1, dtype=i64))
     tile_noise(np.zeros((1, 1, 2), dtype=np.int16), np.zeros(4, dtype=i64),
                np.zeros(2, dtype=np.float32), np.float32(1.0), np.float32(0.5))
     off_steps(np.array([[1]], dtype=i64), np.array([[1]], dtype=i64), 6, 1, 0.25)
