@@ -621,6 +621,94 @@ def test_subsample_tiles_are_the_padded_numpy_tiles(dtype: type) -> None:
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.int32])
+def test_tile_noise_is_the_numpy_form(dtype: type) -> None:
+    """Random blocks (every size from one row or column up, spreads from a few DN to the
+    whole int16 range, some half bright so that the picks lie beyond the counts and the
+    tile is sorted), writable and read-only: the noise tiles' median and σ are those of
+    the numpy form, the tiles sorted and the percentiles interpolated in float32."""
+    from atris_node.pipeline import noise
+
+    rng = np.random.default_rng(34)
+    for trial in range(150):
+        spread = (3, 50, 600, 3000, 30000)[trial % 5]
+        block = np.clip(rng.normal(0.0, spread, (int(rng.integers(1, 80)),
+                                                 int(rng.integers(1, 140)))),
+                        -32768, 32767).astype(dtype)
+        if trial % 4 == 1:
+            block[: block.shape[0] // 2 + 1] = 30000
+        if trial % 2:
+            block.flags.writeable = False
+        tiles = _subsample_tiles_numpy(block)
+        n = tiles.shape[-1]
+        ordered = np.sort(tiles, axis=-1)
+        lo25, f25 = divmod((n - 1) * 0.25, 1.0)
+        lo50, f50 = divmod((n - 1) * 0.5, 1.0)
+        q25, median = (ordered[..., int(lo)].astype(np.float32) + frac * (
+            ordered[..., min(int(lo) + 1, n - 1)].astype(np.float32)
+            - ordered[..., int(lo)].astype(np.float32)) for lo, frac in ((lo25, f25),
+                                                                         (lo50, f50)))
+        sigma = np.maximum((median - q25) / noise.QUARTILE_TO_SIGMA,
+                           np.float32(noise.MIN_NOISE_DN))
+        got = noise._tile_statistics(block)
+        for have, want in zip(got, (median, sigma), strict=True):
+            assert have.dtype == want.dtype == np.float32
+            np.testing.assert_array_equal(have, want)
+
+
+def _off_step_runs_numpy(rows: npt.NDArray[np.int64], step_rows: npt.NDArray[np.int64]
+                         ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """peaks.off_step_runs in the numpy form it had before its compiled pass."""
+    reach, row_px, share = peaks.STEP_REACH, peaks.STEP_ROW_PX, peaks.STEP_SHARE
+    out = rows.copy()
+    width = rows.shape[1]
+    removed = np.zeros(width, dtype=np.int64)
+    has_step = (step_rows >= 0).any(axis=0)
+    if not has_step.any():
+        return out, removed
+    total = np.concatenate(([0], np.cumsum(has_step)))
+    columns = np.arange(width)
+    near = (total[np.minimum(columns + reach + 1, width)]
+            - total[np.maximum(columns - reach, 0)]) > 0
+    line, column = np.nonzero((rows >= 0) & near)
+    if not line.size:
+        return out, removed
+    row = rows[line, column]
+    position = column[:, None] + np.arange(-reach, reach + 1)
+    inside = (position >= 0) & (position < width)
+    window = np.clip(position, 0, width - 1)
+    steps = step_rows[:, window]
+    stepped = ((steps >= 0) & (np.abs(steps - row[:, None]) <= row_px)).any(axis=0)
+    own = rows[line[:, None], window]
+    on_line = (own >= 0) & (np.abs(own - row[:, None]) <= row_px)
+    stepped &= inside
+    either = np.count_nonzero((stepped | on_line) & inside, axis=1)
+    count = np.count_nonzero(stepped, axis=1)
+    off = (count >= 2) & (count >= share * either)
+    out[line[off], column[off]] = -1
+    np.add.at(removed, column[off], 1)
+    return out, removed
+
+
+def test_off_step_runs_is_the_numpy_form() -> None:
+    """Random rows and step maxima (none, sparse, dense; rows within a few px of each
+    other, widths from one column up): the compiled pass keeps and counts the peaks the
+    numpy form kept and counted."""
+    rng = np.random.default_rng(33)
+    for _ in range(400):
+        width, k_count, m_count = (int(rng.integers(1, 90)), int(rng.integers(1, 6)),
+                                   int(rng.integers(1, 8)))
+        rows = np.where(rng.random((k_count, width)) < 0.6,
+                        rng.integers(95, 106, (k_count, width)), -1).astype(np.int64)
+        steps = np.where(rng.random((m_count, width)) < rng.random() * 0.4,
+                         rng.integers(95, 106, (m_count, width)), -1).astype(np.int64)
+        got = peaks.off_step_runs(rows, steps)
+        want = _off_step_runs_numpy(rows, steps)
+        for have, expected in zip(got, want, strict=True):
+            assert have.dtype == expected.dtype
+            np.testing.assert_array_equal(have, expected)
+
+
 def _above_elsewhere_numpy(values: npt.NDArray[Any], local: NoiseMap, snr_min: float,
                            elsewhere: tuple[tuple[int, int], ...]) -> bool:
     """peaks._above_elsewhere in the numpy form it had before its compiled pass."""

@@ -120,18 +120,25 @@ def _quartile_and_median(a: npt.NDArray[Any]) -> tuple[Any, Any]:
     than a partition at four indices, and converting only the picked values to float32
     gives the same numbers (the conversion keeps the order).
     """
-    n = a.shape[-1]
-    lo25, f25 = divmod((n - 1) * 0.25, 1.0)
-    lo50, f50 = divmod((n - 1) * 0.5, 1.0)
-    ordered = np.sort(a, axis=-1)
+    picks, (f25, f50) = _percentile_picks(a.shape[-1])
+    ordered = np.sort(a, axis=-1)[..., picks]
 
     def at(i: int, frac: float) -> Any:
         low = ordered[..., i].astype(np.float32)
         if not frac:
             return low
-        return low + frac * (ordered[..., min(i + 1, n - 1)].astype(np.float32) - low)
+        return low + frac * (ordered[..., i + 1].astype(np.float32) - low)
 
-    return at(int(lo25), f25), at(int(lo50), f50)
+    return at(0, f25), at(2, f50)
+
+
+def _percentile_picks(n: int) -> tuple[list[int], tuple[float, float]]:
+    """The positions in n sorted values between which the 25th percentile and the median
+    are interpolated (the lower and upper of each), and the two fractions."""
+    lo25, f25 = divmod((n - 1) * 0.25, 1.0)
+    lo50, f50 = divmod((n - 1) * 0.5, 1.0)
+    return ([int(lo25), min(int(lo25) + 1, n - 1), int(lo50), min(int(lo50) + 1, n - 1)],
+            (f25, f50))
 
 
 def median_of(values: npt.NDArray[Any]) -> float:
@@ -204,7 +211,9 @@ def _tile_statistics(block: npt.NDArray[Any]) -> tuple[npt.NDArray[np.float32],
     """Per NOISE_TILE_PX tile of ``block`` (h, w): (median, σ), each (nr, nc) float32,
     tiles from the top left corner. The tiles of the 2×2 subsample are cut in one
     compiled pass (:func:`atris_node.pipeline.peaks_kernels.subsample_tiles`) for the map
-    dtypes the kernels take."""
+    dtypes the kernels take; int16 and int32 tiles' statistics come from one more
+    (:func:`atris_node.pipeline.peaks_kernels.tile_noise`, the numbers of
+    :func:`_quartile_and_median` and the float32 steps below)."""
     t = NOISE_TILE_PX // 2
     if (block.size and t == peaks_kernels.SUBSAMPLE_TILE_PX
             and block.dtype in (np.int16, np.int32, np.float32, np.float64)):
@@ -215,6 +224,13 @@ def _tile_statistics(block: npt.NDArray[Any]) -> tuple[npt.NDArray[np.float32],
         padded = np.pad(sub, ((0, nr * t - sub.shape[0]), (0, nc * t - sub.shape[1])),
                         "symmetric")
         tiles = padded.reshape(nr, t, nc, t).transpose(0, 2, 1, 3).reshape(nr, nc, t * t)
+    if tiles.shape[-1] and tiles.dtype in (np.int16, np.int32):
+        picks, fractions = _percentile_picks(tiles.shape[-1])
+        return peaks_kernels.tile_noise(np.ascontiguousarray(tiles),
+                                        np.array(picks, dtype=np.int64),
+                                        np.array(fractions, dtype=np.float32),
+                                        np.float32(QUARTILE_TO_SIGMA),
+                                        np.float32(MIN_NOISE_DN))
     q25, median = _quartile_and_median(tiles)
     return median, np.maximum((median - q25) / QUARTILE_TO_SIGMA, np.float32(MIN_NOISE_DN))
 

@@ -431,36 +431,12 @@ def off_step_runs(rows: IntArray, step_rows: IntArray) -> tuple[IntArray, IntArr
     a step at a box's foot, one line over 21 columns, between 14 set aside at its row). A
     peak with set-aside step maxima (``step_rows`` (M, W), -1 = none) within STEP_ROW_PX
     of its row in STEP_SHARE or more, and at least two, of the columns within STEP_REACH
-    that hold either them or its own line at that row, belongs to that step."""
-    out = rows.copy()
-    width = rows.shape[1]
-    removed = np.zeros(width, dtype=np.int64)
-    has_step = (step_rows >= 0).any(axis=0)
-    if not has_step.any():
-        return out, removed
-    # only the peaks with a step maximum within STEP_REACH columns are asked
-    total = np.concatenate(([0], np.cumsum(has_step)))
-    columns = np.arange(width)
-    near = (total[np.minimum(columns + STEP_REACH + 1, width)]
-            - total[np.maximum(columns - STEP_REACH, 0)]) > 0
-    line, column = np.nonzero((rows >= 0) & near)
-    if not line.size:
-        return out, removed
-    row = rows[line, column]
-    position = column[:, None] + np.arange(-STEP_REACH, STEP_REACH + 1)  # (n, 2R+1)
-    inside = (position >= 0) & (position < width)
-    window = np.clip(position, 0, width - 1)
-    steps = step_rows[:, window]  # (M, n, 2R+1)
-    stepped = ((steps >= 0) & (np.abs(steps - row[:, None]) <= STEP_ROW_PX)).any(axis=0)
-    own = rows[line[:, None], window]
-    on_line = (own >= 0) & (np.abs(own - row[:, None]) <= STEP_ROW_PX)
-    stepped &= inside
-    either = np.count_nonzero((stepped | on_line) & inside, axis=1)
-    count = np.count_nonzero(stepped, axis=1)
-    off = (count >= 2) & (count >= STEP_SHARE * either)
-    out[line[off], column[off]] = -1
-    np.add.at(removed, column[off], 1)
-    return out, removed
+    that hold either them or its own line at that row, belongs to that step.
+    (One compiled pass, :func:`atris_node.pipeline.peaks_kernels.off_steps`.)"""
+    out, removed = kernels.off_steps(np.ascontiguousarray(rows, dtype=np.int64),
+                                     np.ascontiguousarray(step_rows, dtype=np.int64),
+                                     STEP_REACH, STEP_ROW_PX, STEP_SHARE)
+    return np.asarray(out), np.asarray(removed)
 
 
 def band_noise(local: NoiseMap, bands: tuple[Band, ...]) -> npt.NDArray[np.float32]:
