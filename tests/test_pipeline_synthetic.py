@@ -69,19 +69,25 @@ def test_sector_distances_match_the_truth(name: str) -> None:
 
 def test_free_floor_is_free_in_every_sector_within_the_sheets_reach(
         caplog: pytest.LogCaptureFixture) -> None:
-    """Both sheets meet the floor (at 3.4 and 4.4 m of camera range): within z_max 4.0 m
-    the upper one meets nothing and shows the range free, so every sector is NO_RETURN.
-    With the default z_max (10 m) both meet the floor nearer: nothing beyond 4.4 m is
-    looked at, and "free up to 10 m" is not known, so every sector is INVALID
+    """Both sheets meet the floor (at 3.4 and 4.4 m of camera range): within z_max 3.0 m
+    neither meets anything and both show the range free, so every sector is NO_RETURN.
+    Within z_max 4.0 m the lower one meets the floor at 3.4 m, where a face it met would
+    lie under half a row off its ground row and the upper sheet passes higher than the
+    clearance: an obstacle in that gap would be met only at its unresolved foot
+    (evidence.hidden_feet), so every sector is INVALID (it was NO_RETURN before that
+    rule). With the default z_max (10 m) both meet the floor nearer: nothing beyond
+    4.4 m is looked at, and "free up to 10 m" is not known, so every sector is INVALID
     (stress scene wall_at_last_ground_hit: a dark wall at the top sheet's ground hit read
     free). Checked to fail with the unprobed columns not counted doubtful in
     evidence.SectorJudge._evidence (NO_RETURN at 10 m). The pipeline says so when it is
     made."""
-    result, truth = _run(SCENES["free_floor"], replace(CONFIG, z_max_m=4.0))
+    result, truth = _run(SCENES["free_floor"], replace(CONFIG, z_max_m=3.0))
     assert "no sector can be reported free" not in caplog.text
     assert all(t is None for t in truth)
     assert {s.state for s in result.measurement.sectors} == {SectorState.NO_RETURN}
     assert result.measurement.nearest is None
+    foot, _ = _run(SCENES["free_floor"], replace(CONFIG, z_max_m=4.0))
+    assert {s.state for s in foot.measurement.sectors} == {SectorState.INVALID}
     far, _ = _run(SCENES["free_floor"])
     assert {s.state for s in far.measurement.sectors} == {SectorState.INVALID}
     assert "no sector can be reported free" in caplog.text
@@ -89,7 +95,7 @@ def test_free_floor_is_free_in_every_sector_within_the_sheets_reach(
 
 @pytest.mark.parametrize(("wall_m", "baseline_scale", "z_max_m", "states"), [
     (2.95, 1.03, 3.0, {SectorState.INVALID}), (3.6, 1.03, 3.0, {SectorState.NO_RETURN}),
-    (None, 1.0, 4.9, {SectorState.NO_RETURN})])
+    (None, 1.0, 4.9, {SectorState.INVALID})])
 def test_feature_a_return_just_beyond_the_range_is_no_evidence_of_free(
         wall_m: float | None, baseline_scale: float, z_max_m: float,
         states: set[SectorState]) -> None:
@@ -99,9 +105,11 @@ def test_feature_a_return_just_beyond_the_range_is_no_evidence_of_free(
     scenes wall_at_range_edge_*); a wall beyond z_max by more than the margin
     (max(10 %, 20 cm, 3 sigma)) still shows the range free. With a 2 cm clearance (the
     upper sheet crosses it at 4.87 m) the floor itself 0.11 m beyond z_max 4.9 m (within
-    that margin) is ground, and the range free. Checked to fail with
+    that margin) is ground; the range is not free there all the same, since the lower
+    sheet meets the floor at 3.4 m with a foot no row resolves under the upper sheet
+    (evidence.hidden_feet; it was NO_RETURN before that rule). Checked to fail with
     evidence.SectorJudge._at_the_edge returning no column (the wall at 2.95 m went out
-    NO_RETURN in every sector) and without its height test (the floor case INVALID)."""
+    NO_RETURN in every sector)."""
     scene = SCENES["free_floor"]
     if wall_m is not None:
         scene = replace(scene, boxes=(Box(wall_m, -20.0, 20.0),))

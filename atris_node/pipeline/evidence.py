@@ -134,7 +134,8 @@ class SectorJudge:
         foreign light) under the visibility ``prior``. With the ``ground`` plane, a
         sample within GROUND_ROW_PX rows of where its sheet meets the ground is an
         obstacle point only where another line corroborates it (elsewhere, over the
-        clearance, it lets no distance stand beyond its tolerance), low surfaces whose top
+        clearance, it lets no distance stand more than its tolerance or a row of range
+        beyond it), low surfaces whose top
         no line saw count as doubts, and samples clearly below the ground keep their
         columns from being free (:mod:`atris_node.pipeline.tops`)."""
         samples = extraction.samples
@@ -168,11 +169,12 @@ class SectorJudge:
                 np.where(tops.unseen, top_reach_m(range_m), foot_reach_m(range_m)))
             # a sample over the clearance but within GROUND_ROW_PX rows of its ground
             # row that no line corroborates is no obstacle point, yet it is the ground
-            # a pixel off or a low surface the rows cannot resolve (a ramp's foot, a
-            # low face met a few rows off): no distance stands beyond its tolerance
+            # a pixel off, a wall's foot stripe a pixel short, or a low surface the rows
+            # cannot resolve (a ramp's risen part): no distance stands beyond its
+            # tolerance or a row of range (d²/(f·b)) beyond it, whichever is more
             verdicts_kernels.least_per_sector(
                 reach_m, np.where(data.obstacle & ~obstacle & valid, sector, -1),
-                foot_reach_m(range_m))
+                np.maximum(foot_reach_m(range_m), range_m + range_m**2 / sheet.focal_baseline))
         flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground),
                                   self._hidden_feet(prior)])
         evidence = self._evidence(extraction, foreign, prior, points.valid, flagged, on_ground)
