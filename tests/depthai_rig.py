@@ -56,20 +56,22 @@ CONTROL_LENGTH = struct.Struct("!H")
 class EmitterLevels:
     """The ``Device`` the Script sees: the two IR emitter levels, and a count of updates.
     ``dot_since`` is the Script's count of frame events since its newest control message
-    when it set the dot level (``lease_age`` reads it from the running Script)."""
+    when it set the dot level (``lease_age`` reads it from the running Script),
+    ``dot_sets`` the number of times the dot level was set."""
 
     def __init__(self) -> None:
         self.dot = 0.0
         self.flood = 0.0
         self.updates = 0
         self.dot_since = 0
+        self.dot_sets = 0
         self.lease_age: Callable[[], int] = lambda: 0
         self.changed = threading.Condition()
 
     def setIrLaserDotProjectorIntensity(self, level: float) -> None:  # noqa: N802 - Script API
         with self.changed:
             self.dot, self.updates = level, self.updates + 1
-            self.dot_since = self.lease_age()
+            self.dot_since, self.dot_sets = self.lease_age(), self.dot_sets + 1
             self.changed.notify_all()
 
     def setIrFloodLightIntensity(self, level: float) -> None:  # noqa: N802 - Script API
@@ -180,6 +182,9 @@ class SimulatedMono(dai.node.ThreadedHostNode):
         self.levels: dict[int, float] = {}
         #: the Script's lease age when it set the level sub-frame ``seq`` was exposed with
         self.set_since: dict[int, int] = {}
+        #: which of the Script's dot settings (1, 2, ...) sub-frame ``seq`` was exposed with:
+        #: two sub-frames with the same one mean the Script was late for the second (a slip)
+        self.set_index: dict[int, int] = {}
 
     def _control(self) -> None:
         control = self.control.tryGet()
@@ -187,12 +192,13 @@ class SimulatedMono(dai.node.ThreadedHostNode):
             self.exposure_us = int(control.getExposureTime().total_seconds() * 1e6)
 
     def _expose(self, seq: int) -> dai.ImgFrame:
-        level, since = 0.0, 0
+        level, since, index = 0.0, 0, 0
         if self.script is not None:
             with self.script.device.changed:
-                level, since = self.script.device.dot, self.script.device.dot_since
+                device = self.script.device
+                level, since, index = device.dot, device.dot_since, device.dot_sets
         self.exposed_at[seq], self.levels[seq] = time.monotonic(), level
-        self.set_since[seq] = since
+        self.set_since[seq], self.set_index[seq] = since, index
         return mono_frame(seq, level, self.exposure_us)
 
     def run(self) -> None:
@@ -280,7 +286,8 @@ def device_main(log_path: str, count: int, period_s: float, frames_fd: int,
     pipeline.stop()
     pipeline.wait()
     events = [{"seq": seq, "t": mono.exposed_at[seq], "level": mono.levels[seq],
-               "since": mono.set_since[seq]} for seq in sorted(mono.levels)]
+               "since": mono.set_since[seq], "set": mono.set_index[seq]}
+              for seq in sorted(mono.levels)]
     with open(log_path, "w", encoding="utf-8") as log:
         json.dump(events, log)
 
