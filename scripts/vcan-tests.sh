@@ -17,7 +17,7 @@ VENV=${VENV:-.venv}
 PY=$VENV/bin/python
 VCAN_IFACES=(vcan0 vcan1)
 VM_MEMORY=${ATRIS_VCAN_VM_MEMORY:-2G}
-VM_TIMEOUT_S=${ATRIS_VCAN_VM_TIMEOUT_S:-900}
+VM_TIMEOUT_S=${ATRIS_VCAN_VM_TIMEOUT_S:-1500}
 APT_PKGS=(qemu-system-x86 linux-image-amd64 busybox-static can-utils)
 
 log() { echo "vcan-tests: $*"; }
@@ -94,13 +94,15 @@ ensure_vm_tools() {
   [ -x "$VENV/bin/vng" ] || { log "installing virtme-ng into $VENV"; "$PY" -m pip install -q virtme-ng; }
 }
 
-# The pipeline's numba kernels, compiled here for a generic x86-64 CPU into the results
-# directory: the repo is read-only in the VM (no cache in __pycache__) and the emulated CPU
-# is not the host's (a host-CPU cache would not match), so every unit process in the VM
-# would otherwise compile them again, minutes each without KVM.
+# The numba kernels, compiled here for a generic x86-64 CPU into the results directory:
+# the repo is read-only in the VM (no cache in __pycache__) and the emulated CPU is not the
+# host's (a host-CPU cache would not match), so the VM would otherwise compile them again,
+# minutes without KVM. One simulated block goes through the pipeline (`roles.py warm`):
+# kernels compiled at their first call are cached too, and the units' zygote in the VM only
+# loads them (it compiled them for itself for over 300 s, the first test's whole timeout).
 compile_for_vm() {
   local results=$1 start=$SECONDS
-  NUMBA_CACHE_DIR="$results/numba" NUMBA_CPU_NAME=generic "$PY" -c "import atris_node.pipeline.chain" \
+  NUMBA_CACHE_DIR="$results/numba" NUMBA_CPU_NAME=generic "$PY" tests/vcan/roles.py warm \
     || die "the pipeline's kernels do not compile"
   log "kernels compiled for the VM in $((SECONDS - start)) s"
 }

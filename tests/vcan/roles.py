@@ -143,6 +143,7 @@ def publisher(channel: str, unit_id: str, period_s: str, update_s: str) -> None:
     stop, counter = StdinWatch(), 0
     status = UnitStatus(UnitState.RUNNING, 3, 16, 480.0, 0)
     with open_bus(channel, 0x7FF) as bus:
+        status_sent = record_status_sends(bus, int(unit_id))
         pub = Publisher(bus, int(unit_id), period_s=float(period_s), sector_count=4)
         pub.start()
         emit("ready")
@@ -155,7 +156,24 @@ def publisher(channel: str, unit_id: str, period_s: str, update_s: str) -> None:
         finally:
             pub.stop()
     pub.check()
-    emit("done", frames_sent=pub.stats.frames_sent, send_errors=pub.stats.send_errors)
+    emit("done", frames_sent=pub.stats.frames_sent, send_errors=pub.stats.send_errors,
+         status_sent=status_sent)
+
+
+def record_status_sends(bus: can.BusABC, unit_id: int) -> list[tuple[float, int]]:
+    """Wraps ``bus.send``: each of the unit's Status frames handed to the bus is noted as
+    (``time.monotonic()`` of the call, its fault byte 2); returns the list it fills."""
+    from atris_node.bus.can.ids import FrameKind, frame_id
+
+    status_id, sent, send = frame_id(unit_id, FrameKind.STATUS), list[tuple[float, int]](), bus.send
+
+    def recorded(msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == status_id:
+            sent.append((time.monotonic(), int(msg.data[2])))
+        send(msg, timeout)
+
+    bus.send = recorded  # type: ignore[method-assign]
+    return sent
 
 
 def canopen_slave(channel: str, node_id: str, update_s: str) -> None:
@@ -254,26 +272,37 @@ PRELOAD = ("numpy", "can.interfaces.socketcan", "cantools", "canopen", "atris_no
            "atris_node.node.runner", "atris_node.cli.run")
 
 
-def warm_kernels() -> None:
-    """Compile the simulator's, demodulator's and pipeline's numba kernels once, here:
-    forked units inherit them and start at once (in the VM numba may find no writable
-    cache, and each unit compiled for 90 s, over 150 s beside a CPU-heavy process)."""
-    try:
-        from atris_node.bench.safety import LAYOUT, block_maps
-        from atris_node.pipeline.chain import Pipeline, PipelineConfig
-        from atris_node.sim import load_scene
+def run_pipeline_once() -> None:
+    """One simulated block of maps through the pipeline: every numba kernel of the
+    simulator, the demodulator and the pipeline is compiled (or loaded from numba's cache)
+    and typed for its first call."""
+    from atris_node.bench.safety import LAYOUT, block_maps
+    from atris_node.pipeline.chain import Pipeline, PipelineConfig
+    from atris_node.sim import load_scene
 
-        sim, maps = block_maps(load_scene("indoor_lab"), 1)
-        Pipeline(PipelineConfig(), sim.calibration(), sim.mounting, LAYOUT).process(next(maps))
+    sim, maps = block_maps(load_scene("indoor_lab"), 1)
+    Pipeline(PipelineConfig(), sim.calibration(), sim.mounting, LAYOUT).process(next(maps))
+
+
+def warm_kernels() -> None:
+    """Compile the kernels once, here: forked units inherit them and start at once (in the
+    VM numba may find no writable cache, and each unit compiled for 90 s, over 150 s beside
+    a CPU-heavy process). ``scripts/vcan-tests.sh`` runs this on the host first (``roles.py
+    warm``) into the VM's numba cache, so that in the VM it only loads."""
+    started = time.monotonic()
+    try:
+        run_pipeline_once()
     except Exception as exc:  # the units then compile for themselves, as before
         print(f"zygote: kernels not warmed: {exc!r}", file=sys.stderr)
+    print(f"zygote: kernels warmed in {time.monotonic() - started:.1f} s", file=sys.stderr)
 
 
 def zygote() -> None:
     """Pre-loads PRELOAD, then forks one unit per JSON request line on stdin.
 
-    A request is ``{"role", "args", "stdin", "stdout"}`` (the last two are FIFO paths);
-    the answer is ``{"pid": ...}``. Children are reaped at once (SIGCHLD ignored).
+    A request is ``{"id", "role", "args", "stdin", "stdout"}`` (the last two are FIFO
+    paths); the answer is ``{"id": ..., "pid": ...}``. Children are reaped at once
+    (SIGCHLD ignored).
     """
     for name in PRELOAD:
         try:
@@ -287,7 +316,7 @@ def zygote() -> None:
         pid = os.fork()
         if pid == 0:
             run_child(request)
-        print(json.dumps({"pid": pid}), flush=True)
+        print(json.dumps({"id": request["id"], "pid": pid}), flush=True)
 
 
 def run_child(request: dict[str, Any]) -> None:
@@ -322,5 +351,7 @@ if __name__ == "__main__":
                         format="%(process)d %(relativeCreated)8.0f %(name)s: %(message)s")
     if sys.argv[1] == "zygote":
         zygote()
+    elif sys.argv[1] == "warm":
+        run_pipeline_once()
     else:
         ROLES[sys.argv[1]](*sys.argv[2:])

@@ -47,14 +47,16 @@ class Zygote:
         fifo_in, fifo_out = (Path(self.tmp.name) / f"{self.count}.{d}" for d in ("in", "out"))
         os.mkfifo(fifo_in)
         os.mkfifo(fifo_out)
-        request = {"role": role, "args": list(args), "stdin": str(fifo_in),
-                   "stdout": str(fifo_out)}
+        request = {"id": self.count, "role": role, "args": list(args),
+                   "stdin": str(fifo_in), "stdout": str(fifo_out)}
         self.proc.stdin.write(json.dumps(request) + "\n")
         self.proc.stdin.flush()
-        answer = self.proc.stdout.readline()
-        if not answer:
-            pytest.fail(f"the unit zygote exited with {self.proc.wait(5)}")
-        return int(json.loads(answer)["pid"]), fifo_in, fifo_out
+        while True:  # an answer to an earlier request whose test gave up waiting is skipped
+            answer = self.proc.stdout.readline()
+            if not answer:
+                pytest.fail(f"the unit zygote exited with {self.proc.wait(5)}")
+            if json.loads(answer)["id"] == self.count:
+                return int(json.loads(answer)["pid"]), fifo_in, fifo_out
 
     def close(self) -> None:
         """Ends the zygote (closing its stdin) and removes the FIFOs."""
