@@ -161,16 +161,17 @@ def publisher(channel: str, unit_id: str, period_s: str, update_s: str) -> None:
 
 
 def record_status_sends(bus: can.BusABC, unit_id: int) -> list[tuple[float, int]]:
-    """Wraps ``bus.send``: each of the unit's Status frames handed to the bus is noted as
+    """Wraps ``bus.send``: each of the unit's Status frames the bus took is noted as
     (``time.monotonic()`` of the call, its fault byte 2); returns the list it fills."""
     from atris_node.bus.can.ids import FrameKind, frame_id
 
     status_id, sent, send = frame_id(unit_id, FrameKind.STATUS), list[tuple[float, int]](), bus.send
 
     def recorded(msg: can.Message, timeout: float | None = None) -> None:
+        handed_s = time.monotonic()
+        send(msg, timeout)  # a frame the bus refused (raised) is not noted
         if msg.arbitration_id == status_id:
-            sent.append((time.monotonic(), int(msg.data[2])))
-        send(msg, timeout)
+            sent.append((handed_s, int(msg.data[2])))
 
     bus.send = recorded  # type: ignore[method-assign]
     return sent
