@@ -55,8 +55,9 @@ class Zygote:
             answer = self.proc.stdout.readline()
             if not answer:
                 pytest.fail(f"the unit zygote exited with {self.proc.wait(5)}")
-            if json.loads(answer)["id"] == self.count:
-                return int(json.loads(answer)["pid"]), fifo_in, fifo_out
+            reply = json.loads(answer)
+            if reply["id"] == self.count:
+                return int(reply["pid"]), fifo_in, fifo_out
 
     def close(self) -> None:
         """Ends the zygote (closing its stdin) and removes the FIFOs."""
