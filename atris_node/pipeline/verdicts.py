@@ -760,10 +760,11 @@ def hole_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
         if (stop - start < GAP_RUN or not inside
                 or not (returned[k, start:stop] < limit).all()):
             continue
-        left = bool(bright[k, max(start - GAP_RUN, 0):start].any())
-        right = bool(bright[k, stop:min(stop + GAP_RUN, width)].any())
+        before = bright[k, max(start - GAP_RUN, 0):start]
+        after = bright[k, stop:min(stop + GAP_RUN, width)]
+        left, right = bool(before.any()), bool(after.any())
         if stop - start < run or inside < settings.min_points:
-            if left and right and _held(bright[k], start, stop):
+            if left and right and _held(before, after):
                 return True
             continue
         to_the_edge = (left and stop == width) or (right and start == 0)
@@ -772,11 +773,12 @@ def hole_before(s: int, view: MapView, distance_m: float, settings: SectorSettin
     return False
 
 
-def _held(bright: BoolArray, start: int, stop: int) -> bool:
+def _held(before: BoolArray, after: BoolArray) -> bool:
     """True when a line is bright on its ground rows in every one of the GAP_RUN columns
-    on each side of the hole [start, stop): a short hole between steady bright returns."""
-    left, right = bright[max(start - GAP_RUN, 0):start], bright[stop:stop + GAP_RUN]
-    return bool(left.size == GAP_RUN and right.size == GAP_RUN and left.all() and right.all())
+    on each side of a hole (``before`` and ``after`` it, up to GAP_RUN each): a short hole
+    between steady bright returns."""
+    return bool(before.size == GAP_RUN and after.size == GAP_RUN and before.all()
+                and after.all())
 
 
 def _fan_reaches(seen: BoolArray, k: int, start: int, stop: int) -> bool:

@@ -40,7 +40,7 @@ import pytest
 from e2e_reference import P01Receiver
 from test_load import cangen_babblers
 from test_vcan_negotiation import strobe_intervals, wait_owned
-from unit_frames import DBC_PATH, IN_ORDER, Received, check_and_decode, listen
+from unit_frames import DBC_PATH, IN_ORDER, Received, check_and_decode, listen, until_every_unit
 
 from atris_node.bus.can.ids import FrameKind, frame_id
 
@@ -153,21 +153,11 @@ def running_spans(received: list[Received], unit_id: int) -> list[tuple[float, f
 
 def wait_started(bus: can.BusABC, timeout_s: float) -> float:
     """Seconds until every unit's status frame says more than INIT (its loop runs)."""
-    db = cantools.database.load_file(DBC_PATH)
-    ids = {frame_id(uid, FrameKind.STATUS): uid for uid in UNIT_IDS}
-    started: set[int] = set()
-    begin = time.monotonic()
-    while started != set(UNIT_IDS):
-        if time.monotonic() - begin > timeout_s:
-            pytest.fail(f"units {sorted(set(UNIT_IDS) - started)} did not leave INIT within "
-                        f"{timeout_s:.0f} s")
-        msg = bus.recv(0.1)
-        if msg is not None and msg.arbitration_id in ids:
-            state = db.decode_message(msg.arbitration_id, bytes(msg.data),
-                                      decode_choices=False)["State"]
-            if int(state) != 0:
-                started.add(ids[msg.arbitration_id])
-    return time.monotonic() - begin
+    _, seconds, started = until_every_unit(bus, UNIT_IDS, lambda state: state != 0, timeout_s)
+    if started != set(UNIT_IDS):
+        pytest.fail(f"units {sorted(set(UNIT_IDS) - started)} did not leave INIT within "
+                    f"{timeout_s:.0f} s")
+    return seconds
 
 
 def test_a_babbling_node_makes_no_unit_share_a_code_or_publish_stale_distances(

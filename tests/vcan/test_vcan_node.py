@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import os
 import signal
-import time
 from typing import Any
 
 import can
 import cantools
 import pytest
 from e2e_reference import P01Receiver
-from unit_frames import DBC_PATH, Received, check_and_decode, listen
+from unit_frames import DBC_PATH, Received, check_and_decode, listen, until_every_unit
 
 from atris_node.bus.can.ids import FrameKind, frame_id
 
@@ -61,25 +60,6 @@ def last_status(frames: list[Received], unit_id: int) -> dict[str, Any]:
     return mine[-1].signals
 
 
-def until_running(bus: can.BusABC) -> tuple[list[can.Message], float]:
-    """Every frame until both units' Status said RUNNING (at most START_S), and the
-    seconds that took; the test's checks then fail on the frames if one never did."""
-    db = cantools.database.load_file(DBC_PATH)
-    status_ids = {frame_id(uid, FrameKind.STATUS) for uid in UNIT_IDS}
-    frames, heard, begin = list[can.Message](), set[int](), time.monotonic()
-    while heard != status_ids and time.monotonic() - begin < START_S:
-        msg = bus.recv(0.1)
-        if msg is None:
-            continue
-        frames.append(msg)
-        if msg.arbitration_id not in status_ids:
-            continue
-        signals = db.decode_message(msg.arbitration_id, bytes(msg.data), decode_choices=False)
-        if signals["State"] == STATE_RUNNING:
-            heard.add(msg.arbitration_id)
-    return frames, time.monotonic() - begin
-
-
 def test_two_atris_run_units_negotiate_and_publish(spawn: Any, record_property: Any) -> None:
     units = [spawn("atris", *run_args(uid)) for uid in UNIT_IDS]
     for unit in units:
@@ -87,7 +67,8 @@ def test_two_atris_run_units_negotiate_and_publish(spawn: Any, record_property: 
     with can.Bus(interface="socketcan", channel="vcan0",
                  can_filters=[{"can_id": frame_id(6, FrameKind.STATUS), "can_mask": 0x7F8,
                                "extended": False}]) as bus:
-        frames, started_s = until_running(bus)
+        frames, started_s, _ = until_every_unit(bus, UNIT_IDS,
+                                                lambda state: state == STATE_RUNNING, START_S)
         record_property("running_after_s", round(started_s, 1))
         frames += listen(bus, LISTEN_S)
     for unit in units:

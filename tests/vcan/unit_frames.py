@@ -4,12 +4,16 @@ independent E2E Profile 1 model of ``e2e_reference``."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
 import can
+import cantools
 from e2e_reference import P01Receiver
 from vcan_support import REPO_ROOT
+
+from atris_node.bus.can.ids import FrameKind, frame_id
 
 DBC_PATH = REPO_ROOT / "atris_node" / "bus" / "can" / "atris.dbc"
 
@@ -22,6 +26,27 @@ class Received:
     signals: dict[str, Any]
     timestamp: float
     counter: int
+
+
+def until_every_unit(bus: can.BusABC, unit_ids: Iterable[int], settled: Callable[[int], bool],
+                     timeout_s: float) -> tuple[list[can.Message], float, set[int]]:
+    """Every frame until each unit's Status frame has shown a State that ``settled``
+    accepts (at most ``timeout_s``): the frames, the seconds that took and the units that
+    got there (the caller's checks fail on them if one never did)."""
+    db = cantools.database.load_file(DBC_PATH)
+    status_ids = {frame_id(uid, FrameKind.STATUS): uid for uid in unit_ids}
+    frames, heard, begin = list[can.Message](), set[int](), time.monotonic()
+    while heard != set(status_ids.values()) and time.monotonic() - begin < timeout_s:
+        msg = bus.recv(0.1)
+        if msg is None:
+            continue
+        frames.append(msg)
+        if msg.arbitration_id not in status_ids:
+            continue
+        signals = db.decode_message(msg.arbitration_id, bytes(msg.data), decode_choices=False)
+        if settled(int(signals["State"])):
+            heard.add(status_ids[msg.arbitration_id])
+    return frames, time.monotonic() - begin, heard
 
 
 def listen(bus: can.BusABC, duration_s: float) -> list[can.Message]:
