@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pytest
+from prior_reference import hidden_as_defined
 
 from atris_node.codes import walsh_chips
 from atris_node.demod import BlockDemodulator
@@ -1812,28 +1813,6 @@ def test_set_aside_without_drops_is_the_numpy_sort() -> None:
 # (the prior's count of lines missing without a reason in one pass down the lines)
 
 
-def _hidden_as_defined(prior: Any, rows: np.ndarray, z: list, place: np.ndarray, k: int
-                       ) -> bool:
-    """Line k is the one line missing between the nearest lines with a finite range above
-    and below it in image order, the one below nearer, and its row at the range of the
-    one above lies HIDDEN_PX or more below the row of the one below, and no line below
-    that one is seen farther (the nearer surface hides it)."""
-    from atris_node.pipeline.identity_kernels import HIDDEN_PX
-
-    f, b = prior.focal_px, prior.baseline_m
-    finite = [j for j in range(rows.size) if np.isfinite(z[j])]
-    above = [j for j in finite if place[j] < place[k]]
-    below = [j for j in finite if place[j] > place[k]]
-    if not above or not below:
-        return False
-    up = max(above, key=lambda j: place[j])
-    low = min(below, key=lambda j: place[j])
-    row = prior.cy_px + f * prior.cot_alpha[k] - f * b / z[up]
-    farther_below = any(place[j] > place[low] and z[j] > z[low] for j in finite)
-    return bool(place[low] - place[up] == 2 and z[low] < z[up] and row >= rows[low] + HIDDEN_PX
-                and not farther_below)
-
-
 def _unexplained_as_defined(prior: Any, rows: np.ndarray) -> np.ndarray:
     """Per column of ``rows`` (K, n) by line: the unassigned lines that would be seen
     (within z_max, above the ground, inside the image) at the finite range of the assigned
@@ -1848,7 +1827,7 @@ def _unexplained_as_defined(prior: Any, rows: np.ndarray) -> np.ndarray:
         for k in np.flatnonzero(rows[:, c] < 0):
             found = [(abs(place[k] - place[j]), z[j]) for j in range(rows.shape[0])
                      if np.isfinite(z[j])]
-            if _hidden_as_defined(prior, rows[:, c], z, place, k):
+            if hidden_as_defined(prior, rows[:, c], z, place, k):
                 continue
             if found:
                 near = min(found)[1]

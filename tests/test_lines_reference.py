@@ -8,10 +8,9 @@ differently.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pytest
+from prior_reference import hidden_as_defined
 
 from atris_node.pipeline.bands import Band, count_in_bands
 from atris_node.pipeline.identity import (
@@ -107,28 +106,6 @@ def test_noise_floor_is_the_percentile_of_the_subsample() -> None:
     assert sigma == pytest.approx((median - q25) / 0.6745, rel=1e-5)
 
 
-def _hidden_as_defined(prior: Any, rows: np.ndarray, z: list, place: np.ndarray, k: int
-                       ) -> bool:
-    """Line k is the one line missing between the nearest lines with a finite range above
-    and below it in image order, the one below nearer, and its row at the range of the
-    one above lies HIDDEN_PX or more below the row of the one below, and no line below
-    that one is seen farther (the nearer surface hides it)."""
-    from atris_node.pipeline.identity_kernels import HIDDEN_PX
-
-    f, b = prior.focal_px, prior.baseline_m
-    finite = [j for j in range(rows.size) if np.isfinite(z[j])]
-    above = [j for j in finite if place[j] < place[k]]
-    below = [j for j in finite if place[j] > place[k]]
-    if not above or not below:
-        return False
-    up = max(above, key=lambda j: place[j])
-    low = min(below, key=lambda j: place[j])
-    row = prior.cy_px + f * prior.cot_alpha[k] - f * b / z[up]
-    farther_below = any(place[j] > place[low] and z[j] > z[low] for j in finite)
-    return bool(place[low] - place[up] == 2 and z[low] < z[up] and row >= rows[low] + HIDDEN_PX
-                and not farther_below)
-
-
 def _unexplained_by_definition(prior: VisibilityPrior, rows: np.ndarray) -> np.ndarray:
     """Per column: the unassigned lines that would be seen, inside the image and above the
     ground, at the range of the assigned line fewest places away in image order (the
@@ -143,7 +120,7 @@ def _unexplained_by_definition(prior: VisibilityPrior, rows: np.ndarray) -> np.n
         for k in np.flatnonzero(rows[:, c] < 0):
             found = [(abs(position[k] - position[j]), z[j]) for j in range(rows.shape[0])
                      if j != k and np.isfinite(z[j])]
-            if not found or _hidden_as_defined(prior, rows[:, c], z, position, k):
+            if not found or hidden_as_defined(prior, rows[:, c], z, position, k):
                 continue
             near = min(found)[1]
             row = prior.cy_px + f * cot[k] - f * prior.baseline_m / near

@@ -353,3 +353,38 @@ def test_feature_a_foot_no_row_resolves_under_a_tall_gap_keeps_the_column_from_f
     expected = np.array([[True], [True], [False]])
     assert not hidden_feet(dense, expected, h0, fb, clearance).any()
     assert hidden_feet(dense[:2], expected[:2], h0, fb, clearance).all()  # nothing above
+
+
+def test_feature_a_foot_hidden_under_a_tall_gap_lets_no_distance_stand_beyond_it() -> None:
+    """Random scene s18083's case (stress scene crate_in_the_gap_over_a_hidden_foot): a
+    unit 1.05 m up, f·b = 376.75 px x 0.0464 m, one sheet meeting the ground 4.8 m ahead,
+    the other above the horizon; a crate 0.95 m tall at 4.67 m is met 3 cm up, a tenth of
+    a row off the ground row, and the wall behind was read VALID (7 of 16 sector-frames).
+    Where the sheet above passes more than HIDDEN_GAP_M over an unresolved foot, the range
+    from which the foot is unresolved is a reach no distance in the column's sector may
+    pass (hidden_foot_onset, SectorJudge._foot_reach); under a gap of 0.1-0.5 m the
+    column is only kept from being free (hidden_feet). Checked: with _foot_reach left
+    out of SectorJudge.judge, the stress scene read the wall in 8 of its 32
+    sector-frames on seed 1 (tests/test_safety_scenes.py failed)."""
+    from atris_node.pipeline.evidence import (
+        HIDDEN_GAP_M,
+        TOP_ROWS_PX,
+        hidden_feet,
+        hidden_foot_onset,
+    )
+
+    h0, fb, clearance = 1.053, 376.75 * 0.0464, 0.1
+    ground = 4.8
+    two = np.array([[ground * (h0 - clearance) / h0], [np.inf]])
+    expected = np.array([[True], [False]])
+    onset = hidden_foot_onset(two, expected, h0, fb, clearance, HIDDEN_GAP_M)
+    assert onset[0, 0] == pytest.approx(1.0 / (1.0 / ground + TOP_ROWS_PX / fb))
+    assert onset[0, 0] < 4.67 and np.isinf(onset[1, 0])
+    # a sheet above meeting the ground 1 m farther passes about 0.2 m over the lower
+    # one's onset: that foot keeps the column from free but sets no reach (the upper
+    # sheet's own foot, with nothing above it, does)
+    pair = np.vstack([two[:1], [[(ground + 1.0) * (h0 - clearance) / h0]]])
+    both = np.array([[True], [True]])
+    assert hidden_feet(pair, both, h0, fb, clearance).all()
+    assert np.isinf(hidden_foot_onset(pair, both, h0, fb, clearance, HIDDEN_GAP_M)[0, 0])
+    assert np.isfinite(hidden_foot_onset(pair, both, h0, fb, clearance, clearance)[0, 0])

@@ -56,6 +56,10 @@ CLEAN_NOISE = 2.0
 #: up, met square on and far brighter, lies a row or more off for the shallow sheets that
 #: meet the ground far off: SectorJudge._returned)
 ON_GROUND_ROWS_PX = 0.5
+#: m; a foot hidden under a gap to the sheet above taller than this (an obstacle that
+#: size stands there met only at its foot) lets no distance stand beyond where it starts
+#: (:meth:`SectorJudge._foot_reach`); shorter gaps only keep a sector from being free
+HIDDEN_GAP_M = 0.5
 #: a return beyond z_max by less than this many of its σ (or than max(DOUBT_REL·z_max,
 #: DOUBT_ABS_M)) may stand within the range (:meth:`SectorJudge._at_the_edge`)
 EDGE_SIGMAS = 3.0
@@ -121,6 +125,8 @@ class SectorJudge:
         self._hits: tuple[VisibilityPrior, FloatArray] | None = None
         #: the last prior and its columns with hidden feet (:meth:`_hidden_feet`)
         self._feet: tuple[VisibilityPrior, IntArray] | None = None
+        #: the last prior and the sectors' ranges from which a foot is hidden
+        self._onset: tuple[VisibilityPrior, FloatArray] | None = None
 
     def sectors_of(self, columns: BoolArray) -> set[int]:
         """The sectors the given (W,) columns look into."""
@@ -177,6 +183,7 @@ class SectorJudge:
                 np.maximum(foot_reach_m(range_m), range_m + range_m**2 / sheet.focal_baseline))
         flagged = np.concatenate([flagged, self._at_the_edge(extraction, points, clean, ground),
                                   self._hidden_feet(prior)])
+        np.minimum(reach_m, self._foot_reach(prior), out=reach_m)
         evidence = self._evidence(extraction, foreign, prior, points.valid, flagged, on_ground)
         return sector_verdicts(found, evidence, self.layout, self.settings, doubt_m, reach_m,
                                self._columns)
@@ -367,6 +374,31 @@ class SectorJudge:
             self._hits = (prior, np.where(meets, hits, np.inf))
         return self._hits[1]
 
+    def _foot_reach(self, prior: VisibilityPrior) -> FloatArray:
+        """(S,) per sector the nearest range (m, horizontal) from which some line's foot
+        is hidden in one of its columns (:func:`hidden_foot_onset`), inf where none is;
+        kept while the prior is the same."""
+        if self._onset is None or self._onset[0] is not prior:
+            z = hidden_foot_onset(
+                prior.ground_range_m, self._expected_on_ground(prior),
+                float(self.projector_m[2]),
+                self.calibration.camera.focal_px * self.calibration.laser.baseline_m,
+                self.clearance_m, HIDDEN_GAP_M)
+            hidden = np.isfinite(z)
+            onset = np.full(z.shape, np.inf)
+            if hidden.any():
+                vehicle = self._on_sheets(np.where(hidden, z, 1.0))
+                horizontal = self.layout.horizontal_range(vehicle[:, 0], vehicle[:, 1])
+                onset = np.where(hidden, horizontal.reshape(z.shape), np.inf)
+            reach = np.full(self.layout.count, np.inf)
+            column = np.broadcast_to(self.column_sector, z.shape)
+            verdicts_kernels.least_per_sector(
+                reach, np.where(hidden, column, -1).ravel().astype(np.int64),
+                onset.ravel())
+            reach.flags.writeable = False
+            self._onset = (prior, reach)
+        return self._onset[1]
+
     def _hidden_feet(self, prior: VisibilityPrior) -> IntArray:
         """(m,) the columns where a line meets the ground within the range with a foot
         no row resolves under a gap to the sheet above taller than the clearance
@@ -477,9 +509,23 @@ def hidden_feet(ground_range_m: FloatArray, expected: BoolArray, projector_heigh
     g = z_c·h0/(h0 − c) and is at h0·(1 − d/g) at d; its foot is unresolved from
     d_r = 1/(1/g + TOP_ROWS_PX/(f·b)) on; the sheet above is the one meeting the ground
     next farther (at h0 or higher when none does)."""
+    onset = hidden_foot_onset(ground_range_m, expected, projector_height_m,
+                              focal_baseline_px_m, clearance_m, clearance_m)
+    return np.asarray(np.isfinite(onset).any(axis=0))
+
+
+def hidden_foot_onset(ground_range_m: FloatArray, expected: BoolArray,
+                      projector_height_m: float, focal_baseline_px_m: float,
+                      clearance_m: float, gap_m: float) -> FloatArray:
+    """(K, W) camera z (m) from which line k's foot in column c is hidden
+    (:func:`hidden_feet`), inf where it has none. Beyond it up to the sheet above, an
+    obstacle lower than that sheet is met only at a foot the rows cannot tell from the
+    ground: no distance farther than this stands in the column's sector (a crate 0.95 m
+    tall at 4.67 m, met 3 cm up by the one sheet that meets the ground, the other above
+    the horizon: the wall behind, 5.96 m, read VALID)."""
     h0 = float(projector_height_m)
     if h0 <= clearance_m or focal_baseline_px_m <= 0.0:
-        return np.zeros(expected.shape[1], dtype=np.bool_)
+        return np.full(expected.shape, np.inf)
     z = np.asarray(ground_range_m, dtype=np.float64)
     meets = np.isfinite(z) & (z > 0.0)
     ground = np.where(meets, z, np.inf) * (h0 / (h0 - clearance_m))
@@ -488,7 +534,7 @@ def hidden_feet(ground_range_m: FloatArray, expected: BoolArray, projector_heigh
     above = farther.min(axis=1)
     with np.errstate(invalid="ignore"):
         gap = np.where(np.isfinite(above), h0 * (1.0 - resolved_to / above), h0)
-    return np.asarray((expected & meets & (gap > clearance_m)).any(axis=0))
+    return np.where(expected & meets & (gap > gap_m), resolved_to, np.inf)
 
 
 def _ground_snr(shape: tuple[int, ...], on_ground: tuple[IntArray, IntArray, FloatArray]
