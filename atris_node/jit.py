@@ -7,13 +7,23 @@ when it finds none (a read-only install run by a user without a home directory).
 same directories are tried first: without one, the kernels are compiled at every start
 instead (about 20 s) rather than failing. The systemd unit in ``launch/`` gives the node a
 cache directory.
+
+numba keys a cached kernel on its own source file only, and a kernel inlines the helpers
+it calls from other modules: after a helper changed in place (``git pull``), an unchanged
+module's kernel would load the old helper from the cache, silently (a test caught one:
+the rival test's kernels kept the visibility prior's old count). So the cache lives in a
+directory named after a digest of every kernel module's source (:func:`source_key`):
+``numba-<key>`` in the package's ``__pycache__``, else ``atris-<key>`` in the user's
+numba cache directory, or in ``NUMBA_CACHE_DIR`` when that is set.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numba
@@ -39,8 +49,43 @@ def can_cache(source_file: str) -> bool:
     return any(_writable(path) for path in candidates)
 
 
-#: whether the kernels (all in ``atris_node/pipeline/``) are cached on disk
-CACHE = can_cache(os.path.join(os.path.dirname(__file__), "pipeline", "__init__.py"))
+#: the package folders whose modules hold kernels (numba's compiled functions)
+KERNEL_FOLDERS = ("pipeline", "sim", "demod")
+
+
+def source_key(package: Path) -> str:
+    """12 hex digits of the SHA-256 of this module's and every kernel folder's Python
+    sources (names and contents, in path order) under ``package``."""
+    digest = hashlib.sha256()
+    sources = sorted(f for folder in KERNEL_FOLDERS for f in (package / folder).glob("*.py"))
+    for f in (Path(__file__), *sources):
+        digest.update(f.name.encode())
+        digest.update(f.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def cache_dir(package: Path, key: str) -> str:
+    """The directory the kernels are cached in for the sources ``key`` (""): none
+    writable, no cache): under ``NUMBA_CACHE_DIR`` when set, else the package's
+    ``__pycache__``, else the user's numba cache directory."""
+    configured = getattr(numba.config, "CACHE_DIR", "")  # NUMBA_CACHE_DIR
+    if configured:
+        candidates = [os.path.join(configured, f"atris-{key}")]
+    else:
+        candidates = [os.path.join(package, "__pycache__", f"numba-{key}"),
+                      os.path.join(AppDirs(appname="numba", appauthor=False).user_cache_dir,
+                                   f"atris-{key}")]
+    return next((path for path in candidates if _writable(path)), "")
+
+
+_PACKAGE = Path(__file__).resolve().parent
+#: where the kernels are cached ("" when nowhere); numba's cache locator reads it from
+#: its config when a kernel is decorated (every kernel module imports this one first)
+CACHE_DIR = cache_dir(_PACKAGE, source_key(_PACKAGE))
+if CACHE_DIR:
+    numba.config.CACHE_DIR = CACHE_DIR  # type: ignore[attr-defined]
+#: whether the kernels are cached on disk
+CACHE = bool(CACHE_DIR)
 
 
 def kernel(signatures: Any = None) -> Callable[[Any], Any]:

@@ -98,3 +98,32 @@ def test_kernels_are_cached_only_where_a_cache_can_be_written(
     monkeypatch.setattr(jit.numba.config, "CACHE_DIR", "", raising=False)
     (tmp_path / "pkg").mkdir()
     assert jit.can_cache(str(tmp_path / "pkg" / "module.py"))  # its __pycache__
+
+
+def test_the_kernel_cache_is_keyed_on_every_kernel_module(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """numba keys a cached kernel on its own source file, and a kernel inlines helpers from
+    other modules: the rival test's kernels kept the visibility prior's old count after
+    identity_kernels.py changed, until the cache was deleted. The cache directory is
+    named after every kernel module's source: a change in any of them (not elsewhere)
+    moves it, under NUMBA_CACHE_DIR when set, else the package's __pycache__. Checked:
+    with source_key hashing the file names only, this test failed."""
+    from atris_node import jit
+
+    package = tmp_path / "pkg"
+    for folder, name in (("pipeline", "a_kernels.py"), ("sim", "b_kernels.py"),
+                         ("cli", "c.py")):
+        (package / folder).mkdir(parents=True)
+        (package / folder / name).write_text("x = 1\n")
+    key = jit.source_key(package)
+    (package / "cli" / "c.py").write_text("x = 2\n")
+    assert jit.source_key(package) == key  # no kernels there
+    (package / "pipeline" / "a_kernels.py").write_text("x = 2\n")
+    changed = jit.source_key(package)
+    assert changed != key
+    (package / "sim" / "b_kernels.py").write_text("x = 2\n")
+    assert jit.source_key(package) not in (key, changed)
+    monkeypatch.setattr(jit.numba.config, "CACHE_DIR", str(tmp_path / "numba"), raising=False)
+    assert jit.cache_dir(package, key) == str(tmp_path / "numba" / f"atris-{key}")
+    monkeypatch.setattr(jit.numba.config, "CACHE_DIR", "", raising=False)
+    assert jit.cache_dir(package, key) == str(package / "__pycache__" / f"numba-{key}")
