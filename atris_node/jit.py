@@ -39,16 +39,6 @@ def _writable(path: str) -> bool:
     return True
 
 
-def can_cache(source_file: str) -> bool:
-    """True when numba will find a writable cache directory for ``source_file``."""
-    candidates = [os.path.join(os.path.dirname(source_file), "__pycache__"),
-                  AppDirs(appname="numba", appauthor=False).user_cache_dir]
-    configured = getattr(numba.config, "CACHE_DIR", "")  # NUMBA_CACHE_DIR
-    if configured:
-        candidates.insert(0, configured)
-    return any(_writable(path) for path in candidates)
-
-
 #: the package folders whose modules hold kernels (numba's compiled functions)
 KERNEL_FOLDERS = ("pipeline", "sim", "demod")
 
@@ -65,9 +55,9 @@ def source_key(package: Path) -> str:
 
 
 def cache_dir(package: Path, key: str) -> str:
-    """The directory the kernels are cached in for the sources ``key`` (""): none
-    writable, no cache): under ``NUMBA_CACHE_DIR`` when set, else the package's
-    ``__pycache__``, else the user's numba cache directory."""
+    """The directory the kernels are cached in for the sources ``key``: under
+    ``NUMBA_CACHE_DIR`` when set, else the package's ``__pycache__``, else the user's
+    numba cache directory; "" when none of them can be written (no cache)."""
     configured = getattr(numba.config, "CACHE_DIR", "")  # NUMBA_CACHE_DIR
     if configured:
         candidates = [os.path.join(configured, f"atris-{key}")]

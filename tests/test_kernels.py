@@ -92,12 +92,12 @@ def test_kernels_are_cached_only_where_a_cache_can_be_written(
     blocked.write_text("not a directory")
     monkeypatch.setenv("XDG_CACHE_HOME", str(blocked / "cache"))
     monkeypatch.setattr(jit.numba.config, "CACHE_DIR", "", raising=False)
-    assert not jit.can_cache(str(blocked / "module.py"))  # no directory can be made
+    assert jit.cache_dir(blocked, "k") == ""  # no directory can be made
     monkeypatch.setattr(jit.numba.config, "CACHE_DIR", str(tmp_path / "numba"), raising=False)
-    assert jit.can_cache(str(blocked / "module.py"))  # NUMBA_CACHE_DIR
+    assert jit.cache_dir(blocked, "k") == str(tmp_path / "numba" / "atris-k")  # NUMBA_CACHE_DIR
     monkeypatch.setattr(jit.numba.config, "CACHE_DIR", "", raising=False)
     (tmp_path / "pkg").mkdir()
-    assert jit.can_cache(str(tmp_path / "pkg" / "module.py"))  # its __pycache__
+    assert jit.cache_dir(tmp_path / "pkg", "k") == str(tmp_path / "pkg" / "__pycache__" / "numba-k")
 
 
 def test_the_kernel_cache_is_keyed_on_every_kernel_module(
