@@ -1122,8 +1122,10 @@ def _shadowed_columns_numpy(s: int, view: Any, distance_m: float) -> int:
 
 def test_unseen_and_shadowed_columns_are_the_numpy_forms() -> None:
     """300 random maps (lines with holes, noisy bands, bright and weak lines, points of
-    every range, NaN SNR now and then) and distances: the compiled unseen and shadowed
-    columns equal the numpy forms in every sector."""
+    every range, NaN SNR now and then, a visibility prior with the lines in a random
+    image order or none) and distances: the compiled unseen and shadowed columns equal
+    the numpy forms in every sector."""
+    from atris_node.pipeline.identity import VisibilityPrior
     from atris_node.pipeline.obstacles import SectorSettings
     from atris_node.pipeline.verdicts import (
         ColumnEvidence,
@@ -1162,7 +1164,11 @@ def test_unseen_and_shadowed_columns_are_the_numpy_forms() -> None:
         points = ObstaclePoints(ranges, sector_of[column], rng.random(m) < 0.9, line, column,
                                 np.full(m, 0.01), snr)
         zero = np.zeros(width, np.int64)
-        evidence = ColumnEvidence(sector_of, zero, zero, zero, seen=seen, noisy=noisy)
+        prior = None if rng.random() < 0.3 else VisibilityPrior(
+            rng.permutation(np.linspace(0.0, 0.3, lines)), 400.0, 200.0, 400, 0.1, 10.0,
+            np.full((lines, width), 9.0))
+        evidence = ColumnEvidence(sector_of, zero, zero, zero, seen=seen, noisy=noisy,
+                                  prior=prior)
         view = MapView.of(points, evidence, count, settings)
         for s in range(count):
             for distance in (*rng.uniform(0.3, 10.0, 2), wall, wall + 0.5):

@@ -460,6 +460,51 @@ def test_feature_a_line_missing_from_the_surface_blocks_it() -> None:
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.VALID
 
 
+def _plate_past_a_boundary(hole: range, plate: range = range(34, 46)
+                           ) -> tuple[ObstaclePoints, ColumnEvidence]:
+    """Lines 0-4 on a wall at 4 m in every column of sectors 0 (columns 0-31) and 1
+    (32-63); line 5, the lowest, on a plate at 1.5 m in ``plate`` and on the wall in
+    the other columns but those of ``hole``, where it is seen nowhere. Line 5 meets the
+    ground at 9 m (the wall would show it); SNR 20 (f = 400 px, b = 0.1 m)."""
+    cells = [(k, c, 4.0) for k in range(5) for c in range(WIDTH)]
+    cells += [(5, c, 1.5 if c in plate else 4.0) for c in range(WIDTH) if c not in hole]
+    line, column = (np.array(v, np.int64) for v in list(zip(*cells, strict=True))[:2])
+    ranges = np.array([r for _, _, r in cells])
+    n = line.size
+    points = ObstaclePoints(ranges, np.where(column < 32, 0, 1).astype(np.int64),
+                            np.ones(n, bool), line, column, np.full(n, 0.01),
+                            np.full(n, 20.0), ranges)
+    seen = np.zeros((6, WIDTH), bool)
+    seen[line, column] = True
+    ground = np.full((6, WIDTH), np.inf)
+    ground[5] = 9.0
+    prior = VisibilityPrior(np.linspace(0.0, 0.25, 6), 400.0, 200.0, 400, 0.1, 10.0, ground)
+    zero = np.zeros(WIDTH, np.int64)
+    return points, ColumnEvidence(_evidence().sector, zero, zero, zero, seen=seen,
+                                  prior=prior)
+
+
+def test_feature_a_hole_cut_by_a_sector_boundary_counts_whole() -> None:
+    """Random scene s19152 (stress scene plate_edge_on_past_a_boundary): a dark plate
+    seen nearly edge-on, its near part lit by the lowest line at 1.5 m in sector 1; the
+    lowest line is missing over its far part, five columns, three of them in sector 0,
+    while the lines above pass over the plate to the wall at 4 m. Sector 0 read the wall
+    (2.56 m for 1.71 m in every map of the drawn scene): the hole's three columns in it
+    were fewer than min_points, and the lines above, seen on the wall there, cleared
+    them. A hole counts whole where it enters a sector, and only a line at or below its
+    own clears its columns (verdicts._unseen_whole): sector 0 is INVALID. A hole of four
+    columns (under min_points), the lowest line seen all along, or a hole that does not
+    reach sector 0 leave the wall's 4 m standing. Checked to fail with _unseen_whole
+    returning 0 (sector 0 VALID at 4 m, and the stress scene far in 4 of 32
+    sector-frames)."""
+    points, evidence = _plate_past_a_boundary(range(29, 34))
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    for hole in (range(30, 34), range(0), range(33, 38)):
+        points, evidence = _plate_past_a_boundary(hole, range(38 if hole else 34, 46))
+        out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+        assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), hole
+
+
 def test_feature_lines_passing_under_a_surface_are_not_missing_from_it() -> None:
     """A surface that does not reach the ground (a sphere, a vehicle's body) at 4 m,
     lines 0-4 on it: line 5 passes under it and is seen beyond, at 6 m; line 6, lower

@@ -487,7 +487,13 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
     that ends on one side only (a wall's edge with the far scene too faint beyond) or
     between surfaces no nearer than d makes no hole, unless its band is too noisy to show
     it over most of the run: then what stands there is not known (a pole before a wall,
-    its stripes under a threshold that flicker left by the demodulation raised)."""
+    its stripes under a threshold that flicker left by the demodulation raised).
+
+    A hole also counts whole, its columns in the neighbouring sectors with it, where it
+    enters the sector (:func:`_unseen_whole`): its length says whether it can hide
+    something, wherever a boundary cuts it, and the sector holding its edge must not
+    read what stands behind (a dark plate seen nearly edge-on, its far end three columns
+    into the next sector, there read as the wall behind it, 2.56 m for 1.71 m)."""
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None:
         return 0
@@ -498,9 +504,36 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
         distance_m - margin, distance_m + margin, GAP_SNR * settings.snr_min, view.columns[s],
         _ints(hits.line), _ints(hits.column), _floats(hits.range_m), _floats(hits.snr),
         _ints(inside.column), _floats(inside.range_m), GAP_RUN)
-    if count < 0:  # NaN in an SNR: numpy's median decides
+    whole = _unseen_whole(s, view, distance_m, settings)
+    if count < 0 or whole < 0:  # NaN in an SNR: numpy's median decides
         return _unseen_columns(s, view, distance_m, settings)
-    return int(count)
+    return int(max(count, whole))
+
+
+def _unseen_whole(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                  ) -> int:
+    """The longest hole of :func:`unseen_columns` that enters sector ``s``, counted whole
+    (its columns in the neighbouring sectors too), and cleared only where a line at or
+    below its own (in the image) shows a point at most ``distance_m`` + max(DOUBT_REL·d,
+    DOUBT_ABS_M) away: a surface standing before the far one meets the lower sheets
+    first, and a sheet above seen on the far surface says only that what stands there
+    is lower (the plate of the docstring above: the two upper sheets passed over it to
+    the wall in the columns where the lowest was missing). -1 when an SNR holds NaN; 0
+    without the visibility prior (no line order)."""
+    holes, span, prior = view.holes, view.spans[s], view.evidence.prior
+    if holes is None or span is None or prior is None:
+        return 0
+    margin = doubt_margin_m(distance_m)
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    beside = [view.sectors[t].hits for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
+    return int(verdicts_kernels.unseen_whole(
+        holes.nearer_m, holes.noisy, holes.line, holes.start, holes.stop, span[0], span[1],
+        distance_m - margin, distance_m + margin, GAP_SNR * settings.snr_min, view.columns[s],
+        _ints(hits.line), _floats(hits.snr), _ints(prior.image_rank),
+        _ints(np.concatenate([b.line for b in beside])),
+        _ints(np.concatenate([b.column for b in beside])),
+        _floats(np.concatenate([b.range_m for b in beside])),
+        _ints(inside.column), _floats(inside.range_m), GAP_RUN))
 
 
 def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -530,7 +563,42 @@ def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSe
     far = inside.column[inside.range_m > distance_m + margin]
     for shift in range(-GAP_RUN, GAP_RUN + 1):
         hole[np.clip(far + shift, 0, width - 1)] = False
-    return int(hole.sum())
+    return max(int(hole.sum()), _unseen_whole_steps(s, view, distance_m, settings))
+
+
+def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: SectorSettings
+                        ) -> int:
+    """:func:`_unseen_whole` in numpy steps (numpy's median of an SNR with NaN)."""
+    holes, span, prior = view.holes, view.spans[s], view.evidence.prior
+    if holes is None or span is None or prior is None:
+        return 0
+    margin = doubt_margin_m(distance_m)
+    near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
+            & (holes.start <= span[1]) & (holes.stop > span[0]))
+    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    rank = np.asarray(prior.image_rank)
+    beside = [view.sectors[t].hits for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
+    line = np.concatenate([b.line for b in beside])
+    column = np.concatenate([b.column for b in beside])
+    shown = np.concatenate([b.range_m for b in beside]) <= distance_m + margin
+    width = view.evidence.sector.size
+    open_ = np.zeros(width, dtype=np.bool_)
+    for shift in range(-GAP_RUN, GAP_RUN + 1):
+        open_[np.clip(inside.column[inside.range_m > distance_m + margin] + shift, 0,
+                      width - 1)] = True
+    longest = 0
+    for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
+                              strict=True):
+        snr = hits.snr[hits.line == k]
+        if not snr.size or not np.median(snr) >= GAP_SNR * settings.snr_min:
+            continue
+        hole = np.zeros(width, dtype=np.bool_)
+        hole[start:stop] = True
+        hole &= ~open_
+        hole[column[shown & (rank[line] >= rank[k])]] = False
+        if (hole & view.columns[s]).any():
+            longest = max(longest, int(hole.sum()))
+    return longest
 
 
 def _ints(values: npt.NDArray[np.generic]) -> IntArray:

@@ -548,6 +548,69 @@ def unseen(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray
     return hole.sum()
 
 
+@kernel(_with_mask((_F, _B, _I, _I, _I, types.int64, types.int64, types.float64,
+                    types.float64, types.float64), (_I, _F, _I, _I, _I, _F, _I, _F,
+                                                     types.int64)))
+def unseen_whole(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray,
+                 stop: IntArray, first: int, last: int, nearer_than: float,
+                 farther_than: float, strong_snr: float, inside: BoolArray,
+                 hit_line: IntArray, hit_snr: FloatArray, rank: IntArray,
+                 near_line: IntArray, near_column: IntArray, near_range: FloatArray,
+                 all_column: IntArray, all_range: FloatArray, gap: int) -> int:
+    """The longest hole, counted whole, of
+    :func:`atris_node.pipeline.verdicts.unseen_columns` that enters the sector (``inside``
+    (W,), spanning ``first`` .. ``last``): a hole (``nearer`` m, ``noisy``, ``line``,
+    ``start``, ``stop``; (h,) each) flanked nearer than ``nearer_than`` (m) or noisy, of a
+    line whose obstacle points in the sector (``hit_line``, ``hit_snr``) have a median SNR
+    of ``strong_snr`` or more, without its columns that hold an obstacle point at most
+    ``farther_than`` away of a line at or below it in the image (image ``rank`` (K,) by
+    line; ``near_*`` (n,): the points of the sector and its neighbours) or lie within
+    ``gap`` columns of a point of the sector farther (``all_*``), with at least one column
+    left in the sector. 0 when none; -1 when a line's SNR holds NaN (the median is
+    numpy's to take then)."""
+    width = inside.size
+    open_ = np.zeros(width, dtype=np.bool_)
+    for i in range(all_column.size):
+        if all_range[i] > farther_than:
+            for shift in range(-gap, gap + 1):  # clipped to the image, as np.clip does
+                open_[min(max(all_column[i] + shift, 0), width - 1)] = True
+    hole = np.zeros(width, dtype=np.bool_)
+    longest = 0
+    for h in range(nearer.size):
+        if not ((nearer[h] < nearer_than or noisy[h]) and start[h] <= last
+                and stop[h] > first):
+            continue
+        n = 0
+        for i in range(hit_line.size):
+            n += hit_line[i] == line[h]
+        if n == 0:
+            continue
+        snr = np.empty(n)
+        j = 0
+        for i in range(hit_line.size):
+            if hit_line[i] == line[h]:
+                if np.isnan(hit_snr[i]):
+                    return -1
+                snr[j] = hit_snr[i]
+                j += 1
+        if np.median(snr) < strong_snr:
+            continue
+        for c in range(start[h], stop[h]):
+            hole[c] = not open_[c]
+        for i in range(near_line.size):
+            c = near_column[i]
+            if (start[h] <= c < stop[h] and near_range[i] <= farther_than
+                    and rank[near_line[i]] >= rank[line[h]]):
+                hole[c] = False
+        count, enters = 0, False
+        for c in range(start[h], stop[h]):
+            count += hole[c]
+            enters |= hole[c] and inside[c]
+        if enters and count > longest:
+            longest = count
+    return longest
+
+
 @kernel("Tuple((int64[:], int64[:], int64[:]))(boolean[:, :])")
 def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
     """The runs of True in each row of a (K, W) ``mask``: (n,) row, start and stop
@@ -844,6 +907,8 @@ def warm_up() -> None:
              pair, two)
     unseen(two, flag, pair, pair, pair + 1, 0, 1, 1.0, 1.0, 1.0, flag, pair, pair, two, two,
            pair, two, 3)
+    unseen_whole(two, flag, pair, pair, pair + 1, 0, 1, 1.0, 1.0, 1.0, flag, pair, two, pair,
+                 pair, pair, two, pair, two, 3)
     runs(np.ones((1, 2), dtype=np.bool_))
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
                np.zeros((0, 0), dtype=np.bool_), np.zeros(1, dtype=np.int64),
