@@ -23,7 +23,8 @@ from atris_node.errors import ConfigError
 
 FIELDS = {"minutes", "units", "rss_start_mb", "rss_end_mb", "rss_growth_mb", "threads_start",
           "threads_end", "cycles", "deadline_misses", "deadline_miss_fraction", "e2e_errors",
-          "measurements", "late_cycles_on_bus", "unflagged_late_cycles"}
+          "measurements", "late_cycles_on_bus", "unflagged_late_cycles", "sent_late_cycles",
+          "unexplained_late_cycles"}
 #: seconds into the half-minute soak (after its 6 s warm-up) when the process stalls
 STALL_AT_S = 12.0
 
@@ -52,9 +53,18 @@ def test_half_minute_soak_reports_and_leaves_nothing_behind(
     makes every unit's next Status cycle late on the bus, and each late cycle carries
     DeadlineMiss.
 
+    A cycle whose sender was preempted after reading its clock (or stalled then) reaches
+    the bus late without the bit: its sender counts it (``sent_late_cycles``, each send's
+    time kept), and only such cycles may lack it: every unflagged late cycle on the bus
+    must pair with one of its unit's late sends (``unexplained_late_cycles`` 0). Beside a
+    busy loop, with the test suite and a scene batch on the other core, 2 late cycles on
+    the bus lacked the bit (the assert was then ``unflagged_late_cycles == 0``, with a
+    10 ms allowance for preemption).
+
     Checked by removing the protection once (``Publisher._faults`` no longer adding
     DEADLINE_MISS for a late cycle): ``unflagged_late_cycles`` was 4 of 4 late cycles and
-    the test failed."""
+    the test failed; with the pairing, on a loaded machine, 12 and 8 unexplained (of 24 and
+    13 late cycles) in two runs, both failed, and 0 in two runs with it."""
     done = threading.Event()
     stall = threading.Thread(target=stall_the_process, args=(done,))
     stall.start()
@@ -74,7 +84,8 @@ def test_half_minute_soak_reports_and_leaves_nothing_behind(
     assert 0 < report["cycles"] <= 1.1 * 4 * 20 * 24
     assert report["measurements"] >= 4
     assert report["late_cycles_on_bus"] >= report["units"], "the stall made no cycle late"
-    assert report["unflagged_late_cycles"] == 0
+    assert report["unexplained_late_cycles"] == 0
+    assert report["unflagged_late_cycles"] <= report["sent_late_cycles"]
     assert report["deadline_misses"] >= report["units"]  # the publishers counted them too
     assert report["deadline_miss_fraction"] == pytest.approx(
         report["deadline_misses"] / report["cycles"])

@@ -7,7 +7,13 @@ bus itself (:class:`CycleWatch`): a unit's Status frame that came later than its
 plus tolerance after the one before is a late cycle, and one later than that by more than
 SEND_JITTER_S must carry DeadlineMiss. The sender judges its lateness at its last clock
 reading before the send; a thread preempted between that reading and the bus's timestamp
-(the GIL, a loaded machine) reaches the bus later than it could know, by a few ms.
+(the GIL, a loaded machine) reaches the bus later than it could know, by a few ms, or by
+a whole stall of the process that falls in between. The senders count such cycles
+themselves (their clock read again once the Status frame is queued:
+``PublisherStats.sent_late``, reported as ``sent_late_cycles``, each kept in
+``Publisher.late_sends``): an unflagged late cycle on the bus that no sender's late send
+pairs with (same unit, within PAIR_S) is ``unexplained_late_cycles``, a sender that did
+not flag a lateness it knew.
 """
 
 from __future__ import annotations
@@ -33,6 +39,9 @@ from atris_node.node.runner import FleetRun, open_bus
 #: s a Status frame may reach the bus after the sender's last clock reading (preemption
 #: between the reading and the send) before a late cycle without DeadlineMiss counts
 SEND_JITTER_S = 0.010
+#: s between a frame's bus timestamp and its sender's clock once it was queued, at most,
+#: for the two to be the same send
+PAIR_S = 0.010
 WARMUP_FRACTION = 0.2
 WARMUP_MAX_S = 60.0
 #: GIL switch interval during a soak, s: four units share one interpreter here (a vehicle
@@ -59,6 +68,8 @@ class SoakReport:
     measurements: int
     late_cycles_on_bus: int
     unflagged_late_cycles: int
+    sent_late_cycles: int
+    unexplained_late_cycles: int
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -73,6 +84,8 @@ class CycleWatch(can.Listener):
         self.limits = limits
         self.late = 0
         self.unflagged = 0
+        #: (frame name, bus timestamp) of each late cycle counted in ``unflagged``
+        self.unflagged_at: list[tuple[str, float]] = []
         self._codec = FrameCodec(base_id=base_id)
         self._last: dict[str, float] = {}
 
@@ -87,8 +100,10 @@ class CycleWatch(can.Listener):
         last, self._last[frame.name] = self._last.get(frame.name), msg.timestamp
         if last is not None and msg.timestamp - last > limit:
             self.late += 1
-            self.unflagged += (msg.timestamp - last > limit + SEND_JITTER_S
-                               and not frame.signals.get("Fault_DeadlineMiss"))
+            if (msg.timestamp - last > limit + SEND_JITTER_S
+                    and not frame.signals.get("Fault_DeadlineMiss")):
+                self.unflagged += 1
+                self.unflagged_at.append((frame.name, msg.timestamp))
 
 
 def _status_limits(fleet: FleetRun) -> dict[str, float]:
@@ -104,6 +119,20 @@ def _publisher_totals(fleet: FleetRun) -> tuple[int, int]:
     cycles = sum(u.publisher.stats.cycles for u in fleet.units)
     misses = sum(u.publisher.stats.deadline_misses for u in fleet.units)
     return cycles, misses
+
+
+def _sent_late(fleet: FleetRun) -> int:
+    return sum(u.publisher.stats.sent_late for u in fleet.units)
+
+
+def _unexplained(watch: CycleWatch, fleet: FleetRun, wall_minus_clock_s: float) -> int:
+    """The unflagged late cycles of ``watch`` that no sender counted as sent late: none of
+    its unit's late sends (``Publisher.late_sends``, its clock) lies within PAIR_S of the
+    bus timestamp (wall clock; ``wall_minus_clock_s`` converts)."""
+    sends = {message_name(u.publisher.unit_id, FrameKind.STATUS): u.publisher.late_sends
+             for u in fleet.units}
+    return sum(not any(abs(at - wall_minus_clock_s - t) <= PAIR_S for t in sends.get(name, ()))
+               for name, at in watch.unflagged_at)
 
 
 def _run_phase(fleet: FleetRun, seconds: float) -> None:
@@ -140,6 +169,10 @@ def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
             fleet.start()
             _run_phase(fleet, warmup_s)
             watch = CycleWatch(_status_limits(fleet), monitor.base_id)
+            # counted from before the watch listens to after the senders stopped: every
+            # cycle the watch sees was checked by its sender in between
+            sent_late0 = _sent_late(fleet)
+            wall_minus_clock_s = time.time() - time.monotonic()  # the units' clock
             notifier.add_listener(watch)
             rss0, threads0 = _rss_mb(), threading.active_count()
             cycles0, misses0 = _publisher_totals(fleet)
@@ -153,6 +186,8 @@ def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
         finally:
             fleet.stop()
             notifier.stop()
+    sent_late = _sent_late(fleet) - sent_late0
+    unexplained = _unexplained(watch, fleet, wall_minus_clock_s)
     cycles, misses = cycles1 - cycles0, misses1 - misses0
     return SoakReport(
         minutes=minutes, units=len(spec.units), rss_start_mb=round(rss0, 2),
@@ -160,4 +195,5 @@ def _soak(minutes: float, spec: LaunchSpec) -> SoakReport:
         threads_start=threads0, threads_end=threads1, cycles=cycles,
         deadline_misses=misses, deadline_miss_fraction=misses / cycles if cycles else 0.0,
         e2e_errors=errors1 - errors0, measurements=measurements,
-        late_cycles_on_bus=watch.late, unflagged_late_cycles=watch.unflagged)
+        late_cycles_on_bus=watch.late, unflagged_late_cycles=watch.unflagged,
+        sent_late_cycles=sent_late, unexplained_late_cycles=unexplained)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 
@@ -37,6 +38,8 @@ from atris_node.types import FaultBits, Measurement, UnitState, UnitStatus
 
 logger = logging.getLogger(__name__)
 
+#: late sends kept for a bus watch to pair with (:attr:`Publisher.late_sends`)
+LATE_SENDS_KEPT = 256
 MIN_PERIOD_S = 0.01
 
 
@@ -50,6 +53,11 @@ class PublisherStats:
     send_errors: int = 0
     bus_off_count: int = 0
     skipped_cycles: int = 0
+    #: cycles stamped on time whose first frame (Status) was queued later than period +
+    #: tolerance after the last cycle (the thread preempted between its clock reading and
+    #: the send): it reaches the bus late without DeadlineMiss, which the sender could not
+    #: know in time
+    sent_late: int = 0
 
 
 class Publisher:
@@ -104,6 +112,10 @@ class Publisher:
         self._last_cycle_s: float | None = None
         self._backoff_s = 0.0
         self._retry_at_s = 0.0
+        self._first_sent_s = 0.0  # clock once the last cycle's first frame was queued
+        #: the clock once the first frame was queued, of the newest LATE_SENDS_KEPT cycles
+        #: counted in ``stats.sent_late`` (what a bus watch pairs its late frames with)
+        self.late_sends: deque[float] = deque(maxlen=LATE_SENDS_KEPT)
         self._bus_error = False
 
     # -- owner side -------------------------------------------------------------------
@@ -251,6 +263,9 @@ class Publisher:
             sent = self._send_all(self.frames(measurement, status, now, late), timeout_s)
             if not sent and timeout_s == 0.0:
                 return False
+            if sent and not late and self._late(self._first_sent_s):
+                self.stats.sent_late += 1
+                self.late_sends.append(self._first_sent_s)
         self._last_cycle_s = stamp
         self.stats.cycles += 1
         self.stats.deadline_misses += int(late)
@@ -307,9 +322,11 @@ class Publisher:
     def _send_all(self, frames: Iterable[can.Message], timeout_s: float) -> bool:
         """Send ``frames`` in order; False at the first that fails. A failure is a send
         error (back-off) unless the send was non-blocking (``timeout_s`` 0)."""
-        for msg in frames:
+        for i, msg in enumerate(frames):
             if not self._send(msg, timeout_s):
                 return False
+            if i == 0:
+                self._first_sent_s = self.clock()
         if self._backoff_s:
             logger.warning("CAN sending of unit %d resumed", self.unit_id)
         self._backoff_s = 0.0
