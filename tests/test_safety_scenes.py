@@ -308,7 +308,11 @@ def test_feature_alpha_error_reads_long_as_geometry_predicts() -> None:
     """calib_alpha_0p1deg: with every α of the pipeline 0.1° large, a surface at z reads
     z / (1 − z Δα / b) (α = 90°), 2.4 % long at 1 m and 7.5 % at 3 m. Every VALID sector
     lies within 1.5 points of that and never nearer than the truth: the pipeline adds no
-    error of its own to the calibration's. The baseline 1 % long reads 1 % long."""
+    error of its own to the calibration's. The baseline 1 % long reads 1 % long. Three
+    maps: since a line's hole counts whole where it enters a sector
+    (verdicts._unseen_whole), the 3 m box's sector is INVALID in map 0 (the gap between
+    the 2 m and 3 m boxes, 13 columns without lines 0-5 after a far point's, three of
+    them in the 3 m sector), and two maps held 5 VALID sectors."""
     import math
 
     from atris_node.bench import safety
@@ -323,7 +327,7 @@ def test_feature_alpha_error_reads_long_as_geometry_predicts() -> None:
         scene = load_scene(name)
         whole = Simulator(scene, chips=walsh_chips(scene.code_length, scene.code_row))
         valid = 0
-        for measurement, _, _, span in safety._measure(scene, 2, config, seed=1):
+        for measurement, _, _, span in safety._measure(scene, 3, config, seed=1):
             truth = safety.sector_truth(whole, span)
             for sector, true_m in zip(measurement.sectors, truth, strict=True):
                 if sector.state is not SectorState.VALID:

@@ -518,22 +518,27 @@ def _unseen_whole(s: int, view: MapView, distance_m: float, settings: SectorSett
     DOUBT_ABS_M) away: a surface standing before the far one meets the lower sheets
     first, and a sheet above seen on the far surface says only that what stands there
     is lower (the plate of the docstring above: the two upper sheets passed over it to
-    the wall in the columns where the lowest was missing). -1 when an SNR holds NaN; 0
-    without the visibility prior (no line order)."""
+    the wall in the columns where the lowest was missing). Columns within GAP_RUN of a
+    point farther than that, of the sector or its neighbours, are open as in
+    :func:`unseen_columns` (the gap between two boxes of a range ladder, 2 m and 3 m
+    away, the lowest line seen on the floor beyond in it: taken with the sector's own
+    points only, the gap's columns in the 2 m sector counted and the 3 m sector went
+    INVALID). -1 when an SNR holds NaN; 0 without the visibility prior (no line order)."""
     holes, span, prior = view.holes, view.spans[s], view.evidence.prior
     if holes is None or span is None or prior is None:
         return 0
     margin = doubt_margin_m(distance_m)
-    inside, hits = view.sectors[s].inside, view.sectors[s].hits
-    beside = [view.sectors[t].hits for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
+    hits = view.sectors[s].hits
+    around = [view.sectors[t] for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
     return int(verdicts_kernels.unseen_whole(
         holes.nearer_m, holes.noisy, holes.line, holes.start, holes.stop, span[0], span[1],
         distance_m - margin, distance_m + margin, GAP_SNR * settings.snr_min, view.columns[s],
         _ints(hits.line), _floats(hits.snr), _ints(prior.image_rank),
-        _ints(np.concatenate([b.line for b in beside])),
-        _ints(np.concatenate([b.column for b in beside])),
-        _floats(np.concatenate([b.range_m for b in beside])),
-        _ints(inside.column), _floats(inside.range_m), GAP_RUN))
+        _ints(np.concatenate([a.hits.line for a in around])),
+        _ints(np.concatenate([a.hits.column for a in around])),
+        _floats(np.concatenate([a.hits.range_m for a in around])),
+        _ints(np.concatenate([a.inside.column for a in around])),
+        _floats(np.concatenate([a.inside.range_m for a in around])), GAP_RUN))
 
 
 def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -575,17 +580,18 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
     margin = doubt_margin_m(distance_m)
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
             & (holes.start <= span[1]) & (holes.stop > span[0]))
-    inside, hits = view.sectors[s].inside, view.sectors[s].hits
+    hits = view.sectors[s].hits
     rank = np.asarray(prior.image_rank)
-    beside = [view.sectors[t].hits for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
-    line = np.concatenate([b.line for b in beside])
-    column = np.concatenate([b.column for b in beside])
-    shown = np.concatenate([b.range_m for b in beside]) <= distance_m + margin
+    around = [view.sectors[t] for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
+    line = np.concatenate([a.hits.line for a in around])
+    column = np.concatenate([a.hits.column for a in around])
+    shown = np.concatenate([a.hits.range_m for a in around]) <= distance_m + margin
+    far = np.concatenate([a.inside.column[a.inside.range_m > distance_m + margin]
+                          for a in around])
     width = view.evidence.sector.size
     open_ = np.zeros(width, dtype=np.bool_)
     for shift in range(-GAP_RUN, GAP_RUN + 1):
-        open_[np.clip(inside.column[inside.range_m > distance_m + margin] + shift, 0,
-                      width - 1)] = True
+        open_[np.clip(far + shift, 0, width - 1)] = True
     longest = 0
     for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
                               strict=True):

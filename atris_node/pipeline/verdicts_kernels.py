@@ -492,6 +492,39 @@ def _count_true(row: BoolArray, lo: int, hi: int) -> int:
     return count
 
 
+@kernel()
+def _near_strong_hole(h: int, nearer: FloatArray, noisy: BoolArray, line: IntArray,
+                      start: IntArray, stop: IntArray, first: int, last: int,
+                      nearer_than: float, hit_line: IntArray, hit_snr: FloatArray,
+                      strong_snr: float) -> int:
+    """1 when hole ``h`` (of :func:`unseen`'s arguments) touches columns ``first`` ..
+    ``last``, is flanked nearer than ``nearer_than`` or noisy, and its line is strong
+    (:func:`_strong_line`); 0 when not; -1 when its line's SNR holds NaN."""
+    if not ((nearer[h] < nearer_than or noisy[h]) and start[h] <= last and stop[h] > first):
+        return 0
+    return _strong_line(line[h], hit_line, hit_snr, strong_snr)
+
+
+@kernel()
+def _strong_line(k: int, hit_line: IntArray, hit_snr: FloatArray, strong_snr: float) -> int:
+    """1 when the points of line ``k`` among ``hit_line`` (n,) have a median SNR
+    (``hit_snr``) of ``strong_snr`` or more, 0 when less or none, -1 when one is NaN."""
+    n = 0
+    for i in range(hit_line.size):
+        n += hit_line[i] == k
+    if n == 0:
+        return 0
+    snr = np.empty(n)
+    j = 0
+    for i in range(hit_line.size):
+        if hit_line[i] == k:
+            if np.isnan(hit_snr[i]):
+                return -1
+            snr[j] = hit_snr[i]
+            j += 1
+    return int(np.median(snr) >= strong_snr)
+
+
 @kernel(_with_mask((_F, _B, _I, _I, _I, types.int64, types.int64, types.float64,
                     types.float64, types.float64), (_I, _I, _F, _F, _I, _F, types.int64)))
 def unseen(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray,
@@ -513,23 +546,11 @@ def unseen(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray
     whole = np.zeros(width, dtype=np.bool_)
     found = False
     for h in range(nearer.size):
-        if not ((nearer[h] < nearer_than or noisy[h]) and start[h] <= last
-                and stop[h] > first):
-            continue
-        n = 0
-        for i in range(hit_line.size):
-            n += hit_line[i] == line[h]
-        if n == 0:
-            continue
-        snr = np.empty(n)
-        j = 0
-        for i in range(hit_line.size):
-            if hit_line[i] == line[h]:
-                if np.isnan(hit_snr[i]):
-                    return -1
-                snr[j] = hit_snr[i]
-                j += 1
-        if np.median(snr) >= strong_snr:
+        use = _near_strong_hole(h, nearer, noisy, line, start, stop, first, last,
+                                nearer_than, hit_line, hit_snr, strong_snr)
+        if use < 0:
+            return -1
+        if use:
             found = True
             for c in range(start[h], stop[h]):
                 hole[c] = True
@@ -564,9 +585,9 @@ def unseen_whole(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: In
     line whose obstacle points in the sector (``hit_line``, ``hit_snr``) have a median SNR
     of ``strong_snr`` or more, without its columns that hold an obstacle point at most
     ``farther_than`` away of a line at or below it in the image (image ``rank`` (K,) by
-    line; ``near_*`` (n,): the points of the sector and its neighbours) or lie within
-    ``gap`` columns of a point of the sector farther (``all_*``), with at least one column
-    left in the sector. 0 when none; -1 when a line's SNR holds NaN (the median is
+    line; ``near_*`` (n,): the obstacle points of the sector and its neighbours) or lie
+    within ``gap`` columns of a point of them farther (``all_*``), with at least one
+    column left in the sector. 0 when none; -1 when a line's SNR holds NaN (the median is
     numpy's to take then)."""
     width = inside.size
     open_ = np.zeros(width, dtype=np.bool_)
@@ -577,23 +598,11 @@ def unseen_whole(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: In
     hole = np.zeros(width, dtype=np.bool_)
     longest = 0
     for h in range(nearer.size):
-        if not ((nearer[h] < nearer_than or noisy[h]) and start[h] <= last
-                and stop[h] > first):
-            continue
-        n = 0
-        for i in range(hit_line.size):
-            n += hit_line[i] == line[h]
-        if n == 0:
-            continue
-        snr = np.empty(n)
-        j = 0
-        for i in range(hit_line.size):
-            if hit_line[i] == line[h]:
-                if np.isnan(hit_snr[i]):
-                    return -1
-                snr[j] = hit_snr[i]
-                j += 1
-        if np.median(snr) < strong_snr:
+        use = _near_strong_hole(h, nearer, noisy, line, start, stop, first, last,
+                                nearer_than, hit_line, hit_snr, strong_snr)
+        if use < 0:
+            return -1
+        if not use:
             continue
         for c in range(start[h], stop[h]):
             hole[c] = not open_[c]
