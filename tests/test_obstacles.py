@@ -144,6 +144,30 @@ def test_a_jump_to_another_object_restarts_the_track() -> None:
     assert tracker.update(2.0, 0.3) == (None, None)
 
 
+def test_repeated_or_backward_times_restart_the_track_and_raise_nothing() -> None:
+    """A profile run that gave the same maps to the pipeline again raised ValueError (math
+    domain error) from the acceleration fit: its track held two distinct times over six
+    entries, the normal matrix singular but for rounding, and the inverse's diagonal
+    negative. A parabola needs three distinct times (else no acceleration is fitted), a
+    covariance that rounding made negative is no fit, and a map not newer than the last
+    restarts the track. Checked: without the first two guards the fit on the recorded
+    track raised ValueError; without the third the tracker published a closing speed
+    (-0.0 m/s) from maps given again."""
+    from atris_node.pipeline.obstacles import _accelerating
+
+    x = np.array([0.36875, -0.03125, -0.03125, -0.03125, -0.03125, -0.03125])
+    d = np.array([1.57749635, 1.57727291, 1.57727291, 1.57727291, 1.57727291, 1.57727291])
+    assert _accelerating(x, d, np.full(6, 0.02)) is None
+    tracker = ClosingTracker()
+    for t in (0.0, 0.4, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.4):
+        closing, ttc = tracker.update(1.577, t, now_s=t + 0.03)
+        assert closing is None and ttc is None
+    tracker.update(None, 0.45)  # the obstacle gone: then a clean approach at 1 m/s
+    for t, dist in ((0.5, 1.5), (0.6, 1.4), (0.7, 1.3), (0.8, 1.2)):
+        closing, ttc = tracker.update(dist, t)
+    assert closing == pytest.approx(1.0) and ttc is not None
+
+
 def test_dbscan_objects_and_their_boxes() -> None:
     rng = np.random.default_rng(7)
     a = rng.normal([3.0, 1.0, 0.5], 0.05, (80, 3))

@@ -160,7 +160,8 @@ class ClosingTracker:
     at least 4 standard errors then).
 
     The history restarts when the nearest obstacle disappears, jumps by more than
-    ``max_jump_m`` (a different object) or is older than ``window_s``.
+    ``max_jump_m`` (a different object) or is older than ``window_s``, and when a map is
+    not newer than the last (a clock that stepped back, a map given twice).
     """
 
     #: largest standard error of a published closing speed, relative and absolute (m/s)
@@ -186,8 +187,9 @@ class ClosingTracker:
         if distance_m is None:
             self._history.clear()
             return None, None
-        if self._history and abs(distance_m - self._history[-1][1]) > self.max_jump_m:
-            self._history.clear()
+        if self._history and (abs(distance_m - self._history[-1][1]) > self.max_jump_m
+                              or time_s <= self._history[-1][0]):
+            self._history.clear()  # another object, or a map not newer than the last
         self._history.append((time_s, distance_m, max(sigma_m, self.MIN_SIGMA_M)))
         while self._history and time_s - self._history[0][0] > self.window_s:
             self._history.popleft()
@@ -236,6 +238,8 @@ def _accelerating(x: FloatArray, d: FloatArray, sigma: FloatArray
     now, <= 0), when its curvature stands ACCELERATION_SIGMAS standard errors from zero
     (error from the residuals and from ``sigma``, the larger); None otherwise (a
     constant closing speed explains the track)."""
+    if np.unique(x).size < 3:
+        return None  # a parabola needs three times (repeated ones pin down a line at most)
     design = np.stack([np.ones_like(x), x, x * x], axis=1)
     p, *_ = np.linalg.lstsq(design, d, rcond=None)
     residual = d - design @ p
@@ -245,6 +249,8 @@ def _accelerating(x: FloatArray, d: FloatArray, sigma: FloatArray
     if abs(float(np.linalg.det(normal))) < 1e-18:
         return None
     cov = variance * np.linalg.inv(normal)
+    if not (cov[1, 1] > 0.0 and cov[2, 2] > 0.0 and np.isfinite(cov).all()):
+        return None  # rounding in a near-singular inverse: the times do not pin it down
     se_curve, se_slope = math.sqrt(float(cov[2, 2])), math.sqrt(float(cov[1, 1]))
     if abs(float(p[2])) <= ACCELERATION_SIGMAS * se_curve:
         return None
