@@ -120,6 +120,46 @@ def test_a_pipeline_error_in_the_child_is_that_maps_error() -> None:
         remote.close()
 
 
+UNGUARDED_MAIN = """
+import math
+from atris_node.node.mapprocess import MapProcess
+from atris_node.pipeline.chain import Pipeline, PipelineConfig
+from atris_node.pipeline.sectors import SectorLayout
+from atris_node.sim import Simulator, load_scene
+
+scene = load_scene("indoor_lab")
+sim = Simulator(scene, seed=1)
+config = PipelineConfig()
+layout = SectorLayout(config.sector_count, math.radians(config.fov_deg))
+remote = MapProcess(Pipeline(config, sim.calibration(), sim.mounting, layout))
+try:
+    remote.start()
+finally:
+    remote.close()
+"""
+
+
+def test_a_child_that_cannot_be_started_is_a_lost_map_process(tmp_path: Path) -> None:
+    """A main module without its ``__main__`` guard starts a map process at import: the
+    spawned child imports it again and its own start is refused by multiprocessing
+    (RuntimeError, still bootstrapping). That start must raise MapProcessLostError saying
+    why, leave no shared-memory segment, and the close after it must be safe. Before the
+    fix the unstarted process was kept and the close raised AssertionError ("can only join
+    a started process"), outside the exception tree, leaking the segment (seen once, then
+    fixed; shown again with the fix taken out: this test failed on it)."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "unguarded.py"
+    script.write_text(UNGUARDED_MAIN)
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         timeout=300, check=False)
+    assert run.returncode != 0  # the parent's map process never became ready
+    assert "MapProcessLostError" in run.stderr and "could not start" in run.stderr
+    assert "can only join a started process" not in run.stderr
+    assert "leaked shared_memory" not in run.stderr  # the segment went with it
+
+
 # --------------------------------------------------------------------- the unit
 @dataclass
 class Rig:

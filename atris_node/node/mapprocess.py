@@ -118,7 +118,8 @@ class MapProcess:
         """Start the child (a no-op while it runs); waits until its pipeline is built.
 
         Raises:
-            MapProcessLostError: it did not start within START_TIMEOUT_S.
+            MapProcessLostError: it could not be started, or did not start within
+                START_TIMEOUT_S.
         """
         if self.alive:
             return
@@ -131,8 +132,15 @@ class MapProcess:
         self._process = context.Process(target=serve, args=(child_end, self._parts,
                                                             self._map.name),
                                         name=self._name, daemon=True)
-        with _one_blas_thread():
-            self._process.start()
+        try:
+            with _one_blas_thread():
+                self._process.start()
+        except (OSError, RuntimeError) as exc:  # no interpreter, a main module spawn refuses
+            self._process = None  # never started: nothing to join
+            child_end.close()
+            self.close()  # the pipe and the segment go
+            self._lost = f"could not start: {exc}"
+            raise MapProcessLostError(f"{self._name} {self._lost}") from exc
         child_end.close()
         self._lost = None
         try:
