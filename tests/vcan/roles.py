@@ -157,7 +157,7 @@ def publisher(channel: str, unit_id: str, period_s: str, update_s: str) -> None:
             pub.stop()
     pub.check()
     emit("done", frames_sent=pub.stats.frames_sent, send_errors=pub.stats.send_errors,
-         status_sent=status_sent)
+         status_sent=status_sent, late_sends=list(pub.late_sends))
 
 
 def record_status_sends(bus: can.BusABC, unit_id: int) -> list[tuple[float, int]]:
