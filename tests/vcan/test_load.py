@@ -19,7 +19,7 @@ receive-side rule of the two gaps around a frame, asserted before, failed a run 
 73.6 ms gap it could not place: two delayed frames in a row look like a late start).
 
 What is asserted is what holds on the test VM (no KVM, on a shared host) at the load the
-babblers actually reached (at least 500 frames/s; the rate itself depends on the host and
+babblers actually reached (at least MIN_FRAMES_PER_S; the rate itself depends on the host and
 is recorded, not asserted): the publisher keeps cycling (a liveness count, no timing bound)
 without a send error, and cycles started late are flagged. The achieved load, the period
 jitter and the count of late frames without the bit are recorded (``record_property``) and
@@ -62,7 +62,9 @@ PERIOD_S = 0.05
 UPDATE_S = 0.5
 TOLERANCE_S = PERIOD_S / 4
 ENCODE_SLACK_S = 0.010
-MIN_FRAMES_PER_S = 500.0
+#: the babble the test needs to say anything, frames/s (7 % of the bus): cangen reached
+#: 595 frames/s in one VM run beside a busy loop, 1896-2482 in four other runs
+MIN_FRAMES_PER_S = 250.0
 STATUS_ID = frame_id(5, FrameKind.STATUS)
 DEADLINE_MISS_BIT = 0x08  # byte 2, bit 3 of the Status frame (Fault_DeadlineMiss)
 
