@@ -12,12 +12,14 @@ a whole stall of the process that falls in between. The senders count such cycle
 themselves (their clock read again once the Status frame is queued:
 ``PublisherStats.sent_late``, reported as ``sent_late_cycles``, each kept in
 ``Publisher.late_sends``): an unflagged late cycle on the bus that no sender's late send
-pairs with (same unit, within PAIR_S) is ``unexplained_late_cycles``, a sender that did
-not flag a lateness it knew.
+pairs with (same unit, from its bus timestamp to the unit's next Status frame) is
+``unexplained_late_cycles``, a sender that did not flag a lateness it knew.
 """
 
 from __future__ import annotations
 
+import bisect
+import math
 import sys
 import threading
 import time
@@ -39,8 +41,8 @@ from atris_node.node.runner import FleetRun, open_bus
 #: s a Status frame may reach the bus after the sender's last clock reading (preemption
 #: between the reading and the send) before a late cycle without DeadlineMiss counts
 SEND_JITTER_S = 0.010
-#: s between a frame's bus timestamp and its sender's clock once it was queued, at most,
-#: for the two to be the same send
+#: s a sender's clock, once its Status frame was queued, may read before the frame's bus
+#: timestamp and still be that send (the two clocks are converted, not one)
 PAIR_S = 0.010
 WARMUP_FRACTION = 0.2
 WARMUP_MAX_S = 60.0
@@ -86,6 +88,8 @@ class CycleWatch(can.Listener):
         self.unflagged = 0
         #: (frame name, bus timestamp) of each late cycle counted in ``unflagged``
         self.unflagged_at: list[tuple[str, float]] = []
+        #: bus timestamps of every watched frame, by name, in order of arrival
+        self.times: dict[str, list[float]] = {}
         self._codec = FrameCodec(base_id=base_id)
         self._last: dict[str, float] = {}
 
@@ -98,6 +102,7 @@ class CycleWatch(can.Listener):
         if limit is None:
             return
         last, self._last[frame.name] = self._last.get(frame.name), msg.timestamp
+        self.times.setdefault(frame.name, []).append(msg.timestamp)
         if last is not None and msg.timestamp - last > limit:
             self.late += 1
             if (msg.timestamp - last > limit + SEND_JITTER_S
@@ -127,12 +132,25 @@ def _sent_late(fleet: FleetRun) -> int:
 
 def _unexplained(watch: CycleWatch, fleet: FleetRun, wall_minus_clock_s: float) -> int:
     """The unflagged late cycles of ``watch`` that no sender counted as sent late: none of
-    its unit's late sends (``Publisher.late_sends``, its clock) lies within PAIR_S of the
-    bus timestamp (wall clock; ``wall_minus_clock_s`` converts)."""
+    its unit's late sends (``Publisher.late_sends``, its clock; ``wall_minus_clock_s``
+    converts it to the bus timestamps' wall clock) lies in that cycle, from PAIR_S before
+    its bus timestamp to its unit's next Status frame (the next cycle is sent only after
+    this one's clock was read: the sender holds its send lock)."""
     sends = {message_name(u.publisher.unit_id, FrameKind.STATUS): u.publisher.late_sends
              for u in fleet.units}
-    return sum(not any(abs(at - wall_minus_clock_s - t) <= PAIR_S for t in sends.get(name, ()))
+    return sum(not _paired(at, _next_after(watch.times.get(name, []), at),
+                           [t + wall_minus_clock_s for t in sends.get(name, ())])
                for name, at in watch.unflagged_at)
+
+
+def _next_after(times: list[float], at: float) -> float:
+    """The first of ``times`` (sorted) later than ``at``; inf when none."""
+    i = bisect.bisect_right(times, at)
+    return times[i] if i < len(times) else math.inf
+
+
+def _paired(at: float, until: float, sends: list[float]) -> bool:
+    return any(at - PAIR_S <= t < until for t in sends)
 
 
 def _run_phase(fleet: FleetRun, seconds: float) -> None:
