@@ -18,7 +18,6 @@ pairs with (same unit, from its bus timestamp to the unit's next Status frame) i
 
 from __future__ import annotations
 
-import bisect
 import math
 import sys
 import threading
@@ -88,8 +87,10 @@ class CycleWatch(can.Listener):
         self.unflagged = 0
         #: (frame name, bus timestamp) of each late cycle counted in ``unflagged``
         self.unflagged_at: list[tuple[str, float]] = []
-        #: bus timestamps of every watched frame, by name, in order of arrival
-        self.times: dict[str, list[float]] = {}
+        #: bus timestamp of the same unit's next Status frame, for each of ``unflagged_at``
+        #: (inf until it came)
+        self.unflagged_until: list[float] = []
+        self._waiting: dict[str, int] = {}  # frame name -> its unflagged cycle's index
         self._codec = FrameCodec(base_id=base_id)
         self._last: dict[str, float] = {}
 
@@ -102,13 +103,17 @@ class CycleWatch(can.Listener):
         if limit is None:
             return
         last, self._last[frame.name] = self._last.get(frame.name), msg.timestamp
-        self.times.setdefault(frame.name, []).append(msg.timestamp)
+        waiting = self._waiting.pop(frame.name, None)
+        if waiting is not None:
+            self.unflagged_until[waiting] = msg.timestamp
         if last is not None and msg.timestamp - last > limit:
             self.late += 1
             if (msg.timestamp - last > limit + SEND_JITTER_S
                     and not frame.signals.get("Fault_DeadlineMiss")):
                 self.unflagged += 1
+                self._waiting[frame.name] = len(self.unflagged_at)
                 self.unflagged_at.append((frame.name, msg.timestamp))
+                self.unflagged_until.append(math.inf)
 
 
 def _status_limits(fleet: FleetRun) -> dict[str, float]:
@@ -138,15 +143,9 @@ def _unexplained(watch: CycleWatch, fleet: FleetRun, wall_minus_clock_s: float) 
     this one's clock was read: the sender holds its send lock)."""
     sends = {message_name(u.publisher.unit_id, FrameKind.STATUS): u.publisher.late_sends
              for u in fleet.units}
-    return sum(not _paired(at, _next_after(watch.times.get(name, []), at),
-                           [t + wall_minus_clock_s for t in sends.get(name, ())])
-               for name, at in watch.unflagged_at)
-
-
-def _next_after(times: list[float], at: float) -> float:
-    """The first of ``times`` (sorted) later than ``at``; inf when none."""
-    i = bisect.bisect_right(times, at)
-    return times[i] if i < len(times) else math.inf
+    return sum(not _paired(at, until, [t + wall_minus_clock_s for t in sends.get(name, ())])
+               for (name, at), until in zip(watch.unflagged_at, watch.unflagged_until,
+                                            strict=True))
 
 
 def _paired(at: float, until: float, sends: list[float]) -> bool:
