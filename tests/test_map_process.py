@@ -25,6 +25,7 @@ import itertools
 import math
 import os
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -116,6 +117,65 @@ def test_a_pipeline_error_in_the_child_is_that_maps_error() -> None:
         with pytest.raises(MapProcessError, match="distortion map is"):
             remote.process(wrong)
         assert remote.process(maps[1]).measurement.newest_sequence == maps[1].last_sequence
+    finally:
+        remote.close()
+
+
+def process_in_thread(remote: MapProcess, dmap: DistortionMap) -> BaseException | None:
+    """What ``remote.process(dmap)`` raised, run in a thread given STOP_WAIT_S; a call
+    still blocked then fails the test (its child is killed so that the thread ends)."""
+    raised: list[BaseException | None] = []
+
+    def run() -> None:
+        try:
+            remote.process(dmap)
+            raised.append(None)
+        except BaseException as exc:  # handed to the test
+            raised.append(exc)
+
+    thread = threading.Thread(target=run, name="process-under-test", daemon=True)
+    thread.start()
+    thread.join(STOP_WAIT_S)
+    if thread.is_alive():
+        pid = remote.pid
+        assert pid is not None
+        os.kill(pid, signal.SIGKILL)
+        thread.join(STOP_WAIT_S)
+        pytest.fail(f"process() still blocked after {STOP_WAIT_S:.0f} s")
+    return raised[0]
+
+
+@pytest.mark.parametrize("child", ["answers_half", "asks_and_stops_reading"])
+def test_a_child_stalled_halfway_through_the_pipe_is_killed_at_its_deadline(
+        child: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A child that stops halfway through its answer (the unit's ``recv`` has the first
+    bytes and waits for the rest), or that asks for the window's values at its peaks and
+    stops reading (the unit's answer, megabytes, fills the pipe and its ``send``
+    blocks): the unit's call returns MapProcessLostError at the deadline and the child is
+    killed. A deadline on the first byte alone lets both wait for ever; a SIGSTOP landing
+    there hung a CI run's unit with its projector lit.
+
+    Checked by taking the watchdog out (``_watchdog`` yielding without a timer): both
+    cases stayed blocked, and the test failed ("still blocked after 30 s")."""
+    import stalled_child
+
+    from atris_node.node import mapprocess
+
+    monkeypatch.setattr(mapprocess, "serve", getattr(stalled_child, child))
+    sim, maps = sliding_maps("indoor_lab", 1)
+    assert maps[0].window is not None
+    config = PipelineConfig()
+    layout = SectorLayout(config.sector_count, math.radians(config.fov_deg))
+    remote = MapProcess(Pipeline(config, sim.calibration(), sim.mounting, layout),
+                        deadline_s=0.5)
+    remote.start()
+    try:
+        raised = process_in_thread(remote, maps[0])
+        assert isinstance(raised, MapProcessLostError), raised
+        assert "did not answer within 0.5 s" in str(raised)
+        assert not remote.alive
+        with pytest.raises(MapProcessLostError):  # and every map after it
+            remote.process(maps[0])
     finally:
         remote.close()
 
@@ -256,8 +316,10 @@ def test_a_hung_map_process_is_killed_and_the_laser_goes_off(rig: Rig) -> None:
     kills it and stops: FAULT, laser off. (A hung map thread only makes the output FAULT
     by the data's age while the loop strobes on; a child is killed.)
 
-    Checked by waiting without a deadline in ``MapProcess._receive`` (``poll(None)``):
-    the unit waited for the child for ever and never stopped (the output went FAULT by
+    Checked by waiting without a deadline in ``MapProcess._receive`` (``poll(None)``,
+    when the deadline was a poll's; the watchdog that replaced it is checked by
+    test_a_child_stalled_halfway_...): the unit waited for the child for ever and never
+    stopped (the output went FAULT by
     the data's age only, the projector stayed lit); the test timed out waiting for the
     stop and failed."""
     rig.child.deadline_s = 0.5

@@ -23,7 +23,8 @@ Failures:
 - the pipeline raising in the child: :class:`~atris_node.errors.MapProcessError` with the
   child's traceback, handled as a pipeline error in the map thread (that map invalid,
   ``PIPELINE_ERROR_LIMIT`` in a row stop the unit);
-- the child ending (pipe EOF), or not answering within ``deadline_s``:
+- the child ending (pipe EOF), or a pipe operation with it (a request sent, an answer
+  received whole) not finished within ``deadline_s`` (the child is then killed):
   :class:`~atris_node.errors.MapProcessLostError`, after which every ``process`` raises it
   too; the unit stops at once (laser off, FAULT) as for a map thread that dies.
 
@@ -39,6 +40,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
 import time
 import traceback
 from collections.abc import Iterator
@@ -201,21 +203,61 @@ class MapProcess:
 
     def _send(self, message: Any) -> None:
         assert self._conn is not None
-        try:
-            self._conn.send(message)
-        except OSError:
-            self._fail("its pipe is closed")
+        with self._watchdog() as overdue:
+            try:
+                self._conn.send(message)
+            except OSError:
+                self._fail(self._late(overdue) or "its pipe is closed")
+        self._raise_if(overdue)
 
     def _receive(self) -> tuple[str, Any]:
         """The child's next message; MapProcessLostError when it ended or is late."""
         assert self._conn is not None
-        if not self._conn.poll(self.deadline_s):
-            self._fail(f"did not answer within {self.deadline_s:.1f} s")
-        try:
-            kind, payload = self._conn.recv()
-        except (EOFError, OSError):
-            self._fail("ended")
+        with self._watchdog() as overdue:
+            try:
+                kind, payload = self._conn.recv()
+            except (EOFError, OSError):
+                self._fail(self._late(overdue) or "ended")
+        self._raise_if(overdue)
         return kind, payload
+
+    @contextlib.contextmanager
+    def _watchdog(self) -> Iterator[threading.Event]:
+        """Kill the child when the pipe operation inside has not finished within
+        ``deadline_s``; the event yielded is set when it did. A deadline on waiting for
+        the first byte is not enough: a child stopped halfway through its answer (the
+        result is ~0.3 MB, written in pieces) leaves a ``recv`` blocked on the rest, and
+        one that stopped reading leaves a ``send`` larger than the pipe's buffer (the
+        window's values at its peaks) blocked; both for ever, with the projector lit. The
+        kill closes the child's end, and the blocked call returns with EOF or EPIPE."""
+        process = self._process
+        overdue = threading.Event()
+
+        def kill() -> None:
+            overdue.set()
+            if process is not None:
+                try:
+                    process.kill()
+                except (OSError, ValueError) as exc:  # reaped or closed meanwhile
+                    logger.error("%s: the overdue child could not be killed: %s",
+                                 self._name, exc)
+
+        timer = threading.Timer(self.deadline_s, kill)
+        timer.name, timer.daemon = f"{self._name}-watchdog", True
+        timer.start()
+        try:
+            yield overdue
+        finally:
+            timer.cancel()
+
+    def _late(self, overdue: threading.Event) -> str | None:
+        return f"did not answer within {self.deadline_s:.1f} s" if overdue.is_set() else None
+
+    def _raise_if(self, overdue: threading.Event) -> None:
+        """The operation finished, but the watchdog had already killed the child."""
+        late = self._late(overdue)
+        if late is not None:
+            self._fail(late)
 
     def _fail(self, what: str) -> NoReturn:
         """The child is unusable: kill it (it may hang) and raise MapProcessLostError."""
