@@ -99,6 +99,7 @@ class Publisher:
         self._sector_count = payloads.check_sector_count(sector_count)
         self._codec = FrameCodec(base_id=base_id)
         self._counters = dict.fromkeys(self._names.values(), 0)
+        self._last_encoded: tuple[str, int] | None = None  # (message, its counter)
         self._measurement: Measurement | None = None
         self._status = UnitStatus(UnitState.INIT, 0, 0, 0.0, 0)
         self._progress_s: float | None = None  # the owner's loop last made progress
@@ -316,7 +317,19 @@ class Publisher:
         name = self._names[kind]
         counter = self._counters[name]
         self._counters[name] = (counter + 1) % COUNTER_MODULO
+        self._last_encoded = (name, counter)
         return self._codec.encode(name, signals, counter, scaling=False, fd=self.fd)
+
+    def _unsend_last(self) -> None:
+        """The last frame encoded did not reach the bus: it gives its E2E counter back.
+        A message's counter counts its frames on the bus, so a receiver's gap is a frame
+        lost there; an inline cycle the transmit queue refused halfway (sent again, whole,
+        by the scheduler thread) left a gap that a receiver's E2E check took for a lost
+        frame, and a good frame after it for out of sequence."""
+        if self._last_encoded is not None:
+            name, counter = self._last_encoded
+            self._counters[name] = counter
+            self._last_encoded = None
 
     # -- sending -------------------------------------------------------------------------
     def _send_all(self, frames: Iterable[can.Message], timeout_s: float) -> bool:
@@ -324,6 +337,7 @@ class Publisher:
         error (back-off) unless the send was non-blocking (``timeout_s`` 0)."""
         for i, msg in enumerate(frames):
             if not self._send(msg, timeout_s):
+                self._unsend_last()
                 return False
             if i == 0:
                 self._first_sent_s = self.clock()
