@@ -363,6 +363,7 @@ def test_shutdown_leaves_no_segment_and_no_child(request: pytest.FixtureRequest)
     assert not segments()
     assert not child.alive and child.pid is None
     assert not multiprocessing.active_children()
+    assert not [t for t in threading.enumerate() if t.name.endswith("-watchdog")]
     with pytest.raises(ChildProcessError):  # reaped: no zombie left behind
         os.waitpid(pid or -1, os.WNOHANG)
 
