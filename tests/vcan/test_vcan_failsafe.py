@@ -35,7 +35,6 @@ import subprocess
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Any
 
 import can
@@ -45,6 +44,7 @@ from e2e_reference import P01Receiver
 from test_load import cangen_babblers
 from test_vcan_negotiation import strobe_intervals, wait_owned
 from unit_frames import DBC_PATH, IN_ORDER, Received, check_and_decode, listen, until_every_unit
+from vcan_support import UNIT_MAX_AGE_S, starved_vm_settings
 
 from atris_node.bus.can.ids import FrameKind, frame_id
 
@@ -60,23 +60,8 @@ STATE_RUNNING = 2
 #: the largest distance a valid sector carries, m (raw 65532; above: no-sector, no-return,
 #: invalid codes)
 DISTANCE_MAX_M = 65.532
-#: the units' publish.max_age_s, s: above one window of 8 sub-frames at RATE_HZ (0.8 s) plus
-#: its map, or every map would be stale before the next and no distance would go out valid
-MAX_AGE_S = 2.0
+MAX_AGE_S = UNIT_MAX_AGE_S
 PERIOD_S = 0.05
-#: sub-frames/s of each unit: two units and the babblers share the VM's two emulated CPUs
-RATE_HZ = 10.0
-#: the units' driver.strobe_margin_s: a loop late by more than this goes dark and restarts
-#: its window (its own safety rule). In a CI run's VM (booted in 40 s, 19 s on an idle host;
-#: a VM beside a busy loop boots as slowly) two units on indoor_lab (640 x 400) at 30
-#: sub-frames/s and a 0.05 s margin lapsed on every window and negotiated through the whole
-#: flood; on an idle host they ran, but with a 0.25 s max age every map was stale (0 valid
-#: cycles: the age check was empty)
-STROBE_MARGIN_S = 0.5
-#: the lab room at 480 x 300 (56 % of indoor_lab's pixels; at 320 x 200 every sector is
-#: INVALID). Beside a busy loop, at the values above: RUNNING 26.7 and 26.8 of 26 s heard,
-#: 716 valid cycles; indoor_lab itself: RUNNING 10.8 and 8.4 s, 22 valid cycles
-SCENE = str(Path(__file__).with_name("small_lab.toml"))
 UNIT_IDS = (8, 9)
 #: seconds the babblers flood the bus while the test listens
 BABBLE_S = 26.0
@@ -137,12 +122,8 @@ def test_a_unit_whose_link_goes_down_stops_strobing_within_its_lease(
 def run_args(unit_id: int) -> list[str]:
     settings = {"bus.interface": "socketcan", "bus.channel": "vcan0", "unit.unit_id": unit_id,
                 "unit.name": 0x0B80_0000_0000_0000 + unit_id, "unit.label": f"b{unit_id}",
-                "code.length": 8, "driver.seed": unit_id, "publish.max_age_s": MAX_AGE_S,
-                "publish.period_s": PERIOD_S, "driver.scene": SCENE,
-                "driver.strobe_margin_s": STROBE_MARGIN_S,
-                # paced: a loop slower than the max age is FAULT, correctly, and then this
-                # test would see nothing run
-                "driver.rate_hz": RATE_HZ, "driver.realtime": "true"}
+                "code.length": 8, "driver.seed": unit_id, "publish.period_s": PERIOD_S,
+                **starved_vm_settings()}
     args = ["run", "--duration", str(RUN_S), "--json"]
     for key, value in settings.items():
         args += ["--set", f"{key}={value}"]

@@ -26,6 +26,34 @@ VCAN_DIR = Path(__file__).resolve().parent
 REPO_ROOT = VCAN_DIR.parent.parent
 ROLES = VCAN_DIR / "roles.py"
 
+#: the units' publish.max_age_s, s: above one window of 8 sub-frames at UNIT_RATE_HZ (0.8
+#: s) plus its map, or every map would be stale before the next and no distance would go
+#: out valid
+UNIT_MAX_AGE_S = 2.0
+#: sub-frames/s of each ``atris run`` unit: two units (and a babbler) share the VM's two
+#: emulated CPUs
+UNIT_RATE_HZ = 10.0
+#: the units' driver.strobe_margin_s: a loop late by more than this goes dark and restarts
+#: its window (its own safety rule). In a CI run's VM (booted in 40 s, 19 s on an idle host;
+#: a VM beside a busy loop boots as slowly) two units on indoor_lab (640 x 400) at 30
+#: sub-frames/s and a 0.05 s margin lapsed on every window and negotiated for the whole
+#: test (the babble test; the node test too in a VM that booted in 62 s); on an idle host
+#: they ran, but with a 0.25 s max age every map was stale (0 valid cycles)
+UNIT_STROBE_MARGIN_S = 0.5
+#: the lab room at 480 x 300 (56 % of indoor_lab's pixels; at 320 x 200 every sector is
+#: INVALID). Beside a busy loop, at the values above: RUNNING 26.7 and 26.8 of 26 s heard,
+#: 716 valid cycles (babble test); indoor_lab itself: RUNNING 10.8 and 8.4 s, 22 valid
+UNIT_SCENE = str(VCAN_DIR / "small_lab.toml")
+
+
+def starved_vm_settings() -> dict[str, object]:
+    """``--set`` settings that let ``atris run`` units measure in a starved test VM: the
+    small scene, paced at UNIT_RATE_HZ (a loop slower than the max age is FAULT,
+    correctly, and a test would see nothing run), the wide strobe margin and max age."""
+    return {"driver.scene": UNIT_SCENE, "driver.rate_hz": UNIT_RATE_HZ,
+            "driver.realtime": "true", "driver.strobe_margin_s": UNIT_STROBE_MARGIN_S,
+            "publish.max_age_s": UNIT_MAX_AGE_S}
+
 
 class Zygote:
     """A pre-loaded process that forks one child per unit on request."""
