@@ -3,6 +3,7 @@ simulated maps: the numpy forms are kept here as the reference."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -1838,8 +1839,12 @@ def _unexplained_as_defined(prior: Any, rows: np.ndarray) -> np.ndarray:
             if found:
                 near = min(found)[1]
                 row = cy + f * cot[k] - f * b / near
+                masked = any(j != k and rows[j, c] >= 0
+                             and abs(f * cot[j] - f * cot[k]) < prior.masked_px
+                             and abs(rows[j, c] - row) < prior.masked_px
+                             for j in range(rows.shape[0]))
                 out[c] += int(near <= prior.z_max_m and near < prior.ground_range_m[k, c]
-                              and 0 <= row < prior.height_px)
+                              and 0 <= row < prior.height_px and not masked)
     return out
 
 
@@ -1848,22 +1853,31 @@ def test_unexplained_in_one_pass_is_its_definition() -> None:
     each line with a finite range) equals the definition on 400 random priors and
     identities: 1 to 12 lines in any order, rows past a line's row at infinite range (no
     finite range), ranges repeated (ties of distance and range), columns with no line or
-    every line, bitwise."""
+    every line, bitwise; half of them with sheets masked by a nearly parallel one
+    (``masked_px``, pairs of sheets 1-4 px apart in the image)."""
     from atris_node.pipeline.identity import VisibilityPrior
 
     rng = np.random.default_rng(46)
+    masked_seen = 0
     for _ in range(400):
         k_count, width = int(rng.integers(1, 13)), int(rng.integers(1, 60))
         cot = rng.permutation(np.linspace(-0.1, 0.5, k_count) + rng.normal(0, 0.01, k_count))
+        masked_px = float(rng.choice([0.0, 3.5]))
+        if masked_px and k_count > 1:  # a sheet nearly parallel to another
+            cot[1] = cot[0] + rng.choice([-1.0, 1.0]) * rng.uniform(1.0, 4.0) / 380.0
         ground = rng.choice([0.8, 2.0, 5.0, np.inf], (k_count, width))
         prior = VisibilityPrior(cot, 380.0, 200.0, 400, 0.075, float(rng.choice([3.0, 6.0])),
-                                ground)
+                                ground, masked_px)
         z = rng.choice([0.5, 1.0, 2.0, 4.0, 8.0, -3.0], (k_count, width))  # < 0: past infinity
         rows = np.round(200.0 + 380.0 * cot[:, None] - 380.0 * 0.075 / z).astype(np.int64)
         rows[(rng.random(rows.shape) < rng.random()) | (rows >= 400) | (rows < 0)] = -1
         rows[:, :1] = -1
         got = prior.unexplained(rows)
         np.testing.assert_array_equal(got, _unexplained_as_defined(prior, rows))
+        if masked_px:
+            plain = dataclasses.replace(prior, masked_px=0.0).unexplained(rows)
+            masked_seen += int((plain != got).sum())
+    assert masked_seen > 0  # the masking was exercised
 
 
 def test_match_costs_from_band_bits_are_those_of_match() -> None:

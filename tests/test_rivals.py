@@ -4,6 +4,7 @@ lines and a shifted comb is a coherent, nearer surface."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -624,3 +625,47 @@ def test_feature_a_line_over_a_low_box_is_hidden_behind_it() -> None:
     through[order[3], 0], through[order[4], 0] = box[3], wall[4]
     assert wall[2] >= box[3] + 2
     assert prior.unexplained(through, column)[0] == 1
+
+
+def test_feature_a_line_beside_a_nearly_parallel_sheet_s_stripe_is_masked() -> None:
+    """The stress scene twin_sheets_free_before_dark_wall_drawn: two sheets 0.48 deg
+    apart, their stripes 3.3 px apart on any surface, so the peak search (one maximum
+    within ``min_separation_px`` rows) keeps one stripe of the pair. On the dark wall at
+    2.96 m it kept the lower sheet's; read as the upper sheet's it is a surface at 16 m,
+    beyond z_max. The truth leaves the upper line missing at the wall's range, the far
+    reading the lower one missing past z_max: the prior counted one unexplained line
+    against the truth and none against the far reading, which won, and the wall's
+    sectors were read free (10 sector-frames of 32, in 3 of 8 sectors). With the line
+    masked by the stripe beside it both count none: a tie, dropped as ambiguous, and the
+    sectors are INVALID. Checked: with ``masked_px`` 0 in ``chain.visibility_prior`` the
+    first count here was 1 and the test failed, and the scene read free again in the
+    same 10 sector-frames (tests/test_safety_scenes.py scores it)."""
+    scene = load_scene("twin_sheets_free_before_dark_wall_drawn")
+    sim = Simulator(scene)
+    pipe = Pipeline(PipelineConfig(), sim.calibration(), sim.mounting,
+                    SectorLayout(8, math.radians(70)))
+    prior, order = pipe._prior, pipe._prior.image_order
+    assert prior.masked_px == 3.5  # min_separation_px 3, half a row for the rounding
+    cot = np.asarray(prior.cot_alpha)[order]
+
+    def rows_at(z_m: float) -> np.ndarray:  # (K,) rows in image order at camera range z
+        return prior.cy_px + prior.focal_px * (cot - prior.baseline_m / z_m)
+
+    wall = rows_at(2.96)
+    assert 3.0 < wall[1] - wall[0] < 3.5  # the pair's stripes, one maximum kept
+    kept = int(np.rint(wall[1]))  # the lower stripe's row
+    truth, far = np.full((2, 1), -1), np.full((2, 1), -1)
+    truth[order[1], 0] = kept  # the lower sheet at 2.96 m, the upper one missing
+    far[order[0], 0] = kept  # the upper sheet far beyond z_max, the lower one missing
+    z_far = prior.focal_px * prior.baseline_m / (prior.focal_px * cot[0] - (kept - prior.cy_px))
+    assert z_far > prior.z_max_m
+    column = np.array([320])
+    assert prior.unexplained(truth, column)[0] == 0
+    assert prior.unexplained(far, column)[0] == 0
+    unmasked = dataclasses.replace(prior, masked_px=0.0)
+    assert unmasked.unexplained(truth, column)[0] == 1  # what made the far reading win
+    # sheets farther apart are not masked: a comb's missing line still counts
+    spread = np.array(prior.cot_alpha, dtype=np.float64)
+    spread[order[0]] -= 6.0 / prior.focal_px  # the upper sheet 6 px higher: 9.3 px apart
+    apart = dataclasses.replace(prior, cot_alpha=spread)
+    assert apart.unexplained(truth, column)[0] == 1

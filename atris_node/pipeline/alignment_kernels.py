@@ -261,7 +261,7 @@ def warm_up() -> None:
     lo, hi, line = np.array([0], dtype=i64), np.array([4], dtype=i64), np.array([0], dtype=i64)
     rows, ref, beyond = np.array([[-1]], dtype=i64), np.zeros((1, 1)), np.array([np.inf])
     costs = np.array([10.0, 40.0, 10.0, 10.0])
-    cot, geometry, ground = np.array([0.1]), np.array([100.0, 2.0, 4.0, 0.1, 5.0]), ref.copy()
+    cot, geometry, ground = np.array([0.1]), np.array([100.0, 2.0, 4.0, 0.1, 5.0, 0.0]), ref.copy()
     align(peaks, lo, hi, ref, beyond, costs)
     rows_cost(rows, peaks, lo, hi, ref, beyond, costs)
     improve(peaks, lo, hi, line, rows.copy(), np.zeros(1, dtype=i64), line, ref, beyond, 10.0,

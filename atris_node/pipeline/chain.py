@@ -580,7 +580,8 @@ def visibility_prior(calibration: Calibration, mounting: Mounting, ground: Groun
     ok = slope < 0
     z = np.where(ok, rise / np.where(ok, slope, -1.0), np.inf)
     return VisibilityPrior(cot, cam.focal_px, cam.cy_px, cam.height_px, laser.baseline_m,
-                           config.z_max_m, np.where(z > 0, z, np.inf))
+                           config.z_max_m, np.where(z > 0, z, np.inf),
+                           config.extractor().min_separation_px + 0.5)
 
 
 def _blank(sectors: tuple[SectorDistance, ...], indices: set[int]

@@ -193,6 +193,10 @@ class VisibilityPrior:
     baseline_m: float
     z_max_m: float
     ground_range_m: FloatArray
+    #: px; a missing line whose row lies within this of a stripe of a sheet nearly
+    #: parallel to its own (their stripes this near on any surface) is explained: the
+    #: peak search keeps one maximum within ``min_separation_px`` rows (0: none is)
+    masked_px: float = 0.0
 
     def unexplained(self, rows: IntArray, columns: IntArray | None = None) -> IntArray:
         """(n,) number of unassigned lines that should be visible at the range of their
@@ -205,9 +209,10 @@ class VisibilityPrior:
 
     @cached_property
     def geometry(self) -> FloatArray:
-        """(5,) focal px, cy px, height px, baseline m, z_max m (as the kernels take them)."""
+        """(6,) focal px, cy px, height px, baseline m, z_max m, masked px (as the kernels
+        take them)."""
         return np.array([self.focal_px, self.cy_px, self.height_px, self.baseline_m,
-                         self.z_max_m], dtype=np.float64)
+                         self.z_max_m, self.masked_px], dtype=np.float64)
 
     @cached_property
     def looks_beyond(self) -> BoolArray:
