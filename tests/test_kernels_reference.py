@@ -1824,6 +1824,8 @@ def _unexplained_as_defined(prior: Any, rows: np.ndarray) -> np.ndarray:
     """Per column of ``rows`` (K, n) by line: the unassigned lines that would be seen
     (within z_max, above the ground, inside the image) at the finite range of the assigned
     line fewest places away in image order, the nearer range on a tie."""
+    from atris_node.pipeline.identity_kernels import MERGED_PX
+
     f, cot, cy, b = prior.focal_px, prior.cot_alpha, prior.cy_px, prior.baseline_m
     place = np.argsort(np.argsort(cot, kind="stable"), kind="stable")
     out = np.zeros(rows.shape[1], dtype=np.int64)
@@ -1840,7 +1842,7 @@ def _unexplained_as_defined(prior: Any, rows: np.ndarray) -> np.ndarray:
                 near = min(found)[1]
                 row = cy + f * cot[k] - f * b / near
                 masked = any(j != k and rows[j, c] >= 0
-                             and abs(f * cot[j] - f * cot[k]) < prior.masked_px
+                             and MERGED_PX <= abs(f * cot[j] - f * cot[k]) < prior.masked_px
                              and abs(rows[j, c] - row) < prior.masked_px
                              for j in range(rows.shape[0]))
                 out[c] += int(near <= prior.z_max_m and near < prior.ground_range_m[k, c]
@@ -1854,7 +1856,7 @@ def test_unexplained_in_one_pass_is_its_definition() -> None:
     identities: 1 to 12 lines in any order, rows past a line's row at infinite range (no
     finite range), ranges repeated (ties of distance and range), columns with no line or
     every line, bitwise; half of them with sheets masked by a nearly parallel one
-    (``masked_px``, pairs of sheets 1-4 px apart in the image)."""
+    (``masked_px``, pairs of sheets 1-4 px apart in the image: merged under MERGED_PX)."""
     from atris_node.pipeline.identity import VisibilityPrior
 
     rng = np.random.default_rng(46)

@@ -637,7 +637,8 @@ def test_feature_a_line_beside_a_nearly_parallel_sheet_s_stripe_is_masked() -> N
     against the truth and none against the far reading, which won, and the wall's
     sectors were read free (10 sector-frames of 32, in 3 of 8 sectors). With the line
     masked by the stripe beside it both count none: a tie, dropped as ambiguous, and the
-    sectors are INVALID. Checked: with ``masked_px`` 0 in ``chain.visibility_prior`` the
+    sectors are INVALID. Stripes under MERGED_PX apart merge into one peak between their
+    rows and are not masked. Checked: with ``masked_px`` 0 in ``chain.visibility_prior`` the
     first count here was 1 and the test failed, and the scene read free again in the
     same 10 sector-frames (tests/test_safety_scenes.py scores it)."""
     scene = load_scene("twin_sheets_free_before_dark_wall_drawn")
@@ -646,6 +647,10 @@ def test_feature_a_line_beside_a_nearly_parallel_sheet_s_stripe_is_masked() -> N
                     SectorLayout(8, math.radians(70)))
     prior, order = pipe._prior, pipe._prior.image_order
     assert prior.masked_px == 3.5  # min_separation_px 3, half a row for the rounding
+    regular = load_scene("indoor_lab")  # no two sheets that near: the check is left out
+    lab = Simulator(regular)
+    assert Pipeline(PipelineConfig(), lab.calibration(), lab.mounting,
+                    SectorLayout(8, math.radians(70)))._prior.masked_px == 0.0
     cot = np.asarray(prior.cot_alpha)[order]
 
     def rows_at(z_m: float) -> np.ndarray:  # (K,) rows in image order at camera range z
@@ -669,3 +674,7 @@ def test_feature_a_line_beside_a_nearly_parallel_sheet_s_stripe_is_masked() -> N
     spread[order[0]] -= 6.0 / prior.focal_px  # the upper sheet 6 px higher: 9.3 px apart
     apart = dataclasses.replace(prior, cot_alpha=spread)
     assert apart.unexplained(truth, column)[0] == 1
+    # nor are sheets whose stripes merge: the one peak lies between their rows, no line's
+    merged = np.array(prior.cot_alpha, dtype=np.float64)
+    merged[order[0]] = merged[order[1]] - 1.6 / prior.focal_px  # 1.6 px apart
+    assert dataclasses.replace(prior, cot_alpha=merged).unexplained(truth, column)[0] == 1

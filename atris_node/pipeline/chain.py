@@ -39,7 +39,7 @@ from atris_node.pipeline.bands import Band, line_bands
 from atris_node.pipeline.evidence import SectorJudge
 from atris_node.pipeline.faint import faint_sectors
 from atris_node.pipeline.geometry import Points, rows_where, triangulate_pixels
-from atris_node.pipeline.identity import VisibilityPrior
+from atris_node.pipeline.identity import VisibilityPrior, masking_px
 from atris_node.pipeline.near import near_stripes, topmost
 from atris_node.pipeline.obstacles import (
     ClosingTracker,
@@ -581,7 +581,7 @@ def visibility_prior(calibration: Calibration, mounting: Mounting, ground: Groun
     z = np.where(ok, rise / np.where(ok, slope, -1.0), np.inf)
     return VisibilityPrior(cot, cam.focal_px, cam.cy_px, cam.height_px, laser.baseline_m,
                            config.z_max_m, np.where(z > 0, z, np.inf),
-                           config.extractor().min_separation_px + 0.5)
+                           masking_px(cot, cam.focal_px, config.extractor().min_separation_px))
 
 
 def _blank(sectors: tuple[SectorDistance, ...], indices: set[int]

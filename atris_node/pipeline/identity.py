@@ -232,6 +232,17 @@ class VisibilityPrior:
         return image_positions(self.image_order)
 
 
+def masking_px(cot_alpha: FloatArray, focal_px: float, sep: int) -> float:
+    """The :attr:`VisibilityPrior.masked_px` of sheets ``cot_alpha`` (K,) seen at
+    ``focal_px`` by a peak search of separation ``sep`` rows: sep + 0.5 when the stripes of
+    two sheets lie MERGED_PX to that far apart on every surface (f·|cot α_j − cot α_k|),
+    else 0: without such a pair no line can be masked, and the check is left out."""
+    masked = sep + 0.5
+    rows = focal_px * np.sort(np.asarray(cot_alpha, dtype=np.float64))
+    apart = np.abs(rows[:, None] - rows[None, :])
+    return masked if bool(((apart >= kernels.MERGED_PX) & (apart < masked)).any()) else 0.0
+
+
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
                    prior: VisibilityPrior | None = None, *, aligned: bool = False,
                    edges: tuple[IntArray, IntArray, IntArray] | None = None

@@ -151,8 +151,9 @@ def _masked(rows: IntArray, near: float, q: int, terms: FloatArray, range_px: fl
             masked_px: float, order: IntArray) -> bool:
     """True when the missing line at image position q, at range ``near``, would lie
     within ``masked_px`` rows of a stripe seen of a line whose sheet is as near parallel
-    to its own (their stripes within ``masked_px`` on every surface): one maximum is kept
-    within the peak search's separation, so its stripe may be in that peak. Two sheets
+    to its own (their stripes within ``masked_px`` on every surface, but MERGED_PX or
+    more apart): one maximum is kept within the peak search's separation, so its stripe
+    may be in that peak. Two sheets
     0.48 deg apart, 3.3 px: the stripe on a dark wall at 2.96 m kept one peak of the
     pair, and the identity that read it as the upper line at 16 m (the lower line's
     absence explained by the range) won over the truth (the upper line's absence
@@ -162,10 +163,19 @@ def _masked(rows: IntArray, near: float, q: int, terms: FloatArray, range_px: fl
     row = terms[1, q] - range_px / near
     for j in range(order.size):
         seen = rows[order[j]]
-        if (j != q and seen >= 0 and abs(terms[0, j] - terms[0, q]) < masked_px
+        apart = abs(terms[0, j] - terms[0, q])
+        if (j != q and seen >= 0 and MERGED_PX <= apart < masked_px
                 and abs(seen - row) < masked_px):
             return True
     return False
+
+
+#: px; the stripes of two sheets nearer than this on every surface merge into one maximum
+#: whose row lies between theirs (one row with a lower one on each side is needed for
+#: two): that peak is no one line's, and the line missing beside it is not masked (its
+#: absence stays unexplained, the merged peak ambiguous). Masked too, two sheets 0.24 deg
+#: apart (1.6 px) were read at the merged peak's row, 5 % short in every sector-frame.
+MERGED_PX = 2.0
 
 
 #: px; a missing line is hidden by a nearer surface below it only where its row on the

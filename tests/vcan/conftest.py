@@ -15,6 +15,10 @@ import pytest
 from vcan_support import VCAN_DIR, UnitProcess, Zygote
 
 VCAN_IFACES = ("vcan0", "vcan1")
+#: s; each test's own time (pytest-timeout, the test function only: the session's unit
+#: zygote, its imports and kernels, is set up outside it, up to ZYGOTE_PRELOAD_S)
+TEST_TIMEOUT_S = 300.0
+ZYGOTE_PRELOAD_S = 900.0
 HOW_TO = ("run scripts/vcan-tests.sh, or create them: sudo modprobe vcan; "
           "sudo ip link add dev vcan0 type vcan; sudo ip link set vcan0 up (same for vcan1)")
 
@@ -38,12 +42,15 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     missing = vcan_missing() if mine else []
     for item in mine if missing else []:
         item.add_marker(pytest.mark.skip(reason=f"no {', '.join(missing)}: {HOW_TO}"))
+    for item in [] if missing else mine:  # the session's zygote start is no test's time
+        item.add_marker(pytest.mark.timeout(TEST_TIMEOUT_S, func_only=True))
 
 
 @pytest.fixture(scope="session")
 def zygote() -> Iterator[Zygote]:
     """The pre-loaded process every unit of the session is forked from."""
     server = Zygote()
+    server.wait_preloaded(ZYGOTE_PRELOAD_S)
     yield server
     server.close()
 

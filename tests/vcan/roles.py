@@ -303,7 +303,7 @@ def zygote() -> None:
 
     A request is ``{"id", "role", "args", "stdin", "stdout"}`` (the last two are FIFO
     paths); the answer is ``{"id": ..., "pid": ...}``. Children are reaped at once
-    (SIGCHLD ignored).
+    (SIGCHLD ignored). Once preloaded it says so with the answer of id 0.
     """
     for name in PRELOAD:
         try:
@@ -312,6 +312,7 @@ def zygote() -> None:
             print(f"zygote: not preloaded: {name} ({exc})", file=sys.stderr)
     warm_kernels()
     signal.signal(signal.SIGCHLD, signal.SIG_IGN)
+    print(json.dumps({"id": 0, "pid": os.getpid()}), flush=True)  # preloaded: ready to fork
     while line := sys.stdin.readline():
         request = json.loads(line)
         pid = os.fork()

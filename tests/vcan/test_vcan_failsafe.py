@@ -13,8 +13,8 @@
   (One run of four beside a CPU hog once saw a jump on one Atris9_Sectors frame. Its
   likely cause, found later: a frame the unit's transmit queue refused kept its counter,
   a gap with no frame lost; the publisher now gives that counter back, shown by
-  tests/test_bus_publisher.py -k halfway, and the node test in test_vcan_node.py is
-  strict again.)
+  tests/test_bus_publisher.py -k halfway. A jump was still seen once in the node test,
+  in a VM starved by two CPU-heavy processes: a loss on the receiving side.)
 
 In the link test the kernel's receive error (ENETDOWN) darkens the unit first, 4-27 ms
 after the link went down; the refusal lease (0.1 s of refused frames) is the second line,

@@ -68,6 +68,19 @@ class Zygote:
                                          stderr=log, text=True)
         self.count = 0
 
+    def wait_preloaded(self, timeout_s: float) -> None:
+        """Waits until the zygote has imported and warmed everything (its answer of id 0):
+        in a starved VM that took most of the first test's 300 s, and the load test timed
+        out in its measurement."""
+        assert self.proc.stdout is not None
+        with selectors.DefaultSelector() as selector:
+            selector.register(self.proc.stdout, selectors.EVENT_READ)
+            if not selector.select(timeout_s):
+                pytest.fail(f"the unit zygote did not preload within {timeout_s:.0f} s")
+        answer = self.proc.stdout.readline()
+        if not answer or json.loads(answer).get("id") != 0:
+            pytest.fail(f"the unit zygote did not preload: {answer!r}")
+
     def fork(self, role: str, args: tuple[str, ...]) -> tuple[int, Path, Path]:
         """Starts ``role``; returns its pid and the paths of its stdin and stdout FIFOs."""
         assert self.proc.stdin is not None and self.proc.stdout is not None
