@@ -116,8 +116,9 @@ run_in_vm() {
   log "booting $kernel without KVM (${VM_MEMORY}, 2 CPUs), results in $results"
   PATH="$PWD/$VENV/bin:$PATH" timeout "$VM_TIMEOUT_S" vng --run "$kernel" --disable-kvm \
     --memory "$VM_MEMORY" --cpus 2 --rwdir "$results" \
-    --exec "bash scripts/vcan-tests.sh --guest $results ${*@Q}" </dev/null | cat
-  # (through a pipe: qemu re-opens its stdout by path, which would overwrite a log file)
+    --exec "bash scripts/vcan-tests.sh --guest $results ${*@Q}" </dev/null 2>&1 | cat
+  # (stdout and stderr through a pipe: qemu re-opens them by path, which would overwrite a
+  # log file that `make test > log 2>&1` writes: the host tier's output was lost)
 }
 
 # --- host: the verdict ----------------------------------------------------------------------
