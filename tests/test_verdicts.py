@@ -460,14 +460,15 @@ def test_feature_a_line_missing_from_the_surface_blocks_it() -> None:
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.VALID
 
 
-def _plate_past_a_boundary(hole: range, plate: range = range(34, 46)
+def _plate_past_a_boundary(hole: range, plate: range = range(34, 46), on: int = 5
                            ) -> tuple[ObstaclePoints, ColumnEvidence]:
-    """Lines 0-4 on a wall at 4 m in every column of sectors 0 (columns 0-31) and 1
-    (32-63); line 5, the lowest, on a plate at 1.5 m in ``plate`` and on the wall in
-    the other columns but those of ``hole``, where it is seen nowhere. Line 5 meets the
-    ground at 9 m (the wall would show it); SNR 20 (f = 400 px, b = 0.1 m)."""
-    cells = [(k, c, 4.0) for k in range(5) for c in range(WIDTH)]
-    cells += [(5, c, 1.5 if c in plate else 4.0) for c in range(WIDTH) if c not in hole]
+    """Lines 0-5 but ``on`` on a wall at 4 m in every column of sectors 0 (columns 0-31)
+    and 1 (32-63); line ``on`` (5, the lowest, by default) on a plate at 1.5 m in
+    ``plate`` and on the wall in the other columns but those of ``hole``, where it is
+    seen nowhere. Line 5 meets the ground at 9 m (the wall would show it); SNR 20 (f =
+    400 px, b = 0.1 m)."""
+    cells = [(k, c, 4.0) for k in range(6) if k != on for c in range(WIDTH)]
+    cells += [(on, c, 1.5 if c in plate else 4.0) for c in range(WIDTH) if c not in hole]
     line, column = (np.array(v, np.int64) for v in list(zip(*cells, strict=True))[:2])
     ranges = np.array([r for _, _, r in cells])
     n = line.size
@@ -491,8 +492,8 @@ def test_feature_a_hole_cut_by_a_sector_boundary_counts_whole() -> None:
     while the lines above pass over the plate to the wall at 4 m. Sector 0 read the wall
     (2.56 m for 1.71 m in every map of the drawn scene): the hole's three columns in it
     were fewer than min_points, and the lines above, seen on the wall there, cleared
-    them. A hole counts whole where it enters a sector, and only a line at or below its
-    own clears its columns (verdicts._unseen_whole): sector 0 is INVALID. A hole of four
+    them. A hole counts whole where it enters a sector, and no other line clears its
+    columns (verdicts._unseen_whole): sector 0 is INVALID. A hole of four
     columns (under min_points), the lowest line seen all along, or a hole that does not
     reach sector 0 leave the wall's 4 m standing. Checked to fail with _unseen_whole
     returning 0 (sector 0 VALID at 4 m, and the stress scene far in 4 of 32
@@ -501,6 +502,27 @@ def test_feature_a_hole_cut_by_a_sector_boundary_counts_whole() -> None:
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
     for hole in (range(30, 34), range(0), range(33, 38)):
         points, evidence = _plate_past_a_boundary(hole, range(38 if hole else 34, 46))
+        out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+        assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), hole
+
+
+def test_feature_lines_below_a_hole_seen_beyond_do_not_clear_it() -> None:
+    """Random scene s22038 (stress scene hanging_ball_limb_before_car_drawn): a dark ball
+    hanging 0.47-1.10 m up, 1.1 m ahead; the two upper lines on it in the next sector,
+    missing over its unlit limb for 9-15 columns, the two lower lines passing under it to
+    a car at 2.23 m in those columns. The lower lines' points at the distance found
+    cleared the upper lines' hole (a surface standing on the ground meets the lower
+    sheets first; a hanging one need not), and the sector read the car: 2.23 m for
+    1.13 m in 3 of 4 maps. Here the top line (0) is on a surface at 1.5 m in sector 1
+    and missing over five columns, three of them in sector 0, lines 1-5 on the wall at
+    4 m everywhere: sector 0 is INVALID; with the top line seen all along, or a hole of
+    four columns, the wall's 4 m stands. Checked to fail with the columns cleared again
+    where a line at or below the missing one shows a point no farther than the distance
+    (the unseen_whole kernel before): sector 0 VALID at 4 m."""
+    points, evidence = _plate_past_a_boundary(range(29, 34), on=0)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    for hole in (range(0), range(30, 34)):
+        points, evidence = _plate_past_a_boundary(hole, on=0)
         out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
         assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), hole
 

@@ -513,17 +513,19 @@ def unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSet
 def _unseen_whole(s: int, view: MapView, distance_m: float, settings: SectorSettings
                   ) -> int:
     """The longest hole of :func:`unseen_columns` that enters sector ``s``, counted whole
-    (its columns in the neighbouring sectors too), and cleared only where a line at or
-    below its own (in the image) shows a point at most ``distance_m`` + max(DOUBT_REL·d,
-    DOUBT_ABS_M) away: a surface standing before the far one meets the lower sheets
-    first, and a sheet above seen on the far surface says only that what stands there
-    is lower (the plate of the docstring above: the two upper sheets passed over it to
-    the wall in the columns where the lowest was missing). Columns within GAP_RUN of a
-    point farther than that, of the sector or its neighbours, are open as in
-    :func:`unseen_columns` (the gap between two boxes of a range ladder, 2 m and 3 m
-    away, the lowest line seen on the floor beyond in it: taken with the sector's own
-    points only, the gap's columns in the 2 m sector counted and the 3 m sector went
-    INVALID). -1 when an SNR holds NaN; 0 without the visibility prior (no line order)."""
+    (its columns in the neighbouring sectors too). Another line seen in the hole's
+    columns at the distance found does not clear them: a sheet above seen on the far
+    surface says only that what stands there is lower (the plate of the docstring above:
+    the two upper sheets passed over it to the wall in the columns where the lowest was
+    missing), and a sheet below only that it does not reach down to it (a dark ball
+    hanging 0.47-1.10 m up before a car at 2.23 m: the two lower sheets passed under it
+    to the car while the two upper ones were missing on its unlit limb, and the car was
+    read for the ball's 1.13 m). Columns within GAP_RUN of a point farther than
+    ``distance_m`` + max(DOUBT_REL·d, DOUBT_ABS_M), of the sector or its neighbours, are
+    open as in :func:`unseen_columns` (the gap between two boxes of a range ladder, 2 m
+    and 3 m away, the lowest line seen on the floor beyond in it: taken with the sector's
+    own points only, the gap's columns in the 2 m sector counted and the 3 m sector went
+    INVALID). -1 when an SNR holds NaN; 0 without the visibility prior."""
     holes, span, prior = view.holes, view.spans[s], view.evidence.prior
     if holes is None or span is None or prior is None:
         return 0
@@ -533,10 +535,7 @@ def _unseen_whole(s: int, view: MapView, distance_m: float, settings: SectorSett
     return int(verdicts_kernels.unseen_whole(
         holes.nearer_m, holes.noisy, holes.line, holes.start, holes.stop, span[0], span[1],
         distance_m - margin, distance_m + margin, GAP_SNR * settings.snr_min, view.columns[s],
-        _ints(hits.line), _floats(hits.snr), _ints(prior.image_rank),
-        _ints(np.concatenate([a.hits.line for a in around])),
-        _ints(np.concatenate([a.hits.column for a in around])),
-        _floats(np.concatenate([a.hits.range_m for a in around])),
+        _ints(hits.line), _floats(hits.snr),
         _ints(np.concatenate([a.inside.column for a in around])),
         _floats(np.concatenate([a.inside.range_m for a in around])), GAP_RUN))
 
@@ -581,11 +580,7 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
             & (holes.start <= span[1]) & (holes.stop > span[0]))
     hits = view.sectors[s].hits
-    rank = np.asarray(prior.image_rank)
     around = [view.sectors[t] for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
-    line = np.concatenate([a.hits.line for a in around])
-    column = np.concatenate([a.hits.column for a in around])
-    shown = np.concatenate([a.hits.range_m for a in around]) <= distance_m + margin
     far = np.concatenate([a.inside.column[a.inside.range_m > distance_m + margin]
                           for a in around])
     width = view.evidence.sector.size
@@ -601,7 +596,6 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
         hole = np.zeros(width, dtype=np.bool_)
         hole[start:stop] = True
         hole &= ~open_
-        hole[column[shown & (rank[line] >= rank[k])]] = False
         if (hole & view.columns[s]).any():
             longest = max(longest, int(hole.sum()))
     return longest

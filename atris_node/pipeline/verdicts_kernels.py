@@ -570,25 +570,21 @@ def unseen(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray
 
 
 @kernel(_with_mask((_F, _B, _I, _I, _I, types.int64, types.int64, types.float64,
-                    types.float64, types.float64), (_I, _F, _I, _I, _I, _F, _I, _F,
-                                                     types.int64)))
+                    types.float64, types.float64), (_I, _F, _I, _F, types.int64)))
 def unseen_whole(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: IntArray,
                  stop: IntArray, first: int, last: int, nearer_than: float,
                  farther_than: float, strong_snr: float, inside: BoolArray,
-                 hit_line: IntArray, hit_snr: FloatArray, rank: IntArray,
-                 near_line: IntArray, near_column: IntArray, near_range: FloatArray,
-                 all_column: IntArray, all_range: FloatArray, gap: int) -> int:
+                 hit_line: IntArray, hit_snr: FloatArray, all_column: IntArray,
+                 all_range: FloatArray, gap: int) -> int:
     """The longest hole, counted whole, of
     :func:`atris_node.pipeline.verdicts.unseen_columns` that enters the sector (``inside``
     (W,), spanning ``first`` .. ``last``): a hole (``nearer`` m, ``noisy``, ``line``,
     ``start``, ``stop``; (h,) each) flanked nearer than ``nearer_than`` (m) or noisy, of a
     line whose obstacle points in the sector (``hit_line``, ``hit_snr``) have a median SNR
-    of ``strong_snr`` or more, without its columns that hold an obstacle point at most
-    ``farther_than`` away of a line at or below it in the image (image ``rank`` (K,) by
-    line; ``near_*`` (n,): the obstacle points of the sector and its neighbours) or lie
-    within ``gap`` columns of a point of them farther (``all_*``), with at least one
-    column left in the sector. 0 when none; -1 when a line's SNR holds NaN (the median is
-    numpy's to take then)."""
+    of ``strong_snr`` or more, without its columns that lie within ``gap`` columns of a
+    point farther than ``farther_than`` (m) (``all_*`` (n,): the points of the sector and
+    its neighbours), with at least one column left in the sector. 0 when none; -1 when a
+    line's SNR holds NaN (the median is numpy's to take then)."""
     width = inside.size
     open_ = np.zeros(width, dtype=np.bool_)
     for i in range(all_column.size):
@@ -606,11 +602,6 @@ def unseen_whole(nearer: FloatArray, noisy: BoolArray, line: IntArray, start: In
             continue
         for c in range(start[h], stop[h]):
             hole[c] = not open_[c]
-        for i in range(near_line.size):
-            c = near_column[i]
-            if (start[h] <= c < stop[h] and near_range[i] <= farther_than
-                    and rank[near_line[i]] >= rank[line[h]]):
-                hole[c] = False
         count, enters = 0, False
         for c in range(start[h], stop[h]):
             count += hole[c]
@@ -917,7 +908,7 @@ def warm_up() -> None:
     unseen(two, flag, pair, pair, pair + 1, 0, 1, 1.0, 1.0, 1.0, flag, pair, pair, two, two,
            pair, two, 3)
     unseen_whole(two, flag, pair, pair, pair + 1, 0, 1, 1.0, 1.0, 1.0, flag, pair, two, pair,
-                 pair, pair, two, pair, two, 3)
+                 two, 3)
     runs(np.ones((1, 2), dtype=np.bool_))
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
                np.zeros((0, 0), dtype=np.bool_), np.zeros(1, dtype=np.int64),
