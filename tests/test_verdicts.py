@@ -233,6 +233,22 @@ def _hole_scene(right_m: float, through_m: float | None = None, snr: float = 40.
     return points, evidence
 
 
+def test_feature_lines_at_two_and_a_half_snr_min_make_a_hole() -> None:
+    """Random scene s22017: a black crate's edge (albedo 0.019) between a person at
+    2.24 m and a crate at 3.15 m; every line stops over 14 columns, flanked by the
+    crate's lit part at 1.38 m. The lines' median SNR on the person was 17.9 and 16.4,
+    under 3·snr_min (18): no line was strong, no hole counted, and the person was read
+    for the crate (2.24 m for 1.44 m in 2 of 4 maps). A line at 2.5·snr_min or more is
+    strong (verdicts.GAP_SNR: it would be seen on a surface 40 % as bright): with the
+    lines at SNR 16 sector 0 is INVALID; at SNR 14 the hole is no evidence and the
+    wall's 3.5 m stands. Checked to fail with GAP_SNR 3.0 (VALID at 3.5 m with SNR 16)."""
+    points, evidence = _hole_scene(2.5, snr=16.0)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    points, evidence = _hole_scene(2.5, snr=14.0)
+    out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+    assert out.state is SectorState.VALID and out.distance_m == pytest.approx(3.5)
+
+
 def test_feature_nearer_surface_going_dark_blocks_the_wall_behind() -> None:
     """glossy_dark_panels: a black panel at 2.5 m returns the lines in the next sector
     and none at its edge, which stands in front of a wall at 3.5 m. The lines stop over
