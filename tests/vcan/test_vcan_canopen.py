@@ -21,6 +21,7 @@ from unit_frames import DBC_PATH, check_and_decode, listen
 from vcan_support import REPO_ROOT, summary_ms
 
 from atris_node.bus.can.ids import FrameKind, frame_id
+from atris_node.types import UnitState
 
 pytestmark = pytest.mark.vcan
 
@@ -29,6 +30,8 @@ NODE_ID = 0x05
 TPDO1, TPDO3, HEARTBEAT = 0x180 + NODE_ID, 0x380 + NODE_ID, 0x700 + NODE_ID
 SYNC_PERIOD_S = 0.05
 NMT_OPERATIONAL = 0x05
+#: the EDS default of MaxDataAge_ms; a distance not available
+MAX_DATA_AGE_MS, NOT_AVAILABLE = 200, 0xFFFF
 
 
 def configure(master: canopen.RemoteNode) -> None:
@@ -41,14 +44,18 @@ def configure(master: canopen.RemoteNode) -> None:
     assert master.sdo["Manufacturer device name"].raw == "ATRIS"
 
 
-def tpdo_values(frames: list[can.Message]) -> list[tuple[int, list[int]]]:
-    """(measurement counter from TPDO1, sector distances in mm from the next TPDO3)."""
-    out, counter = [], None
+def tpdo_values(frames: list[can.Message]) -> list[tuple[int, bool, list[int]]]:
+    """(measurement counter from TPDO1, whether TPDO1 says its data may be used: state
+    RUNNING and data age within MaxDataAge_ms, and sector distances in mm from the next
+    TPDO3). The two are composed together on one SYNC (bus/canopen/tpdo.py)."""
+    out: list[tuple[int, bool, list[int]]] = []
+    status: tuple[int, bool] | None = None
     for msg in frames:
         if msg.arbitration_id == TPDO1:
-            counter = struct.unpack_from("<H", msg.data, 4)[0]
-        elif msg.arbitration_id == TPDO3 and counter is not None:
-            out.append((counter, list(struct.unpack("<4H", msg.data))))
+            state, counter, age_ms = msg.data[0], *struct.unpack_from("<HH", msg.data, 4)
+            status = counter, state == UnitState.RUNNING and age_ms <= MAX_DATA_AGE_MS
+        elif msg.arbitration_id == TPDO3 and status is not None:
+            out.append((*status, list(struct.unpack("<4H", msg.data))))
     return out
 
 
@@ -99,7 +106,14 @@ def check_canopen_frames(frames: list[can.Message], record_property: Any) -> Non
     assert heartbeats and heartbeats[-1].data[0] == NMT_OPERATIONAL
     values = tpdo_values(frames)
     assert len(values) >= 20, f"only {len(values)} SYNC answers in 3 s"
-    for counter, distances_mm in values[1:]:
+    usable = [v for v in values[1:] if v[1]]
+    # a starved slave whose measurements stop coming sends its distances invalid once
+    # they are older than MaxDataAge_ms: never the stale numbers
+    stale = [v for v in values[1:] if not v[1]]
+    record_property("stale_tpdos", f"{len(stale)} of {len(values) - 1}")
+    assert all(distances_mm == [NOT_AVAILABLE] * 4 for _, _, distances_mm in stale)
+    assert usable, "no TPDO3 with usable data"
+    for counter, _, distances_mm in usable:
         expected = [[round(sector_distance_m(i, k) * 1000) for i in range(4)]
                     for k in (counter, counter + 1)]
         assert distances_mm in expected
