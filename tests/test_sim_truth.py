@@ -76,6 +76,9 @@ def test_feature_nearest_surface_wins_and_shadows_hide() -> None:
 
     behind = sim.mounting.vehicle_to_camera(np.array([[2.0, -0.2 * 2.0 / 0.3, 0.575]]))
     assert not _reached(sim.scene, sim.mounting, behind, 0.0).any()
+    # nor when the rendered pixels' points are the same shadowed point
+    world = sim.mounting.camera_to_vehicle(behind)
+    assert not _reached(sim.scene, sim.mounting, behind, 0.0, (world, world)).any()
 
 
 def test_feature_rendered_stripe_is_centred_on_the_true_row() -> None:
@@ -118,3 +121,31 @@ def test_feature_lens_distortion_bends_true_rows() -> None:
     rows_flat, rows_bent = flat.truth(0, LAYOUT).line_rows[2], bent.truth(0, LAYOUT).line_rows[2]
     assert np.ptp(rows_flat) < 1e-3
     assert np.ptp(rows_bent) > 0.5  # barrel distortion bends the off-centre line
+
+
+def test_feature_a_sheet_grazing_a_kerb_top_reaches_it() -> None:
+    """A sheet 4.15 deg down from a projector 0.41 m up meets a 21 cm kerb's top at 4 deg
+    incidence, 2.8 m out: the stripe is rendered on the top and the pipeline reads it
+    (2.90 m in a random scene), so the truth must count the kerb. Its Eq. 1 points lie
+    ~1 mm under the top, and their rays to the projector ran inside the kerb for 14 mm,
+    past the shadow test's clearance: the truth had no obstacle at all and scored the
+    correct reading as a near phantom. REMOVAL CHECK: with ``_reached`` testing the Eq. 1
+    point alone (the fallback to the rendered pixels' shadow test removed), every sector
+    was None here (no line point on the kerb)."""
+    sim = Simulator(parse_scene({
+        "camera": {"width_px": 640, "height_px": 400, "focal_px": 385.91, "rate_hz": 240.0,
+                   "exposure_us": 1000.0},
+        "projector": {"baseline_m": 0.1212, "alpha_deg": [85.852], "power_w": 0.08,
+                      "fan_deg": 70.0},
+        "mounting": {"z_m": 0.285},
+        "ambient": {"lamp": {"lux": 300.0}},
+        "noise": {"enabled": False},
+        "box": [{"center_m": [3.024, -0.3454, 0.1028], "size_m": [0.4353, 1.9726, 0.2057]}],
+    }))
+    truth = sim.truth(0, LAYOUT)
+    assert truth.sector_distance_m[2:6] == pytest.approx((2.851, 2.818, 2.818, 2.851),
+                                                          abs=0.01)
+    lit = sim._static_layer().laser.astype(np.float64)
+    rows = np.rint(truth.line_rows[0]).astype(int)
+    on_kerb = np.flatnonzero(truth.line_obstacle[0])
+    assert lit[rows[on_kerb], on_kerb].min() > 0.0

@@ -107,15 +107,32 @@ def _line_points(scene: Scene, k: int, rows: FloatArray, cols: FloatArray) -> tu
 
 
 def _reached(scene: Scene, mounting: Mounting, points_cam: FloatArray,
-             time_s: float) -> BoolArray:
-    """True where the own projector reaches camera-frame points (in fan, not shadowed)."""
+             time_s: float, rendered: tuple[FloatArray, ...] = ()) -> BoolArray:
+    """True where the own projector reaches camera-frame points (in fan, not shadowed).
+
+    ``rendered`` holds the ray-cast surface points (n, 3), vehicle frame, of the pixel rows
+    each point's crossing lies between (none: the Eq. 1 test alone). An Eq. 1 point lies
+    within ~1e-4 of r of its surface, which is cleared before the shadow test; where a sheet
+    grazes a surface (a kerb's top edge, 4 deg incidence) that is not enough: the point lay
+    1 mm under the top and its ray to the projector ran inside the kerb for 14 mm, so the
+    truth had no obstacle where the stripe was rendered and read. A point whose Eq. 1 test
+    fails is reached when either rendered point is lit as the renderer lights it
+    (:func:`atris_node.sim.optics.sheet_irradiance`'s shadow test)."""
     world = mounting.camera_to_vehicle(points_cam)
     _, phi, r, dirs = sheet_angles(mounting, scene.projector, world)
     in_fan = np.abs(phi) <= scene.projector.fan_rad / 2.0
     if not world.size:
         return in_fan
-    # Eq. 1 points lie within ~1e-4 of r of their surface; clear that before testing
-    return in_fan & ~occluded(scene.shapes, world, -dirs, r, time_s, clearance_m=2e-3 * r)
+    reached = in_fan & ~occluded(scene.shapes, world, -dirs, r, time_s, clearance_m=2e-3 * r)
+    doubt = np.flatnonzero(in_fan & ~reached)
+    for surface_points in rendered:
+        if not doubt.size:
+            break
+        _, _, r_s, dirs_s = sheet_angles(mounting, scene.projector, surface_points[doubt])
+        lit = ~occluded(scene.shapes, surface_points[doubt], -dirs_s, r_s, time_s)
+        reached[doubt[lit]] = True
+        doubt = doubt[~lit]
+    return reached
 
 
 def sector_distances(points_vehicle: FloatArray, layout: SectorLayout) -> tuple[
@@ -156,7 +173,9 @@ def compute_truth(scene: Scene, mounting: Mounting, dirs_cam: FloatArray,
     for k, alpha in enumerate(scene.projector.alpha_rad):
         c = _crossings(theta, alpha, surface, depth)
         pts, ok = _line_points(scene, k, c.rows[c.found], cols[c.found].astype(np.float64))
-        ok &= _reached(scene, mounting, pts, time_s)
+        above, found = c.row_above[c.found], cols[c.found]
+        ok &= _reached(scene, mounting, pts, time_s, (surface.points[above, found],
+                                                      surface.points[above + 1, found]))
         where = cols[c.found][ok]
         rows[k, where], visible[k, where], points[k, where] = c.rows[where], True, pts[ok]
         index = surface.shape[c.row_above[where], where]
