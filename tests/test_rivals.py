@@ -13,6 +13,7 @@ import pytest
 
 from atris_node.pipeline.bands import in_image_order
 from atris_node.pipeline.chain import Pipeline, PipelineConfig
+from atris_node.pipeline.identity import off_masked_pairs
 from atris_node.pipeline.rivals import (
     _reference,
     _to_infinity,
@@ -678,3 +679,36 @@ def test_feature_a_line_beside_a_nearly_parallel_sheet_s_stripe_is_masked() -> N
     merged = np.array(prior.cot_alpha, dtype=np.float64)
     merged[order[0]] = merged[order[1]] - 1.6 / prior.focal_px  # 1.6 px apart
     assert dataclasses.replace(prior, cot_alpha=merged).unexplained(truth, column)[0] == 1
+
+
+def test_feature_a_masked_pair_s_lone_peak_is_ambiguous() -> None:
+    """A peak of one line of a masked pair (stripes MERGED_PX to masked_px apart) whose
+    partner is missing in its column is one maximum of the two: the upper line's, the
+    lower one's, or both merged between their rows, so it is nobody's sample. Random
+    scene s23043 (stress scene merged_pair_on_hanging_ball_drawn): sheets 0.37 deg apart,
+    2.4 px, merged on a ball at 2.34 m; the identity read the peak as the lower line with
+    the upper one masked: 2.01 m in 3 of 4 maps, a near phantom. REMOVAL CHECK: with
+    ``off_masked_pairs`` returning ``rows`` untouched in ``peaks.extract_lines`` the stress
+    scene had its 3 near phantoms again (tests/test_safety_scenes.py); here the calls are
+    direct."""
+    scene = load_scene("twin_sheets_free_before_dark_wall_drawn")
+    sim = Simulator(scene)
+    prior = Pipeline(PipelineConfig(), sim.calibration(), sim.mounting,
+                     SectorLayout(8, math.radians(70)))._prior
+    low, high = prior.image_order[1], prior.image_order[0]  # the pair, 3.3 px apart
+    rows = np.full((2, 3), -1)
+    rows[low, 0] = 200  # column 0: the lower line alone
+    rows[high, 1] = 190  # column 1: the upper line alone
+    rows[:, 2] = (196, 199) if high == 0 else (199, 196)  # column 2: both resolved
+    out, removed, (row, col, line) = off_masked_pairs(rows, prior)
+    assert (out[:, :2] == -1).all() and (out[:, 2] == rows[:, 2]).all()
+    assert removed.tolist() == [1, 1, 0]
+    # each lone peak is a doubt under both lines' hypotheses
+    assert sorted(zip(col.tolist(), line.tolist(), row.tolist(), strict=True)) == sorted(
+        [(0, low, 200), (0, high, 200), (1, high, 190), (1, low, 190)])
+    # sheets without such a pair: nothing is done (the rows come back as they are)
+    lab = Simulator(load_scene("indoor_lab"))
+    plain = Pipeline(PipelineConfig(), lab.calibration(), lab.mounting,
+                     SectorLayout(8, math.radians(70)))._prior
+    lab_rows = np.full((len(plain.cot_alpha), 3), 5)
+    assert off_masked_pairs(lab_rows, plain)[0] is lab_rows

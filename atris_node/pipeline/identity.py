@@ -243,6 +243,56 @@ def masking_px(cot_alpha: FloatArray, focal_px: float, sep: int) -> float:
     return masked if bool(((apart >= kernels.MERGED_PX) & (apart < masked)).any()) else 0.0
 
 
+def masked_pairs(prior: VisibilityPrior) -> list[tuple[int, int]]:
+    """The line pairs (j, k) whose stripes lie MERGED_PX to ``prior.masked_px`` apart on
+    every surface (f·|cot α_j − cot α_k|): the peak search keeps one maximum of such a
+    pair, at one line's row or, where the two merge, between them. Empty without
+    masking (no such pair)."""
+    if prior.masked_px <= 0.0:
+        return []
+    rows = prior.focal_px * np.asarray(prior.cot_alpha, dtype=np.float64)
+    k_count = rows.size
+    return [(j, k) for j in range(k_count) for k in range(j + 1, k_count)
+            if kernels.MERGED_PX <= abs(rows[j] - rows[k]) < prior.masked_px]
+
+
+def off_masked_pairs(rows: IntArray, prior: VisibilityPrior | None
+                     ) -> tuple[IntArray, IntArray, tuple[IntArray, IntArray, IntArray]]:
+    """``rows`` (K, W) without the peaks of a masked pair's line whose partner is missing
+    in their column, (W,) how many were taken out per column (ambiguous peaks), and those
+    peaks as doubts (row, column, line), once per line of the pair. Such a peak is one
+    maximum of two stripes: the upper line's, the lower one's, or the two merged between
+    their rows; the lines' ranges at its row differ by r²/(f·b) per row of their
+    separation (two sheets 0.37 deg apart, 2.4 px: a merged peak on a ball at 2.34 m,
+    read as the lower line at its row, gave 2.01 m, a near phantom in every map). Taken as
+    the line the identity chose with the other one explained as masked, it was a guess;
+    now it is ambiguous. Nothing is done without a masked pair (:func:`masked_pairs`)."""
+    width = rows.shape[1]
+    pairs = [] if prior is None else masked_pairs(prior)
+    if not pairs:
+        return rows, np.zeros(width, dtype=np.int64), _NO_DOUBTS
+    out = np.array(rows, dtype=np.int64, copy=True)
+    removed = np.zeros(width, dtype=np.int64)
+    found: list[tuple[IntArray, IntArray, IntArray]] = []
+    for j, k in pairs:
+        for seen, partner in ((j, k), (k, j)):
+            lone = np.flatnonzero((rows[seen] >= 0) & (rows[partner] < 0))
+            if not lone.size:
+                continue
+            peak = rows[seen, lone].astype(np.int64)
+            found += [(peak, lone, np.full(lone.size, line, dtype=np.int64))
+                      for line in (seen, partner)]
+            out[seen, lone] = -1
+            removed[lone] += 1
+    if not found:
+        return rows, removed, _NO_DOUBTS
+    row, col, line = (np.concatenate(parts) for parts in zip(*found, strict=True))
+    return out, removed, (row, col, line)
+
+
+_NO_DOUBTS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
 def identify_lines(peaks: IntArray, bands: tuple[Band, ...], sep: int,
                    prior: VisibilityPrior | None = None, *, aligned: bool = False,
                    edges: tuple[IntArray, IntArray, IntArray] | None = None

@@ -33,7 +33,7 @@ import numpy.typing as npt
 from atris_node.errors import ConfigError
 from atris_node.pipeline import peaks_kernels as kernels
 from atris_node.pipeline.bands import Band, count_in_bands, read_rows
-from atris_node.pipeline.identity import VisibilityPrior, identify_lines
+from atris_node.pipeline.identity import VisibilityPrior, identify_lines, off_masked_pairs
 from atris_node.pipeline.noise import (
     NOISE_TILE_PX,
     NoiseMap,
@@ -388,7 +388,11 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         rows, unsure, tied = identity.rows, identity.unsure, identity.tied
         rows, on_steps = off_step_runs(rows, step_rows)
         lone = lone + on_steps
-        doubts = (identity.doubt_row, identity.doubt_col, identity.doubt_line)
+        rows, merged, (m_row, m_col, m_line) = off_masked_pairs(rows, prior)
+        unsure = unsure + merged
+        doubts = (np.concatenate([identity.doubt_row, m_row]),
+                  np.concatenate([identity.doubt_col, m_col]),
+                  np.concatenate([identity.doubt_line, m_line]))
     else:
         rows, unsure = identify_lines(peaks, bands, settings.min_separation_px, prior,
                                       aligned=aligned)

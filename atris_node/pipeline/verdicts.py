@@ -527,9 +527,9 @@ def _unseen_whole(s: int, view: MapView, distance_m: float, settings: SectorSett
     open as in :func:`unseen_columns` (the gap between two boxes of a range ladder, 2 m
     and 3 m away, the lowest line seen on the floor beyond in it: taken with the sector's
     own points only, the gap's columns in the 2 m sector counted and the 3 m sector went
-    INVALID). -1 when an SNR holds NaN; 0 without the visibility prior."""
-    holes, span, prior = view.holes, view.spans[s], view.evidence.prior
-    if holes is None or span is None or prior is None:
+    INVALID). -1 when an SNR holds NaN; 0 without line holes (no column evidence)."""
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None:
         return 0
     margin = doubt_margin_m(distance_m)
     hits = view.sectors[s].hits
@@ -575,8 +575,8 @@ def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSe
 def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: SectorSettings
                         ) -> int:
     """:func:`_unseen_whole` in numpy steps (numpy's median of an SNR with NaN)."""
-    holes, span, prior = view.holes, view.spans[s], view.evidence.prior
-    if holes is None or span is None or prior is None:
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None:
         return 0
     margin = doubt_margin_m(distance_m)
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
