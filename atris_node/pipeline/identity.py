@@ -227,6 +227,19 @@ class VisibilityPrior:
         return np.argsort(self.cot_alpha)
 
     @cached_property
+    def masked_pairs(self) -> list[tuple[int, int]]:
+        """The line pairs (j, k) whose stripes lie MERGED_PX to ``masked_px`` apart on
+        every surface (f·|cot α_j − cot α_k|): the peak search keeps one maximum of such a
+        pair, at one line's row or, where the two merge, between them. Empty without
+        masking (no such pair). Taken once per prior, not per map."""
+        if self.masked_px <= 0.0:
+            return []
+        rows = self.focal_px * np.asarray(self.cot_alpha, dtype=np.float64)
+        k_count = rows.size
+        return [(j, k) for j in range(k_count) for k in range(j + 1, k_count)
+                if kernels.MERGED_PX <= abs(rows[j] - rows[k]) < self.masked_px]
+
+    @cached_property
     def image_rank(self) -> IntArray:
         """(K,) each line's position from the top of the image (0 = top)."""
         return image_positions(self.image_order)
@@ -243,19 +256,6 @@ def masking_px(cot_alpha: FloatArray, focal_px: float, sep: int) -> float:
     return masked if bool(((apart >= kernels.MERGED_PX) & (apart < masked)).any()) else 0.0
 
 
-def masked_pairs(prior: VisibilityPrior) -> list[tuple[int, int]]:
-    """The line pairs (j, k) whose stripes lie MERGED_PX to ``prior.masked_px`` apart on
-    every surface (f·|cot α_j − cot α_k|): the peak search keeps one maximum of such a
-    pair, at one line's row or, where the two merge, between them. Empty without
-    masking (no such pair)."""
-    if prior.masked_px <= 0.0:
-        return []
-    rows = prior.focal_px * np.asarray(prior.cot_alpha, dtype=np.float64)
-    k_count = rows.size
-    return [(j, k) for j in range(k_count) for k in range(j + 1, k_count)
-            if kernels.MERGED_PX <= abs(rows[j] - rows[k]) < prior.masked_px]
-
-
 def off_masked_pairs(rows: IntArray, prior: VisibilityPrior | None
                      ) -> tuple[IntArray, IntArray, tuple[IntArray, IntArray, IntArray]]:
     """``rows`` (K, W) without the peaks of a masked pair's line whose partner is missing
@@ -266,9 +266,10 @@ def off_masked_pairs(rows: IntArray, prior: VisibilityPrior | None
     separation (two sheets 0.37 deg apart, 2.4 px: a merged peak on a ball at 2.34 m,
     read as the lower line at its row, gave 2.01 m, a near phantom in every map). Taken as
     the line the identity chose with the other one explained as masked, it was a guess;
-    now it is ambiguous. Nothing is done without a masked pair (:func:`masked_pairs`)."""
+    now it is ambiguous. Nothing is done without a masked pair
+    (:attr:`VisibilityPrior.masked_pairs`)."""
     width = rows.shape[1]
-    pairs = [] if prior is None else masked_pairs(prior)
+    pairs = [] if prior is None else prior.masked_pairs
     if not pairs:
         return rows, np.zeros(width, dtype=np.int64), _NO_DOUBTS
     out = np.array(rows, dtype=np.int64, copy=True)
