@@ -142,8 +142,8 @@ def test_feature_a_line_counts_as_returned_by_the_ground_only_where_it_is() -> N
     def returned(fraction: float, snr: float):
         some = columns[:int(fraction * columns.size)]
         on_ground = (np.ones(some.size, np.int64), some, np.full(some.size, snr))
-        return judge._returned(prior, quiet, on_ground,
-                               evidence._ground_snr(quiet.shape, on_ground) > 0.0)
+        return judge._returned(prior, quiet, evidence._Noise(None, None, quiet & False),
+                               on_ground, evidence._ground_snr(quiet.shape, on_ground) > 0.0)
 
     hits = returned(0.3, 20.0)
     assert hits is not None and np.all(np.isinf(hits[0]))
@@ -151,6 +151,46 @@ def test_feature_a_line_counts_as_returned_by_the_ground_only_where_it_is() -> N
     assert returned(0.1, 20.0) is None and returned(0.3, 8.0) is None
     assert returned(0.0, 20.0) is None
 
+
+
+def test_feature_a_returned_line_counts_where_its_return_outshines_the_band_noise() -> None:
+    """evidence.SectorJudge._returned with the bands' noise measured: a line the ground
+    returns at SNR 400 raises its own band's noise (ratio 3 to the tile noise, over
+    evidence.CLEAN_NOISE, where it is found), and is still returned: the columns where it
+    is found count as ones where it could be. Where it is not found, a band 5 times
+    noisier than the map's tiles still shows it (400 / 5 >= verdicts.HOLE_SNR·snr_min),
+    so its ground hits there are handed to the verdicts (a low crate's face lit at SNR
+    1000 raised the noise over the crate, the lowest line was missing there without
+    counting, and the face's comb read one line up gave 2.3 m for 1.1 m:
+    low_crate_comb_read_one_line_up_drawn); a band 200 times noisier, or blinded, does
+    not. Checked to fail with the found columns left out of the count (no line returned)
+    and with only the quiet bands showing a return (the hits inf under the noisy band)."""
+    scene = SCENES["free_floor"]
+    config = replace(CONFIG, z_max_m=6.0)
+    pipe = Pipeline(config, scene.calibration, scene.mounting, config.layout())
+    judge, prior = pipe._judge, pipe._prior
+    expected = judge._expected_on_ground(prior)
+    columns = np.flatnonzero(expected[1])
+    found, lost = columns[:int(0.3 * columns.size)], columns[int(0.3 * columns.size):]
+    on_ground = (np.ones(found.size, np.int64), found, np.full(found.size, 400.0))
+    on = evidence._ground_snr(expected.shape, on_ground) > 0.0
+
+    def hits(lost_ratio: float, blinded: bool = False):
+        ratio = np.ones(expected.shape)
+        ratio[1, found], ratio[1, lost] = 3.0, lost_ratio
+        noisy = ratio > evidence.CLEAN_NOISE
+        blind = np.zeros(expected.shape, dtype=np.bool_)
+        blind[1, lost] = blinded
+        return judge._returned(prior, expected, evidence._Noise(noisy | blind, ratio, blind),
+                               on_ground, on)
+
+    shown = hits(5.0)
+    assert shown is not None and np.all(np.isfinite(shown[1, columns]))
+    hidden = hits(200.0)
+    assert hidden is not None and np.all(np.isinf(hidden[1, lost]))
+    assert np.all(np.isfinite(hidden[1, found]))
+    blinded = hits(5.0, blinded=True)
+    assert blinded is not None and np.all(np.isinf(blinded[1, lost]))
 
 def test_measurement_carries_the_map_sequence_and_time() -> None:
     scene = SCENES["boxes_one_line"]

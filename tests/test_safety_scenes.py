@@ -108,6 +108,12 @@ tests/test_rivals.py checks each rule on its own).
 pole_edge_beside_ambiguous_drawn read the wall (2.48 m) for a dark pole at 1.89 m on a
 sector boundary (far in 1 sector-frame of 32 on seed 1) with the neighbour's ambiguous
 peaks not counted by verdicts.straddles (tests/test_verdicts.py checks the rule alone).
+low_crate_comb_read_one_line_up_drawn read 2.27-2.36 m for a low crate at 1.08-1.12 m
+(far in 6 sector-frames of 32 on seed 1) with a line's ground return counted only in the
+bands no noisier than evidence.CLEAN_NOISE times the tiles (evidence.SectorJudge._returned
+of commit 9a59d4e: the crate's bright face raised the noise of the lowest line's band, and
+its absence over the crate told nothing; tests/test_pipeline_synthetic.py checks the rule
+alone).
 pole_cuts_ground_lines_drawn read a wall at 6.9-7.4 m for a dark pole at 2.74 m in
 sectors 2 and 3 of every map with the short holes left out of verdicts.hole_before;
 ramp_foot_unresolved_drawn (a known failure) reads a ramp's top edge (2.41-2.48 m) for its
@@ -181,10 +187,6 @@ KNOWN_WRONG: dict[str, str] = {
                                   "clearly; the top edge (2.41-2.48 m) is read, within a row "
                                   "of range of the risen part, where a wall's foot stripe "
                                   "lies too (every map)",
-    "low_crate_comb_read_one_line_up_drawn": "far: a low crate's face comb (1.07-1.18 m) read "
-                                             "one line up, as the ground at 2.13 m and an "
-                                             "11 cm bump at 2.37 m; no rival in the first "
-                                             "pass: 2.27-2.36 m for 1.08-1.12 m, 3 of 4 maps",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",

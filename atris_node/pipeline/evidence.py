@@ -35,6 +35,7 @@ from atris_node.pipeline.tops import (
     unseen_tops,
 )
 from atris_node.pipeline.verdicts import (
+    HOLE_SNR,
     LOST_RETURNED,
     LOST_SNR,
     ColumnEvidence,
@@ -333,7 +334,7 @@ class SectorJudge:
         returned = ground_snr = None
         if on_ground is not None:
             ground_snr = _ground_snr(expected.shape, on_ground)
-            returned = self._returned(prior, expected if noisy is None else expected & ~noisy,
+            returned = self._returned(prior, expected, _Noise.of(extraction, noisy),
                                       on_ground, ground_snr > 0.0)
         return ColumnEvidence(self.column_sector, doubtful=doubtful,
                               ambiguous=extraction.ambiguous_columns, missing=missing,
@@ -342,24 +343,43 @@ class SectorJudge:
                               ground_snr=None if returned is None else ground_snr,
                               dimmed=extraction.dimmed)
 
-    def _returned(self, prior: VisibilityPrior, quiet: BoolArray,
+    def _returned(self, prior: VisibilityPrior, expected: BoolArray, noise: _Noise,
                   on_ground: tuple[IntArray, IntArray, FloatArray], on: BoolArray
                   ) -> FloatArray | None:
         """(K, W) :attr:`ColumnEvidence.returned_m`: where line k meets the ground
-        clearance (horizontal range, m) in the ``quiet`` (K, W) columns where it is
-        expected on the ground, for the lines that the ground returns in this map: found
-        on it (``on`` (K, W); ``on_ground``: line, column, SNR of the ground samples) in
-        LOST_RETURNED of those columns with a median SNR of LOST_SNR·snr_min; inf
-        elsewhere. None when the ground returns no line so."""
+        clearance (horizontal range, m) in the columns where it is ``expected`` on the
+        ground and its return would show through the band's noise, for the lines that the
+        ground returns in this map: found on it (``on`` (K, W); ``on_ground``: line,
+        column, SNR of the ground samples) in LOST_RETURNED of the expected columns where
+        it is found or its band is quiet (:attr:`_Noise.noisy` not set), with a median SNR
+        of LOST_SNR·snr_min; inf elsewhere. None when the ground returns no line so. (A
+        bright line raises its own band's noise: counted over the quiet columns alone, the
+        ground's brightest line, at SNR 300-500, was found in none of them and was not
+        taken for returned.)
+
+        A band noisier than CLEAN_NOISE times the map's tile noise (``noise.ratio``) still
+        shows a line returned at median SNR m wherever m / ratio is HOLE_SNR·snr_min or
+        more: the ground's return there is as bright as beside it. (A low crate's face lit
+        at SNR 1000 by the lines below raised the noise of the lowest line's band over the
+        crate 2-10 times; that line, on the ground at SNR 400 on both sides, was missing
+        there without counting, and the face's comb read one line up gave 2.3 m for 1.1 m.)
+        A band blinded in every sub-frame shows nothing."""
         line, _, snr = on_ground
+        quiet = expected if noise.noisy is None else expected & (~noise.noisy | on)
         count = quiet.sum(axis=1)
         fraction = (on & quiet).sum(axis=1) / np.maximum(count, 1)
         returned = (count > 0) & (fraction >= LOST_RETURNED)
+        median = np.zeros(returned.size)
         for k in np.flatnonzero(returned):
-            returned[k] = np.median(snr[line == k]) >= LOST_SNR * self.settings.snr_min
+            median[k] = np.median(snr[line == k])
+        returned &= median >= LOST_SNR * self.settings.snr_min
         if not returned.any():
             return None
-        return np.where(quiet & returned[:, None], self._ground_hits(prior), np.inf)
+        shows = quiet
+        if noise.ratio is not None:
+            through = noise.ratio * (HOLE_SNR * self.settings.snr_min) <= median[:, None]
+            shows = quiet | (expected & through & ~noise.blinded)
+        return np.where(shows & returned[:, None], self._ground_hits(prior), np.inf)
 
     def _ground_hits(self, prior: VisibilityPrior) -> FloatArray:
         """(K, W) horizontal range (m, vehicle frame) of the point where each line's
@@ -535,6 +555,31 @@ def hidden_foot_onset(ground_range_m: FloatArray, expected: BoolArray,
     with np.errstate(invalid="ignore"):
         gap = np.where(np.isfinite(above), h0 * (1.0 - resolved_to / above), h0)
     return np.where(expected & meets & (gap > gap_m), resolved_to, np.inf)
+
+
+@dataclass(frozen=True)
+class _Noise:
+    """How noisy each line's band is in each column of a map: ``noisy`` (K, W) where a
+    return the rest of the map would show may be lost (band noise over CLEAN_NOISE times
+    the tile noise, or blinded), ``ratio`` (K, W) float64 band noise over tile noise (1
+    where not measured), ``blinded`` (K, W) bands blinded in every sub-frame; None
+    where the map does not measure them."""
+
+    noisy: BoolArray | None
+    ratio: FloatArray | None
+    blinded: BoolArray
+
+    @staticmethod
+    def of(extraction: Extraction, noisy: BoolArray | None) -> _Noise:
+        """The noise of ``extraction``'s bands, with ``noisy`` as :meth:`SectorJudge._evidence`
+        takes it."""
+        band, tile = extraction.band_noise_dn, extraction.tile_noise_dn
+        if band is None or noisy is None:
+            return _Noise(noisy, None, np.zeros(0, dtype=np.bool_))
+        ratio = band.astype(np.float64) / tile if tile > 0.0 else np.ones(band.shape)
+        blinded = (np.zeros(band.shape, dtype=np.bool_) if extraction.blinded is None
+                   else np.asarray(extraction.blinded, dtype=np.bool_))
+        return _Noise(noisy, np.nan_to_num(ratio, nan=np.inf, posinf=np.inf), blinded)
 
 
 def _ground_snr(shape: tuple[int, ...], on_ground: tuple[IntArray, IntArray, FloatArray]
