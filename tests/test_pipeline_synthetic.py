@@ -158,7 +158,7 @@ def test_feature_a_returned_line_counts_where_its_return_outshines_the_band_nois
     returns at SNR 400 raises its own band's noise (ratio 3 to the tile noise, over
     evidence.CLEAN_NOISE, where it is found), and is still returned: the columns where it
     is found count as ones where it could be. Where it is not found, a band 5 times
-    noisier than the map's tiles still shows it (400 / 5 >= verdicts.HOLE_SNR·snr_min),
+    noisier than the map's tiles still shows it (400 / 5 >= verdicts.LOST_SNR·snr_min),
     so its ground hits there are handed to the verdicts (a low crate's face lit at SNR
     1000 raised the noise over the crate, the lowest line was missing there without
     counting, and the face's comb read one line up gave 2.3 m for 1.1 m:

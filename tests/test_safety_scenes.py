@@ -113,7 +113,13 @@ low_crate_comb_read_one_line_up_drawn read 2.27-2.36 m for a low crate at 1.08-1
 bands no noisier than evidence.CLEAN_NOISE times the tiles (evidence.SectorJudge._returned
 of commit 9a59d4e: the crate's bright face raised the noise of the lowest line's band, and
 its absence over the crate told nothing; tests/test_pipeline_synthetic.py checks the rule
-alone).
+alone); black_box_face_on_next_sheet_ground_row_drawn read a pole at 3.30 m for a black
+box at 1.12 m in map 1 with that rule asking the line's median SNR over the band's noise
+ratio to reach HOLE_SNR·snr_min (LOST_SNR·snr_min now: flicker left the bands 2.2-3 times
+noisier than the tiles). dark_glossy_post_one_weak_sheet_drawn read the wall at 4.28 m for a
+dark post at 3.76 m in every map (4 far sector-frames) with verdicts.dim_hole taken out of
+verdicts._verdict (a weak line's hole beside a nearer point; tests/test_verdicts.py checks
+the rule alone).
 pole_cuts_ground_lines_drawn read a wall at 6.9-7.4 m for a dark pole at 2.74 m in
 sectors 2 and 3 of every map with the short holes left out of verdicts.hole_before;
 ramp_foot_unresolved_drawn (a known failure) reads a ramp's top edge (2.41-2.48 m) for its
@@ -187,6 +193,10 @@ KNOWN_WRONG: dict[str, str] = {
                                   "clearly; the top edge (2.41-2.48 m) is read, within a row "
                                   "of range of the risen part, where a wall's foot stripe "
                                   "lies too (every map)",
+    "hanging_sphere_one_line_read_one_line_down_drawn": "near: a hanging sphere's one stripe "
+                                                        "(4.10 m) read one line down, at "
+                                                        "1.45 m, where the prior ties and "
+                                                        "continuity settles it (map 3)",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",

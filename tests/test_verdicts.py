@@ -214,11 +214,14 @@ def test_feature_distance_the_points_do_not_pin_down_is_invalid() -> None:
     assert loose.state is SectorState.VALID and loose.sigma_m > 0.135
 
 
-def _hole_scene(right_m: float, through_m: float | None = None, snr: float = 40.0):
+def _hole_scene(right_m: float, through_m: float | None = None, snr: float = 40.0,
+                dropout: int = 0):
     """Lines 0-4 on a wall at 3.5 m in columns 0-24 (sector 0), none in columns 25-31,
     a surface at ``right_m`` in columns 32-63 (sector 1); ``through_m``: line 0 also seen
-    at that range in the hole's columns. Strong lines (SNR ``snr``, 40 by default)."""
-    wall = [(3.5, k, c) for k in range(5) for c in range(25)]
+    at that range in the hole's columns. Strong lines (SNR ``snr``, 40 by default);
+    ``dropout``: every line missing on the wall in every ``dropout``-th column (0: none),
+    as a line near its threshold drops out."""
+    wall = [(3.5, k, c) for k in range(5) for c in range(25) if not dropout or c % dropout]
     right = [(right_m, k, c) for k in range(5) for c in range(32, 64)]
     through = [] if through_m is None else [(through_m, 0, c) for c in range(25, 32)]
     rows = np.array(wall + right + through)
@@ -240,11 +243,32 @@ def test_feature_lines_at_two_and_a_half_snr_min_make_a_hole() -> None:
     under 3·snr_min (18): no line was strong, no hole counted, and the person was read
     for the crate (2.24 m for 1.44 m in 2 of 4 maps). A line at 2.5·snr_min or more is
     strong (verdicts.GAP_SNR: it would be seen on a surface 40 % as bright): with the
-    lines at SNR 16 sector 0 is INVALID; at SNR 14 the hole is no evidence and the
-    wall's 3.5 m stands. Checked to fail with GAP_SNR 3.0 (VALID at 3.5 m with SNR 16)."""
-    points, evidence = _hole_scene(2.5, snr=16.0)
+    lines at SNR 16 sector 0 is INVALID; at SNR 14, dropping out in every third column of
+    the wall (no steady line: verdicts.dim_hole), the hole is no evidence and the wall's
+    3.5 m stands. Checked to fail with GAP_SNR 3.0 (VALID at 3.5 m with SNR 16)."""
+    points, evidence = _hole_scene(2.5, snr=16.0, dropout=3)
     assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
-    points, evidence = _hole_scene(2.5, snr=14.0)
+    points, evidence = _hole_scene(2.5, snr=14.0, dropout=3)
+    out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+    assert out.state is SectorState.VALID and out.distance_m == pytest.approx(3.5)
+
+
+@pytest.mark.parametrize("snr", [8.0, 14.0])
+def test_feature_a_steady_weak_line_s_hole_beside_a_nearer_surface_blocks_it(
+        snr: float) -> None:
+    """verdicts.dim_hole: lines at SNR 8 and 14 (1.3 and 2.3·snr_min, not strong) seen
+    on the wall at 3.5 m in every one of the 25 columns beside a 7-column hole whose
+    other flank is a surface at 2.5 m: noise does not drop a line that shows in every
+    column for 7 columns running, so the nearer surface may go on there, too dark for
+    the lines, and sector 0 is INVALID (random scene s24003: a dark glossy post 3.4 m
+    away before a wall at 3.8 m returned the only sheet, at SNR 8-10, in 3 of its 60
+    columns, and the wall was read, 4.28 m for 3.76 m, in every map). Dropping out in
+    every third column of the wall, the same lines make no such hole, and the wall's
+    3.5 m stands. Checked to fail with dim_hole taken out of verdicts._verdict (VALID at
+    3.5 m at both SNRs)."""
+    points, evidence = _hole_scene(2.5, snr=snr)
+    assert sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0].state is SectorState.INVALID
+    points, evidence = _hole_scene(2.5, snr=snr, dropout=3)
     out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
     assert out.state is SectorState.VALID and out.distance_m == pytest.approx(3.5)
 

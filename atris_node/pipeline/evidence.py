@@ -35,7 +35,6 @@ from atris_node.pipeline.tops import (
     unseen_tops,
 )
 from atris_node.pipeline.verdicts import (
-    HOLE_SNR,
     LOST_RETURNED,
     LOST_SNR,
     ColumnEvidence,
@@ -358,8 +357,9 @@ class SectorJudge:
         taken for returned.)
 
         A band noisier than CLEAN_NOISE times the map's tile noise (``noise.ratio``) still
-        shows a line returned at median SNR m wherever m / ratio is HOLE_SNR·snr_min or
-        more: the ground's return there is as bright as beside it. (A low crate's face lit
+        shows a line returned at median SNR m wherever m / ratio is LOST_SNR·snr_min or
+        more (the standard of a returned line, in that band's noise): the ground's return
+        there is as bright as beside it. (A low crate's face lit
         at SNR 1000 by the lines below raised the noise of the lowest line's band over the
         crate 2-10 times; that line, on the ground at SNR 400 on both sides, was missing
         there without counting, and the face's comb read one line up gave 2.3 m for 1.1 m.)
@@ -377,7 +377,7 @@ class SectorJudge:
             return None
         shows = quiet
         if noise.ratio is not None:
-            through = noise.ratio * (HOLE_SNR * self.settings.snr_min) <= median[:, None]
+            through = noise.ratio * (LOST_SNR * self.settings.snr_min) <= median[:, None]
             shows = quiet | (expected & through & ~noise.blinded)
         return np.where(shows & returned[:, None], self._ground_hits(prior), np.inf)
 

@@ -143,6 +143,12 @@ HOLE_SNR = 3.0
 #: a line fades into a run (:func:`_abrupt`) only with this many of its points beside it:
 #: two weak ones are as likely a partial return at a dark object's edge
 FADE_POINTS = 3
+#: a line of any SNR seen in STEADY_SEEN of the STEADY_FLANK·min_points columns beside a
+#: run where it has no peak, on the side where it shows the surface found, drops out
+#: there by noise about as often: a run of min_points or more such columns is no
+#: dropout (:func:`dim_hole`)
+STEADY_SEEN = 0.9
+STEADY_FLANK = 2
 #: columns across a sector boundary within which a neighbour's obstacle points vouch for a
 #: sector's few nearer points (one object straddling the boundary)
 STRADDLE_COLUMNS = 8
@@ -603,6 +609,50 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
     return longest
 
 
+def dim_hole(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
+    """True when a line, of any SNR, has a hole (:class:`LineHoles`) entering sector
+    ``s`` that is flanked on one side by its obstacle point nearer than ``distance_m`` less
+    max(DOUBT_REL·d, DOUBT_ABS_M), and on the other by the surface found (no nearer than
+    that), where the line shows in STEADY_SEEN or more of the STEADY_FLANK·``min_points``
+    columns beside the hole; and the hole holds ``min_points`` or more columns with no
+    point of any line beyond ``distance_m`` plus that margin within GAP_RUN of them. Such a
+    line would show the surface found in the hole too: it does not, and a nearer surface
+    adjoins it, so that surface may go on there, too dark to return the line. A weak line
+    is not :func:`unseen_columns`' strong one (GAP_SNR): a dark glossy post 3.4 m away
+    before a wall at 3.8 m, met by the only sheet at SNR 8-10 (1.6-2 snr_min), returned
+    it in 3 of its 60 columns; the wall, seen in every column beside them, was read
+    (4.28 m for 3.76 m, every map)."""
+    holes, span = view.holes, view.spans[s]
+    if holes is None or span is None or view.evidence.seen is None:
+        return False
+    margin = doubt_margin_m(distance_m)
+    near = ((holes.nearer_m < distance_m - margin) & ~holes.noisy
+            & (holes.start <= span[1]) & (holes.stop > span[0])
+            & (holes.stop - holes.start >= settings.min_points))
+    if not near.any():
+        return False
+    points, seen = view.points, view.evidence.seen
+    width = seen.shape[1]
+    far = points.column[(points.range_m > distance_m + margin) & (points.column < width)]
+    open_ = np.zeros(width, dtype=np.bool_)
+    for shift in range(-GAP_RUN, GAP_RUN + 1):
+        open_[np.clip(far + shift, 0, width - 1)] = True
+    flank = STEADY_FLANK * settings.min_points
+    for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
+                              strict=True):
+        if np.count_nonzero(~open_[start:stop]) < settings.min_points:
+            continue
+        on_line = points.obstacle & (points.line == k)
+        for side in (slice(max(start - flank, 0), start), slice(stop, min(stop + flank, width))):
+            beside = on_line & (points.column >= side.start) & (points.column < side.stop)
+            if (side.stop - side.start == flank
+                    and np.count_nonzero(seen[k, side]) >= STEADY_SEEN * flank
+                    and np.count_nonzero(beside)
+                    and np.median(points.range_m[beside]) >= distance_m - margin):
+                return True
+    return False
+
+
 def _ints(values: npt.NDArray[np.generic]) -> IntArray:
     """``values`` as the kernels take them: int64 (no copy when they are)."""
     return np.asarray(values, dtype=np.int64)
@@ -994,10 +1044,11 @@ def _verdict(s: int, view: MapView, layout: SectorLayout, settings: SectorSettin
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if (missing_on_surface(s, view, found.distance_m, settings) >= settings.min_points
             or lost_before(s, view, found.distance_m, settings)
-            or hole_before(s, view, found.distance_m, settings)):
+            or hole_before(s, view, found.distance_m, settings)
+            or dim_hole(s, view, found.distance_m, settings)):
         # a line missing from the surface, or one the ground returns elsewhere lost
-        # before it over the whole sector or between bright ground returns: something
-        # lower stands there, unseen
+        # before it over the whole sector or between bright ground returns, or a steady
+        # line's hole beside a nearer point: something stands there, unseen
         return SectorDistance(s, bearing, SectorState.INVALID, 0.0, conf, found.support)
     if at_the_near_end(s, view, settings):
         # a surface reaching the near end of the range may stand nearer, unseen
