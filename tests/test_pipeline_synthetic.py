@@ -122,6 +122,16 @@ def test_feature_a_return_just_beyond_the_range_is_no_evidence_of_free(
     assert {s.state for s in result.measurement.sectors} == states
 
 
+def _free_floor_judge():
+    """The sector judge and prior of a unit over the free floor (z_max 6 m, both sheets
+    meet it within the range), and (K, W) where each line is expected on the ground."""
+    scene = SCENES["free_floor"]
+    config = replace(CONFIG, z_max_m=6.0)
+    pipe = Pipeline(config, scene.calibration, scene.mounting, config.layout())
+    judge, prior = pipe._judge, pipe._prior
+    return judge, prior, judge._expected_on_ground(prior)
+
+
 def test_feature_a_line_counts_as_returned_by_the_ground_only_where_it_is() -> None:
     """evidence.SectorJudge._returned: on the free floor (z_max 6 m, both sheets meet it
     within the range), a line found on the ground in 30 % of the columns where it is
@@ -131,11 +141,7 @@ def test_feature_a_line_counts_as_returned_by_the_ground_only_where_it_is() -> N
     (under LOST_SNR·snr_min), or nowhere, it is not, and its absence tells nothing.
     Checked to fail with the fraction test and with the SNR test taken out (each
     admitted its case)."""
-    scene = SCENES["free_floor"]
-    config = replace(CONFIG, z_max_m=6.0)
-    pipe = Pipeline(config, scene.calibration, scene.mounting, config.layout())
-    judge, prior = pipe._judge, pipe._prior
-    quiet = judge._expected_on_ground(prior)
+    judge, prior, quiet = _free_floor_judge()
     columns = np.flatnonzero(quiet[1])
     assert columns.size > 100
 
@@ -165,11 +171,7 @@ def test_feature_a_returned_line_counts_where_its_return_outshines_the_band_nois
     low_crate_comb_read_one_line_up_drawn); a band 200 times noisier, or blinded, does
     not. Checked to fail with the found columns left out of the count (no line returned)
     and with only the quiet bands showing a return (the hits inf under the noisy band)."""
-    scene = SCENES["free_floor"]
-    config = replace(CONFIG, z_max_m=6.0)
-    pipe = Pipeline(config, scene.calibration, scene.mounting, config.layout())
-    judge, prior = pipe._judge, pipe._prior
-    expected = judge._expected_on_ground(prior)
+    judge, prior, expected = _free_floor_judge()
     columns = np.flatnonzero(expected[1])
     found, lost = columns[:int(0.3 * columns.size)], columns[int(0.3 * columns.size):]
     on_ground = (np.ones(found.size, np.int64), found, np.full(found.size, 400.0))
