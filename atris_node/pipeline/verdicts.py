@@ -592,9 +592,7 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
     far = np.concatenate([a.inside.column[a.inside.range_m > distance_m + margin]
                           for a in around])
     width = view.evidence.sector.size
-    open_ = np.zeros(width, dtype=np.bool_)
-    for shift in range(-GAP_RUN, GAP_RUN + 1):
-        open_[np.clip(far + shift, 0, width - 1)] = True
+    open_ = _open_columns(far, width)
     longest = 0
     for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
                               strict=True):
@@ -607,6 +605,15 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
         if (hole & view.columns[s]).any():
             longest = max(longest, int(hole.sum()))
     return longest
+
+
+def _open_columns(far: IntArray, width: int) -> BoolArray:
+    """(width,) the columns within GAP_RUN of a point farther than the distance found
+    (``far``, its columns): a line seen beyond is open that far at its height."""
+    open_ = np.zeros(width, dtype=np.bool_)
+    for shift in range(-GAP_RUN, GAP_RUN + 1):
+        open_[np.clip(far + shift, 0, width - 1)] = True
+    return open_
 
 
 def dim_hole(s: int, view: MapView, distance_m: float, settings: SectorSettings) -> bool:
@@ -633,10 +640,8 @@ def dim_hole(s: int, view: MapView, distance_m: float, settings: SectorSettings)
         return False
     points, seen = view.points, view.evidence.seen
     width = seen.shape[1]
-    far = points.column[(points.range_m > distance_m + margin) & (points.column < width)]
-    open_ = np.zeros(width, dtype=np.bool_)
-    for shift in range(-GAP_RUN, GAP_RUN + 1):
-        open_[np.clip(far + shift, 0, width - 1)] = True
+    open_ = _open_columns(
+        points.column[(points.range_m > distance_m + margin) & (points.column < width)], width)
     flank = STEADY_FLANK * settings.min_points
     for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
                               strict=True):
