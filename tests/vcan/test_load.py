@@ -20,7 +20,8 @@ receive-side rule of the two gaps around a frame, asserted before, failed a run 
 
 What is asserted is what holds on the test VM (no KVM, on a shared host) at the load the
 babblers actually reached (recorded, not asserted: it depends on the host;
-MIN_FRAMES_PER_S only checks that the babblers ran and shared the bus): the publisher
+MIN_BABBLE_PER_UNIT_FRAME only checks that the babblers ran and shared the bus, as a
+count against the unit's own frames in the same window, never a rate): the publisher
 keeps cycling (a liveness count, no timing bound) without a send error, and cycles
 started late are flagged. The achieved load, the period jitter and the count of late
 frames without the bit are recorded (``record_property``) and discussed in
@@ -63,11 +64,14 @@ PERIOD_S = 0.05
 UPDATE_S = 0.5
 TOLERANCE_S = PERIOD_S / 4
 ENCODE_SLACK_S = 0.010
-#: the babble that makes the window a loaded one, frames/s: as many frames as the unit
-#: itself sends (five per 50 ms cycle), so that the bus was shared; not a load target (cangen
-#: reached 440 and 595 frames/s in VM runs beside a busy loop, 1896-3708 in others): the
-#: unit's behaviour is asserted at the load reached, which is recorded
-MIN_FRAMES_PER_S = 100.0
+#: the babble that makes the window a loaded one: at least as many babble frames as the
+#: unit itself sent in the same window (five per cycle, one of them Status), so that the
+#: bus was shared. A count ratio, not a rate: a starved machine slows the unit and the
+#: babblers alike (cangen reached 440 and 595 frames/s in VM runs beside a busy loop,
+#: 1722-3708 in others); the unit's behaviour is asserted at the load reached, which is
+#: recorded
+MIN_BABBLE_PER_UNIT_FRAME = 1.0
+UNIT_FRAMES_PER_CYCLE = 5
 STATUS_ID = frame_id(5, FrameKind.STATUS)
 DEADLINE_MISS_BIT = 0x08  # byte 2, bit 3 of the Status frame (Fault_DeadlineMiss)
 
@@ -192,7 +196,7 @@ def test_publisher_keeps_its_period_or_reports_misses_at_90_percent_load(
                 time.sleep(0.5)
                 counter.start_window()
                 loaded = status_frames(bus, 6.0)
-                rate = counter.rate()
+                rate, babbled = counter.rate(), len(counter.times)
         else:
             babblers = [spawn("periodic", "vcan0", hex(i),
                               str(len(BABBLERS) / TARGET_FRAMES_PER_S)) for i in BABBLERS]
@@ -201,6 +205,7 @@ def test_publisher_keeps_its_period_or_reports_misses_at_90_percent_load(
             loaded = status_frames(bus, 6.0)
             reports = [b.stop() for b in babblers]
             rate = sum(r["sent"] / max(sum(r["periods"]), 1e-9) for r in reports)
+            babbled = sum(int(r["sent"]) for r in reports)
         done = unit.stop()
     loaded_periods, quiet_periods = periods(loaded), periods(quiet)
     late = [p for p in loaded_periods if p > PERIOD_S + TOLERANCE_S]
@@ -220,7 +225,11 @@ def test_publisher_keeps_its_period_or_reports_misses_at_90_percent_load(
                                                "cycles": len(loaded_periods),
                                                "send_errors": done["send_errors"],
                                                "sent_late": len(done["late_sends"])})
-    assert rate >= MIN_FRAMES_PER_S, f"the babblers did not run: {rate:.0f} frames/s"
+    unit_frames = UNIT_FRAMES_PER_CYCLE * len(loaded)
+    record_property("babble_per_unit_frame", round(babbled / max(unit_frames, 1), 2))
+    assert babbled >= MIN_BABBLE_PER_UNIT_FRAME * unit_frames, (
+        f"the babblers did not share the bus: {babbled} babble frames against the unit's "
+        f"{unit_frames} in the window ({rate:.0f} frames/s)")
     # the publisher keeps cycling (a quarter of its nominal count: a liveness check, not a
     # timing bound; the mean period a starved VM allows is recorded above, not asserted)
     assert len(loaded) >= 0.25 * 6.0 / PERIOD_S, f"only {len(loaded)} cycles in 6 s under load"
