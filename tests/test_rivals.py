@@ -116,6 +116,33 @@ def test_feature_anchors_that_disagree_do_not_vouch_for_the_columns_between(
     assert (ambiguous[:, 200:260] >= 0).any(axis=0).all()
 
 
+def test_feature_a_reference_no_stripe_lies_on_does_not_settle_a_tie(
+        pipe: Pipeline) -> None:
+    """The box (a tie between its true and its shifted comb without continuity) beside a
+    wall anchored on its left whose comb lies 6 px lower: another surface, on whose rows
+    none of the box's stripes lies (the nearest 5 px off, more than BRIDGE_PX). The true
+    comb is nearer the wall's rows (70 px in all against 130 px), but that is the lesser
+    of two misfits, not a fit: the box columns stay ambiguous and keep no sample whose
+    line had a rival. Beside the wall's own comb (the stripes of lines 0-2 on it) the
+    same box is settled (test_feature_anchored_neighbours_settle_the_tie_and_never_copy_a_shift).
+    The stress scene thin_pole_clipped_stripes_read_one_line_up_drawn is this case: a
+    pole's two stripes settled one line off by other surfaces' rows, 1.58 m for
+    0.79 m. (Checked to fail with the rule taken out of ``rivals_kernels.unique``, the
+    ``_off_reference`` test: all 40 box columns kept the whole comb, none ambiguous.)"""
+    lower = [w + 6 for w in WALL]
+    peaks = np.full((12, 640), -1, np.int64)
+    rows = np.full((8, 640), -1, np.int64)
+    peaks[:, 100:200], rows[:, 100:200] = _column(lower)[:, None], np.array(lower)[:, None]
+    peaks[:, 200:240] = _column(BOX_PEAKS)[:, None]
+    rows[:, 200:240] = np.array(BOX_TRUTH)[:, None]
+    out, ambiguous = unique_identity(peaks, pipe.bands, rows, pipe._prior)
+    assert (out[:, 100:200] == np.array(lower)[:, None]).all()
+    # the three stripes the two combs share are dropped, each with its nearer hypothesis
+    assert (out[:3, 200:240] == -1).all()
+    assert (ambiguous[:3, 200:240] == np.array([[1], [2], [3]])).all()
+    assert (out[4:, 200:240] == np.array(BOX_TRUTH[4:])[:, None]).all()
+
+
 def test_feature_isolated_maxima_do_not_enter_identity() -> None:
     """A maximum with no maximum within 6 rows in the 2 columns each side is dropped
     before identity and counted; a stripe is kept, and each column stays sorted down
@@ -269,7 +296,8 @@ def _rounds_by_definition(peaks: np.ndarray, bands: Any, rows: np.ndarray,
                           prior: Any) -> tuple[np.ndarray, np.ndarray]:
     """unique_identity as the plain loop of passes: every column with a peak without
     continuity, then rounds testing every column not anchored with the reference of the
-    anchored ones, until a round anchors nothing new."""
+    anchored ones (where one of its stripes lies on it), until a round anchors nothing
+    new."""
     from atris_node.pipeline import rivals as r
     from atris_node.pipeline.identity import _COSTS, prior_arrays
 
@@ -297,6 +325,9 @@ def _rounds_by_definition(peaks: np.ndarray, bands: Any, rows: np.ndarray,
             break
         left = again.size
         ref = r._reference(rows, anchored)
+        # a column none of whose stripes lies on its reference is not settled by it
+        on_ref = ((rows >= 0) & (np.abs(rows - ref) <= r.BRIDGE_PX)).any(axis=0)
+        again = again[on_ref[again]]
         ambiguous[:, again] = -1
         test(again, ref[order], np.zeros(0, dtype=np.bool_))
     rows[ambiguous >= 0] = -1

@@ -197,13 +197,6 @@ KNOWN_WRONG: dict[str, str] = {
                                                         "(4.10 m) read one line down, at "
                                                         "1.45 m, where the prior ties and "
                                                         "continuity settles it (map 3)",
-    "crate_top_masked_pair_comb_read_one_line_up_drawn": "far: a masked pair's merged stripe "
-                                                         "on a crate top; the alignment "
-                                                         "reads the comb one line up against "
-                                                         "the prior: 1.32 m for 0.97 m",
-    "thin_pole_clipped_stripes_read_one_line_up_drawn": "far: a thin pole's two stripes; the "
-                                                        "prior ties, continuity picks the "
-                                                        "comb one line off: 1.58 m for 0.79 m",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",

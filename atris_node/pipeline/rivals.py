@@ -32,7 +32,11 @@ one unexplained line) is not tested again, and stays ambiguous. A reference is r
 and rows cannot tell a comb from the same comb shifted by one line at another range: a
 far box's two stripes taken one line low (0.67 m for a box at 4.1 m) lay within
 MEDIAN_PX of a near pole's comb 120 columns away, and its line medians anchored the
-shift against a prior that preferred the truth by two lines. A peak that still has a
+shift against a prior that preferred the truth by two lines. Nor does a reference
+settle a column none of whose stripes lies within BRIDGE_PX of it: it is then other
+surfaces' rows, and the identity nearer to them is the lesser of two misfits, not a fit
+(a thin pole's two stripes 0.79 m away, tied between the comb and the comb one line off,
+were settled for the latter by other surfaces' rows: 1.58 m). A peak that still has a
 rival is dropped and counted ambiguous, with its nearest hypothesis: a sector cannot be
 NO_RETURN with it, nor VALID at a distance it may stand as near as.
 """

@@ -685,6 +685,19 @@ def _still_open(ambiguous: IntArray, anchored: BoolArray, tested: IntArray, n_te
 
 
 @uncounted
+def _off_reference(rows: IntArray, by_line: FloatArray, c: int, i: int, near_px: float
+                   ) -> bool:
+    """True when none of the chosen rows of column c (``rows`` (K, W) by line) lies
+    within ``near_px`` of its reference, column i of ``by_line`` (K, n): no stripe of the
+    column continues an anchored one, the reference is other surfaces' rows, and a rival
+    farther from it is the lesser of two misfits, not a worse fit."""
+    for k in range(rows.shape[0]):
+        if rows[k, c] >= 0 and abs(rows[k, c] - by_line[k, i]) <= near_px:
+            return False
+    return True
+
+
+@uncounted
 def _same_reference(ref: FloatArray, by_line: FloatArray, order: IntArray, c: int,
                     i: int) -> bool:
     """True when column c of ``ref`` (K, W, image ``order``) is column i of ``by_line``
@@ -766,6 +779,8 @@ def unique(peaks: IntArray, lo: IntArray, hi: IntArray, order: IntArray, rows: I
             c = columns[i]
             if outranked[c] or _same_reference(ref, by_line, order, c, i):
                 continue  # the same test again: the same result
+            if _off_reference(rows, by_line, c, i, bridge_px):
+                continue  # another surface's rows: they cannot settle this column's tie
             for k in range(k_count):
                 ref[k, c] = by_line[order[k], i]
                 ambiguous[k, c] = -1
