@@ -197,6 +197,10 @@ KNOWN_WRONG: dict[str, str] = {
                                                         "(4.10 m) read one line down, at "
                                                         "1.45 m, where the prior ties and "
                                                         "continuity settles it (map 3)",
+    "ground_comb_read_one_line_down_noise_anchored_drawn": "near: a ground comb read one "
+                                                           "line down (1.7-1.9 m where "
+                                                           "nothing stands), anchored by "
+                                                           "edge noise that completes it",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",
