@@ -1365,6 +1365,47 @@ def test_flank_floor_is_numpys_median_of_the_flank() -> None:
         assert peaks_kernels._median_of_7(seven.copy()) == float(np.median(seven))
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.int32, np.float32, np.float64])
+def test_flank_snr_is_the_numpy_form(dtype: type) -> None:
+    """peaks_kernels.flank_snr on random maps (rows near both edges, -1 rows, quantised
+    and fractional values, flat flanks at the σ floor) equals the numpy form: where the
+    tile SNR lies in [lo, hi), per side the rows near..far inside the image, np.median
+    and 1.4826·median absolute deviation, the higher median and the larger σ (at least
+    the floor); the tile SNR elsewhere. (Checked to fail with the lower median taken in
+    place of the higher.)"""
+    from atris_node.pipeline import peaks_kernels
+
+    rng = np.random.default_rng(41)
+    for _ in range(40):
+        height, width = int(rng.integers(6, 60)), int(rng.integers(1, 9))
+        values = rng.normal(0.0, float(rng.choice([0.2, 3.0, 40.0])), (height, width))
+        values[:, : width // 2] = 0.0  # a region left at 0 DN beside a noisy one
+        if dtype in (np.int16, np.int32) or rng.random() < 0.5:
+            values = np.rint(values)
+        values = values.astype(dtype)
+        rows = rng.integers(-1, height, (3, width))
+        near, far = 3, int(rng.integers(3, 13))
+        tile = rng.uniform(0.0, 60.0, rows.shape)
+        got = peaks_kernels.flank_snr(values, rows, tile, 9.0, 48.0, near, far, 0.5)
+        want = np.zeros(rows.shape)
+        for (i, c), r in np.ndenumerate(rows):
+            if r < 0:
+                continue
+            if not 9.0 <= tile[i, c] < 48.0:
+                want[i, c] = tile[i, c]
+                continue
+            base, sigma = -np.inf, 0.5
+            for step in (-1, 1):
+                side = [r + step * d for d in range(near, far + 1) if 0 <= r + step * d < height]
+                if side:
+                    flank = values[side, c].astype(np.float64)
+                    level = float(np.median(flank))
+                    base = max(base, level)
+                    sigma = max(sigma, 1.4826 * float(np.median(np.abs(flank - level))))
+            want[i, c] = (float(values[r, c]) - (base if np.isfinite(base) else 0.0)) / sigma
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
 # --------------------------------------------------------------------------- radiometry
 # (the too-faint check in one compiled pass, held to its numpy functions)
 

@@ -410,3 +410,38 @@ def test_off_step_runs_is_its_rule_peak_by_peak() -> None:
         expected = _off_step_runs_by_definition(rows, steps)
         assert (out == expected).all()
         assert (removed == ((rows >= 0) & (expected < 0)).sum(axis=0)).all()
+
+
+def _edge_and_flat_maps() -> tuple[np.ndarray, np.ndarray]:
+    """(128, 64) int16 maps with a peak on row 90 of every column: ``edge``, rows 0-89 at
+    0 DN (a region an 8-bit camera leaves dark) over noise of σ 2 DN, the peak 8 DN on the
+    edge (its tile, rows 64-95, mostly the dark part); ``flat``, noise of σ 2 DN
+    everywhere and a stripe of 30 DN."""
+    rng = np.random.default_rng(5)
+    edge = np.zeros((128, 64))
+    edge[90:] = np.rint(rng.normal(0.0, 2.0, (38, 64)))
+    edge[90] = 8.0
+    flat = np.rint(rng.normal(0.0, 2.0, (128, 64)))
+    flat[90] = 30.0
+    return edge.astype(np.int16), flat.astype(np.int16)
+
+
+def test_feature_a_noise_maximum_on_a_dark_edge_is_weak_against_its_own_flanks() -> None:
+    """A tile's σ comes from its quiet part: a noise maximum where a region left at 0 DN
+    meets a noisier one stands at tile SNR 16 (ground_comb_read_one_line_down_noise_anchored_drawn:
+    such maxima completed a ground comb read one line down and anchored it). Against the
+    noise of its own flanks it is weak in most columns, and the identity must stand
+    without it; a stripe of tile SNR 20 in even noise is weak in few. (Checked to fail
+    with FLANK_RATIO set to inf, the flanks never asked: no column weak on the edge.)"""
+    from atris_node.pipeline.peaks import _peak_snr, _weak
+
+    rows = np.full((1, 64), 90, dtype=np.int64)
+    edge, flat = _edge_and_flat_maps()
+    shares = []
+    for values, tile_snr in ((edge, 16.0), (flat, 20.0)):
+        local = noise_map(values, [(0, 128)])
+        assert np.allclose(_peak_snr(values, local, rows), tile_snr, atol=0.5)
+        shares.append(float(_weak(values, local, rows, 6.0).mean()))
+    on_edge, in_even_noise = shares
+    assert on_edge >= 0.75, shares
+    assert in_even_noise <= 0.1, shares

@@ -185,8 +185,6 @@ KNOWN_WRONG: dict[str, str] = {
                                    "sector's 93 columns during a map; its partial code "
                                    "window cancels and they are blank; its far part (1.5 m) "
                                    "is read for its nearest point (1.0 m)",
-    "box_top_comb_shift": "far: a bright box top 0.47 m ahead, its three stripes the only comb "
-                          "in the map, taken four lines off: 1.53 m in map 3",
     "ramp_foot_unresolved_drawn": "far: a 3.1 cm baseline (a row is 0.37 m of range at 2 m); "
                                   "the lines meet a dark ramp's risen part (2.05-2.12 m) "
                                   "within 1.5 rows of their ground rows and its top edge "
@@ -197,10 +195,6 @@ KNOWN_WRONG: dict[str, str] = {
                                                         "(4.10 m) read one line down, at "
                                                         "1.45 m, where the prior ties and "
                                                         "continuity settles it (map 3)",
-    "ground_comb_read_one_line_down_noise_anchored_drawn": "near: a ground comb read one "
-                                                           "line down (1.7-1.9 m where "
-                                                           "nothing stands), anchored by "
-                                                           "edge noise that completes it",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",

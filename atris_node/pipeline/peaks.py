@@ -62,6 +62,24 @@ SATURATED_SIGMA_PX = 0.5
 SATURATION_WINDOW_PX = 8
 #: a peak below WEAK_SNR·snr_min is weak: identity must also stand without it
 WEAK_SNR = 1.5
+#: px; a peak's flanks, where its own noise is measured: rows FLANK_NEAR_PX to
+#: FLANK_FAR_PX above and below it (a stripe has fallen to about 1 % at 3 px, σ ≤ 1.2 px)
+FLANK_NEAR_PX, FLANK_FAR_PX = 3, 12
+#: a peak's SNR against its flanks FLANK_RATIO or more times below its SNR against its
+#: tile says the tile's σ (taken from its quiet part) is not this peak's noise. On the
+#: noise maxima where a region an 8-bit camera leaves at 0 DN meets a noisier one, the
+#: ratio was 3 to 9; on the shipped scenes' peaks weak against their flanks but not their
+#: tiles (4 maps each), its median is 1.4-1.6 and 2.5 or more for 1-14 % of them (ten
+#: rows give a noisy σ; a neighbouring stripe in a flank counts as noise too): those
+#: must then be needless for the identity, which changed no shipped sector-frame
+FLANK_RATIO = 2.5
+#: DN; the least σ of a peak's flanks (the map's quantum is 1 DN)
+FLANK_FLOOR_DN = 0.5
+#: peaks at FLANK_SNR_CAP·snr_min or more against their tile are not asked their flanks:
+#: a noise maximum stands at a few σ of its true noise, and the tile's σ was at most a
+#: ninth of that where measured; a bright stripe's flanks hold its own tails (a clipped
+#: one's, its plateau), not noise
+FLANK_SNR_CAP = 8.0
 #: peaks kept per column beyond one per line (reflections, foreign light)
 EXTRA_PEAKS = 4
 #: a stripe's flanks (:func:`one_sided`) are looked at from EDGE_NEAR_PX rows away out to
@@ -383,7 +401,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         peaks, edges = set_aside(peaks, steps)
         lone = lone + moved + edges  # no sample, no evidence of free space either
         identity = robust_identity(
-            peaks, lambda r: _peak_snr(values, local, r) < WEAK_SNR * settings.snr_min,
+            peaks, lambda r: _weak(values, local, r, settings.snr_min),
             bands, settings.min_separation_px, prior, aligned=aligned)
         rows, unsure, tied = identity.rows, identity.unsure, identity.tied
         rows, on_steps = off_step_runs(rows, step_rows)
@@ -496,6 +514,27 @@ def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> Floa
                                        np.asarray(rows, dtype=np.int64), local.tile_row,
                                        local.background_tiles, local.sigma_tiles,
                                        NOISE_TILE_PX))
+
+
+def _weak(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray,
+          snr_min: float) -> BoolArray:
+    """(., W) True at the ``rows`` (., W) of each column whose peak is weak: an SNR under
+    WEAK_SNR·``snr_min`` against its tile (:func:`_peak_snr`) or, where that SNR is
+    FLANK_RATIO or more times its SNR against its own flanks
+    (:func:`atris_node.pipeline.peaks_kernels.flank_snr`; asked only below
+    FLANK_SNR_CAP·``snr_min``), against its flanks. A tile's σ
+    comes from its quiet part: where a dark region an 8-bit camera leaves at 0 DN meets a
+    noisier one, noise maxima on the edge stood at tile SNR 10-16 and completed a ground
+    comb read one line down, which then anchored it in every column
+    (ground_comb_read_one_line_down_noise_anchored_drawn: 1.7-1.9 m where nothing
+    stands). True also where a row is -1 (the caller masks them)."""
+    tile = _peak_snr(values, local, rows)
+    flank = np.asarray(kernels.flank_snr(kernels.map_values(values),
+                                         np.asarray(rows, dtype=np.int64), tile,
+                                         WEAK_SNR * snr_min, FLANK_SNR_CAP * snr_min,
+                                         FLANK_NEAR_PX, FLANK_FAR_PX, FLANK_FLOOR_DN))
+    own = (flank < tile) & (tile >= FLANK_RATIO * flank)
+    return np.where(own, flank, tile) < WEAK_SNR * snr_min
 
 
 def _unsampled(identified: IntArray, samples: LineSamples) -> IntArray:

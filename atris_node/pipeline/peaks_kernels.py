@@ -662,6 +662,67 @@ def peak_snr(values: npt.NDArray[np.generic], rows: IntArray, tile_row: IntArray
     return out
 
 
+@uncounted
+def _sorted_median(kept: FloatArray, n: int) -> float:
+    """The median of the ascending ``kept[:n]`` (n >= 1), as np.median takes it."""
+    if n % 2:
+        return kept[n // 2]
+    return (kept[n // 2 - 1] + kept[n // 2]) / 2.0
+
+
+def _flank_signatures() -> list[Any]:
+    """Signatures of :func:`flank_snr`, per map dtype, writable or read-only."""
+    i64, f64 = types.int64, types.float64
+    out = types.Array(f64, 2, "C")
+    return [out(types.Array(dtype, 2, "C", readonly=readonly), types.Array(i64, 2, "A"),
+                types.Array(f64, 2, "A"), f64, f64, i64, i64, f64)
+            for dtype in (types.int16, types.int32, types.float32, f64)
+            for readonly in (False, True)]
+
+
+@kernel(_flank_signatures())
+def flank_snr(values: npt.NDArray[np.generic], rows: IntArray, tile: FloatArray,
+              lo: float, hi: float, near: int, far: int, floor_dn: float) -> FloatArray:
+    """(., W) SNR of ``values`` (H, W) at the ``rows`` (., W) of each column against its
+    own flanks, where their SNR against their tiles ``tile`` (., W) lies in ``[lo, hi)``
+    (``tile`` itself elsewhere, 0.0 where a row is -1): the value over the higher of the
+    medians of the rows ``near`` to ``far`` above it and below it (those inside the
+    image; a side with none does not count), in the larger of their σ (1.4826 times the
+    median absolute deviation), at least ``floor_dn``. A row with no flank row inside
+    the image gets the value over 0 in ``floor_dn``."""
+    height = values.shape[0]
+    out = np.zeros(rows.shape)
+    kept = np.empty(far - near + 1)
+    for i in range(rows.shape[0]):
+        for c in range(rows.shape[1]):
+            r = rows[i, c]
+            if r < 0:
+                continue
+            if not lo <= tile[i, c] < hi:
+                out[i, c] = tile[i, c]
+                continue
+            base = -np.inf
+            sigma = floor_dn
+            for step in (-1, 1):
+                n = 0
+                for d in range(near, far + 1):
+                    q = r + step * d
+                    if 0 <= q < height:
+                        insert_sorted(kept, n, np.float64(values[q, c]))
+                        n += 1
+                if n == 0:
+                    continue
+                level = _sorted_median(kept, n)
+                for a in range(n):
+                    kept[a] = abs(kept[a] - level)
+                for a in range(1, n):
+                    insert_sorted(kept, a, kept[a])
+                base = max(base, level)
+                sigma = max(sigma, 1.4826 * _sorted_median(kept, n))
+            out[i, c] = (np.float64(values[r, c]) - (base if base > -np.inf else 0.0)) / sigma
+    return out
+
+
 def _edge_signatures() -> list[Any]:
     """Signatures of :func:`one_sided`, per map dtype, writable or read-only."""
     i64, f32, f64, b1 = types.int64, types.float32, types.float64, types.boolean
@@ -1296,6 +1357,8 @@ def warm_up() -> None:
     peak_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
              np.zeros(4, dtype=i64), np.zeros((1, 1), dtype=np.float32),
              np.ones((1, 1), dtype=np.float32), 32)
+    flank_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64), np.zeros((1, 1)),
+              0.0, 1.0, 1, 2, 0.5)
     rows = np.array([0], dtype=i64), np.array([4], dtype=i64)
     rows_range(np.zeros((4, 3), dtype=np.int16), *rows)
     subsample_counts(np.zeros((4, 3), dtype=np.int16), *rows, 0, 1)
