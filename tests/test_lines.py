@@ -441,7 +441,27 @@ def test_feature_a_noise_maximum_on_a_dark_edge_is_weak_against_its_own_flanks()
     for values, tile_snr in ((edge, 16.0), (flat, 20.0)):
         local = noise_map(values, [(0, 128)])
         assert np.allclose(_peak_snr(values, local, rows), tile_snr, atol=0.5)
-        shares.append(float(_weak(values, local, rows, 6.0).mean()))
+        shares.append(float(_weak(values, local, rows, rows, 6.0).mean()))
     on_edge, in_even_noise = shares
     assert on_edge >= 0.75, shares
     assert in_even_noise <= 0.1, shares
+
+
+def test_feature_a_neighbouring_stripe_is_no_noise_of_a_peak_s_flanks() -> None:
+    """Two sheets 0.7 deg apart put their stripes 8 rows apart: each lies in the other's
+    flank rows. The rows within 3 of another peak are left out of a flank, so neither
+    stripe (tile SNR 20 in even noise) is weak against its flanks (a batch scene with
+    such a pair in sunlight, s26026, lost all its VALID sector-frames while they
+    counted). (Checked to fail with no other peak handed to the flank pass: every
+    column weak.)"""
+    from atris_node.pipeline.peaks import _weak
+
+    rng = np.random.default_rng(7)
+    values = rng.normal(0.0, 2.0, (128, 64))
+    for centre in (90, 98):  # stripes of σ 1.5 px, 60 DN
+        for d in range(-5, 6):
+            values[centre + d] += 60.0 * np.exp(-d * d / (2 * 1.5**2))
+    values = np.rint(values).astype(np.int16)
+    rows = np.array([[90] * 64, [98] * 64], dtype=np.int64)
+    local = noise_map(values, [(0, 128)])
+    assert _weak(values, local, rows, rows, 6.0).mean() <= 0.05

@@ -185,6 +185,8 @@ KNOWN_WRONG: dict[str, str] = {
                                    "sector's 93 columns during a map; its partial code "
                                    "window cancels and they are blank; its far part (1.5 m) "
                                    "is read for its nearest point (1.0 m)",
+    "box_top_comb_shift": "far: a bright box top 0.47 m ahead, its three stripes the only comb "
+                          "in the map, taken four lines off: 1.53 m in map 3",
     "ramp_foot_unresolved_drawn": "far: a 3.1 cm baseline (a row is 0.37 m of range at 2 m); "
                                   "the lines meet a dark ramp's risen part (2.05-2.12 m) "
                                   "within 1.5 rows of their ground rows and its top edge "

@@ -63,15 +63,16 @@ SATURATION_WINDOW_PX = 8
 #: a peak below WEAK_SNR·snr_min is weak: identity must also stand without it
 WEAK_SNR = 1.5
 #: px; a peak's flanks, where its own noise is measured: rows FLANK_NEAR_PX to
-#: FLANK_FAR_PX above and below it (a stripe has fallen to about 1 % at 3 px, σ ≤ 1.2 px)
+#: FLANK_FAR_PX above and below it (a stripe has fallen to about 1 % at 3 px, σ ≤ 1.2 px),
+#: less those within FLANK_NEAR_PX of another peak (a neighbouring stripe is not noise)
 FLANK_NEAR_PX, FLANK_FAR_PX = 3, 12
 #: a peak's SNR against its flanks FLANK_RATIO or more times below its SNR against its
 #: tile says the tile's σ (taken from its quiet part) is not this peak's noise. On the
-#: noise maxima where a region an 8-bit camera leaves at 0 DN meets a noisier one, the
-#: ratio was 3 to 9; on the shipped scenes' peaks weak against their flanks but not their
-#: tiles (4 maps each), its median is 1.4-1.6 and 2.5 or more for 1-14 % of them (ten
-#: rows give a noisy σ; a neighbouring stripe in a flank counts as noise too): those
-#: must then be needless for the identity, which changed no shipped sector-frame
+#: noise maxima where a region an 8-bit camera leaves at 0 DN meets a noisier one, its
+#: median was 4.5 (2.5 or more for 92 % of them); on the shipped scenes' peaks weak
+#: against their flanks but not their tiles (4 maps each), 1.4-1.6, and 2.5 or more for
+#: 0.5-13 % of them (ten rows give a noisy σ): those must then be needless for the
+#: identity, which changed no shipped sector-frame
 FLANK_RATIO = 2.5
 #: DN; the least σ of a peak's flanks (the map's quantum is 1 DN)
 FLANK_FLOOR_DN = 0.5
@@ -401,7 +402,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
         peaks, edges = set_aside(peaks, steps)
         lone = lone + moved + edges  # no sample, no evidence of free space either
         identity = robust_identity(
-            peaks, lambda r: _weak(values, local, r, settings.snr_min),
+            peaks, lambda r: _weak(values, local, r, peaks, settings.snr_min),
             bands, settings.min_separation_px, prior, aligned=aligned)
         rows, unsure, tied = identity.rows, identity.unsure, identity.tied
         rows, on_steps = off_step_runs(rows, step_rows)
@@ -516,7 +517,7 @@ def _peak_snr(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray) -> Floa
                                        NOISE_TILE_PX))
 
 
-def _weak(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray,
+def _weak(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray, peaks: IntArray,
           snr_min: float) -> BoolArray:
     """(., W) True at the ``rows`` (., W) of each column whose peak is weak: an SNR under
     WEAK_SNR·``snr_min`` against its tile (:func:`_peak_snr`) or, where that SNR is
@@ -530,7 +531,8 @@ def _weak(values: npt.NDArray[Any], local: NoiseMap, rows: IntArray,
     stands). True also where a row is -1 (the caller masks them)."""
     tile = _peak_snr(values, local, rows)
     flank = np.asarray(kernels.flank_snr(kernels.map_values(values),
-                                         np.asarray(rows, dtype=np.int64), tile,
+                                         np.asarray(rows, dtype=np.int64),
+                                         np.asarray(peaks, dtype=np.int64), tile,
                                          WEAK_SNR * snr_min, FLANK_SNR_CAP * snr_min,
                                          FLANK_NEAR_PX, FLANK_FAR_PX, FLANK_FLOOR_DN))
     own = (flank < tile) & (tile >= FLANK_RATIO * flank)

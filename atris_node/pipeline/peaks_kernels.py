@@ -670,19 +670,31 @@ def _sorted_median(kept: FloatArray, n: int) -> float:
     return (kept[n // 2 - 1] + kept[n // 2]) / 2.0
 
 
+@uncounted
+def _by_a_peak(peaks: IntArray, c: int, q: int, r: int, reach: int) -> bool:
+    """True when row ``q`` lies within ``reach`` rows of one of column c's ``peaks``
+    (-1 padded) other than the one on row ``r``."""
+    for k in range(peaks.shape[0]):
+        p = peaks[k, c]
+        if p >= 0 and p != r and abs(q - p) < reach:
+            return True
+    return False
+
+
 def _flank_signatures() -> list[Any]:
     """Signatures of :func:`flank_snr`, per map dtype, writable or read-only."""
     i64, f64 = types.int64, types.float64
     out = types.Array(f64, 2, "C")
     return [out(types.Array(dtype, 2, "C", readonly=readonly), types.Array(i64, 2, "A"),
-                types.Array(f64, 2, "A"), f64, f64, i64, i64, f64)
+                types.Array(i64, 2, "A"), types.Array(f64, 2, "A"), f64, f64, i64, i64, f64)
             for dtype in (types.int16, types.int32, types.float32, f64)
             for readonly in (False, True)]
 
 
 @kernel(_flank_signatures())
-def flank_snr(values: npt.NDArray[np.generic], rows: IntArray, tile: FloatArray,
-              lo: float, hi: float, near: int, far: int, floor_dn: float) -> FloatArray:
+def flank_snr(values: npt.NDArray[np.generic], rows: IntArray, peaks: IntArray,
+              tile: FloatArray, lo: float, hi: float, near: int, far: int,
+              floor_dn: float) -> FloatArray:
     """(., W) SNR of ``values`` (H, W) at the ``rows`` (., W) of each column against its
     own flanks, where their SNR against their tiles ``tile`` (., W) lies in ``[lo, hi)``
     (``tile`` itself elsewhere, 0.0 where a row is -1): the value over the higher of the
@@ -707,7 +719,7 @@ def flank_snr(values: npt.NDArray[np.generic], rows: IntArray, tile: FloatArray,
                 n = 0
                 for d in range(near, far + 1):
                     q = r + step * d
-                    if 0 <= q < height:
+                    if 0 <= q < height and not _by_a_peak(peaks, c, q, r, near):
                         insert_sorted(kept, n, np.float64(values[q, c]))
                         n += 1
                 if n == 0:
@@ -1357,8 +1369,8 @@ def warm_up() -> None:
     peak_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
              np.zeros(4, dtype=i64), np.zeros((1, 1), dtype=np.float32),
              np.ones((1, 1), dtype=np.float32), 32)
-    flank_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64), np.zeros((1, 1)),
-              0.0, 1.0, 1, 2, 0.5)
+    flank_snr(np.zeros((4, 1), dtype=np.int16), np.array([[2]], dtype=i64),
+              np.array([[2]], dtype=i64), np.zeros((1, 1)), 0.0, 1.0, 1, 2, 0.5)
     rows = np.array([0], dtype=i64), np.array([4], dtype=i64)
     rows_range(np.zeros((4, 3), dtype=np.int16), *rows)
     subsample_counts(np.zeros((4, 3), dtype=np.int16), *rows, 0, 1)

@@ -27,8 +27,11 @@ column resolved in one round anchors the next. The continuity never changes an i
 it only settles a tie: replacing the chosen assignment by a cheaper one let a comb that
 a noise maximum had anchored one line off spread along its row. Nor does it overrule the
 physics: a column where, without continuity, a rival costs less than the chosen identity
-by RIVAL_MARGIN_PX or more (*outranked*: the prior prefers another identity by at least
-one unexplained line) is not tested again, and stays ambiguous. A reference is rows only,
+by more than RIVAL_MARGIN_PX (*outranked*: the prior prefers another identity by more
+than one unexplained line) is not tested again, and stays ambiguous. A preference of
+exactly one line is a tie the continuity may settle: the prior misses by one line where
+a faint ground return is not found (indoor_lab's wall beside the box, whose sector would
+go INVALID in 2 maps of 4 if it were outranked). A reference is rows only,
 and rows cannot tell a comb from the same comb shifted by one line at another range: a
 far box's two stripes taken one line low (0.67 m for a box at 4.1 m) lay within
 MEDIAN_PX of a near pole's comb 120 columns away, and its line medians anchored the
@@ -145,8 +148,8 @@ def _unique_rows(peaks: IntArray, edges: tuple[IntArray, IntArray, IntArray],
 class FirstPass:
     """The rival test without continuity (pass 1): ``ambiguous`` (K, W) by line, the
     nearest rival line of each peak that has one (-1 elsewhere), and ``outranked`` (W,)
-    the columns where a rival costs less than the chosen identity by the margin or more:
-    the physics prefers another identity there, and no continuity may settle it."""
+    the columns where a rival costs less than the chosen identity by more than the
+    margin: the physics prefers another identity there, and no continuity may settle it."""
 
     ambiguous: IntArray
     outranked: BoolArray
