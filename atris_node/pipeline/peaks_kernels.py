@@ -671,12 +671,23 @@ def _sorted_median(kept: FloatArray, n: int) -> float:
 
 
 @uncounted
-def _by_a_peak(peaks: IntArray, c: int, q: int, r: int, reach: int) -> bool:
-    """True when row ``q`` lies within ``reach`` rows of one of column c's ``peaks``
-    (-1 padded) other than the one on row ``r``."""
+def _others_near(peaks: IntArray, c: int, r: int, reach: int, out: IntArray) -> int:
+    """Column c's ``peaks`` (-1 padded) other than row ``r`` within ``reach`` rows of it
+    into ``out``; their count."""
+    n = 0
     for k in range(peaks.shape[0]):
         p = peaks[k, c]
-        if p >= 0 and p != r and abs(q - p) < reach:
+        if p >= 0 and p != r and abs(p - r) <= reach:
+            out[n] = p
+            n += 1
+    return n
+
+
+@uncounted
+def _by_a_peak(others: IntArray, n: int, q: int, reach: int) -> bool:
+    """True when row ``q`` lies within ``reach`` rows of one of ``others[:n]``."""
+    for k in range(n):  # noqa: SIM110 (a generator does not compile)
+        if abs(q - others[k]) < reach:
             return True
     return False
 
@@ -705,6 +716,7 @@ def flank_snr(values: npt.NDArray[np.generic], rows: IntArray, peaks: IntArray,
     height = values.shape[0]
     out = np.zeros(rows.shape)
     kept = np.empty(far - near + 1)
+    others = np.empty(peaks.shape[0], dtype=np.int64)
     for i in range(rows.shape[0]):
         for c in range(rows.shape[1]):
             r = rows[i, c]
@@ -715,11 +727,12 @@ def flank_snr(values: npt.NDArray[np.generic], rows: IntArray, peaks: IntArray,
                 continue
             base = -np.inf
             sigma = floor_dn
+            n_others = _others_near(peaks, c, r, far + near, others)
             for step in (-1, 1):
                 n = 0
                 for d in range(near, far + 1):
                     q = r + step * d
-                    if 0 <= q < height and not _by_a_peak(peaks, c, q, r, near):
+                    if 0 <= q < height and not _by_a_peak(others, n_others, q, near):
                         insert_sorted(kept, n, np.float64(values[q, c]))
                         n += 1
                 if n == 0:
