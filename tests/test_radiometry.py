@@ -176,17 +176,23 @@ def _near_phantoms(name: str, config_change: dict[str, float], maps: int = 4,
     return phantoms
 
 
-def _medians_at_6_px(monkeypatch: pytest.MonkeyPatch) -> None:
+def _medians_at_6_px(monkeypatch: pytest.MonkeyPatch, any_reference: bool) -> None:
     """The rival test's line medians vouching for a comb within 6 px of them, as before
-    the fourteenth round (rivals.MEDIAN_PX is 2 px)."""
+    the fourteenth round (rivals.MEDIAN_PX is 2 px); with ``any_reference`` also any
+    reference settling a tie, as before the twenty-first (a reference none of a column's
+    stripes lies on within BRIDGE_PX settles nothing since): BRIDGE_PX unbounded, which
+    also lets every pair of anchors bridge the columns between them."""
     margins = rivals._MARGINS.copy()
     margins[2] = 6.0  # (rival margin, bridge px, median px)
+    if any_reference:
+        margins[1] = np.inf
     monkeypatch.setattr(rivals, "_MARGINS", margins)
 
 
-@pytest.mark.parametrize("name", ["edge_on_glossy_plate_dark_wall", "retro_pole_stray_stripe"])
+@pytest.mark.parametrize(("name", "any_reference"), [("edge_on_glossy_plate_dark_wall", False),
+                                                     ("retro_pole_stray_stripe", True)])
 def test_feature_far_stripes_read_near_are_too_faint_there(
-        name: str, monkeypatch: pytest.MonkeyPatch) -> None:
+        name: str, any_reference: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """edge_on_glossy_plate_dark_wall: a dark wall's upper stripes at 7.6 m taken lines
     low read 0.31-0.94 m (ρ cos i 0.0012 there); retro_pole_stray_stripe: a hanging
     sphere's stripe at 2.05 m taken one line low read 0.71 m. Each gave a near-phantom
@@ -195,12 +201,14 @@ def test_feature_far_stripes_read_near_are_too_faint_there(
     verdicts.at_the_near_end refuses it too: it is taken out for the run without the
     check, which shows the check alone (both thresholds off: the stricter one for samples
     identified by continuity over a rival catches them as well). The rival test's line
-    medians vouch only for a comb within 2 px of them since the fourteenth round, which
-    refuses the second one's shift too (no phantom with the check off): the run without
-    the check has them at the former 6 px."""
+    medians vouch only for a comb within 2 px of them since the fourteenth round, and a
+    reference none of a column's stripes lies on settles no tie since the twenty-first;
+    each refuses the second one's shift too (no phantom with the check off): the run
+    without the check has the medians at the former 6 px, and for the second one
+    BRIDGE_PX unbounded (3 near sector-frames then; 0 with either rule in place)."""
     assert _near_phantoms(name, {}) == 0
     monkeypatch.setattr(verdicts, "at_the_near_end", lambda *args: False)
-    _medians_at_6_px(monkeypatch)
+    _medians_at_6_px(monkeypatch, any_reference=any_reference)
     assert _near_phantoms(name, {"min_reflectance": 0.0, "tied_reflectance": 0.0}) >= 1
 
 
@@ -218,7 +226,7 @@ def test_feature_a_far_comb_continuity_took_for_a_near_one_is_too_faint_there(
     6 px."""
     assert _near_phantoms("retro_pole_stray_stripe", {}, maps=5, seed=3) == 0
     off = {"tied_reflectance": radiometry.MIN_REFLECTANCE}
-    _medians_at_6_px(monkeypatch)
+    _medians_at_6_px(monkeypatch, any_reference=False)
     assert _near_phantoms("retro_pole_stray_stripe", off, maps=5, seed=3) >= 1
 
 
