@@ -796,9 +796,7 @@ def _flank_floor(values: npt.NDArray[np.generic], row: int, c: int, step: int, n
         return _median_of_7(kept)
     for a in range(1, n):  # a flank is a few rows
         insert_sorted(kept, a, kept[a])
-    if n % 2:
-        return kept[n // 2]
-    return (kept[n // 2 - 1] + kept[n // 2]) / 2.0
+    return _sorted_median(kept, n)
 
 
 @uncounted
