@@ -259,6 +259,34 @@ def test_feature_a_line_the_column_does_not_hold_takes_no_unconfirmed_line_media
     assert ref[1:, 700] == pytest.approx(np.array(WALL[1:], float))
 
 
+def test_feature_a_left_out_line_median_needs_every_held_line_tied() -> None:
+    """A left-out line's median prices only the rival that hands it a stripe; where a
+    stripe the column holds has no reference (between anchors that disagree), the chosen
+    line of that stripe pays nothing and the median alone settles the tie: the median
+    stays out. Column 350 holds line 1's stripe (anchors 10 px apart on its two sides)
+    and lines 6-7 tied to their anchored neighbours at 340 (the ground beside a hanging
+    sphere): line 0 gets no median there (hanging_sphere_one_line_read_one_line_down_drawn:
+    the sphere's one stripe at 4.10 m settled one line down by line 0's median from a
+    pole and boxes 1.3-1.4 m away, 1.45 m, VALID in one map). Column 345, holding lines
+    6-7 only, both tied, keeps line 0's median. Checked to fail with the ``loose``
+    condition taken out of rivals_kernels._continuity_columns (line 0 of column 350 got
+    its median, 143)."""
+    rows = np.full((8, 900), -1, np.int64)
+    anchored = np.zeros(900, bool)
+    rows[:, 100:300] = np.array(WALL)[:, None]
+    rows[1, 400:420] = WALL[1] + 10
+    rows[6:, 336:341] = np.array([[290], [330]])
+    anchored[100:300] = anchored[400:420] = anchored[336:341] = True
+    rows[1, 350], rows[6:, 350] = WALL[1] + 2, [290, 330]
+    rows[6:, 345] = [290, 330]
+    ref = _reference(rows, anchored)
+    assert np.isinf(ref[1, 350])  # between anchors that disagree
+    assert ref[6:, 350].tolist() == [290, 330]  # tied to its neighbours
+    assert np.isinf(ref[0, 350])
+    assert ref[0, 345] == WALL[0]
+    assert ref[6:, 345].tolist() == [290, 330]
+
+
 def test_feature_a_line_may_take_a_stripe_from_beyond_z_max_in_the_rival_test(
         pipe: Pipeline) -> None:
     """A line's band ends at its z_max row, but its stripe on a surface beyond the range

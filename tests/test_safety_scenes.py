@@ -193,10 +193,6 @@ KNOWN_WRONG: dict[str, str] = {
                                   "clearly; the top edge (2.41-2.48 m) is read, within a row "
                                   "of range of the risen part, where a wall's foot stripe "
                                   "lies too (every map)",
-    "hanging_sphere_one_line_read_one_line_down_drawn": "near: a hanging sphere's one stripe "
-                                                        "(4.10 m) read one line down, at "
-                                                        "1.45 m, where the prior ties and "
-                                                        "continuity settles it (map 3)",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",

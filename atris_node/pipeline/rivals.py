@@ -290,12 +290,15 @@ def _reference(rows: IntArray, anchored: BoolArray) -> npt.NDArray[np.float64]:
     own range, and lying on one line's median row says only that another surface shows
     that line there (five sheets merged into one stripe on a box top 3 cm below the
     camera lay on line 0's median and read 1.50 m, the farthest of their readings, for
-    1.09 m). Nor for a line the column does not hold, unless a line it holds has a
+    1.09 m). Nor for a line the column does not hold, unless every line it holds has a
     reference: the median of a left-out line only prices the rival that gives that line
     a peak, and with no held line tied to a surface it would settle the tie alone (a far
     comb of three with its lowest line lost on the ground, its held lines between
     anchors that disagree: line 0's median from nearer surfaces took it one line low,
-    2.6 m for 3.66 m)."""
+    2.6 m for 3.66 m); with one held stripe untied it prices only the rival that hands
+    that stripe the left-out line, the chosen line paying nothing (a hanging sphere's
+    one stripe, the ground lines under it tied to their neighbours: line 0's median
+    from a pole and boxes 1.3-1.4 m away took it one line down, 1.45 m for 4.10 m)."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     return np.asarray(rivals_kernels.continuity(
         rows, np.ascontiguousarray(anchored, dtype=np.bool_),

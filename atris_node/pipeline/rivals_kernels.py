@@ -596,11 +596,14 @@ def _continuity_columns(rows: IntArray, anchored: BoolArray, held: IntArray,
                 out[k, i] = ref
     for i in range(n):
         c = columns[i]
-        tied = False  # some line the column holds has a reference
+        tied = False  # some line the column holds has a reference ...
+        loose = False  # ... and none has none
         for k in range(k_count):
             if far[k, i] and off[i]:
                 out[k, i] = np.inf
             tied |= rows[k, c] >= 0 and np.isfinite(out[k, i])
+            loose |= rows[k, c] >= 0 and not np.isfinite(out[k, i])
+        tied &= not loose
         for k in range(k_count):
             if far[k, i] and rows[k, c] < 0 and not tied:
                 out[k, i] = np.inf
@@ -628,11 +631,15 @@ def continuity(rows: IntArray, anchored: BoolArray, columns: IntArray, reach: in
       row more than ``median_px`` off (or no) median, or that holds one line's row at
       most (:func:`_lone_stripe`: a stripe alone in its column lies on every line's
       median row at some range, and the medians are other surfaces' rows); and inf for
-      a line the column does not hold unless some line it holds has a reference (the
+      a line the column does not hold unless every line it holds has a reference (the
       median of a left-out line only prices a rival that gives it a peak; with no held
       line tied to a surface it would decide alone: a far comb with its lowest line
       lost was settled one line low, 2.6 m for 3.66 m, by line 0's median from nearer
-      surfaces).
+      surfaces; and with a held stripe untied, between anchors that disagree, it prices
+      only the rival that gives that stripe the left-out line, while the chosen line
+      pays nothing: a hanging sphere's one stripe at 4.10 m, the ground lines below it
+      tied to their neighbours, was settled one line down at 1.45 m by line 0's median
+      from a pole and boxes 1.3-1.4 m away).
 
     inf in the other columns. The block and line medians are taken only where they are
     needed."""
