@@ -122,7 +122,7 @@ def _reference_by_definition(rows: np.ndarray, anchored: np.ndarray) -> np.ndarr
     """rivals._reference as it was composed before its single kernel: the local row, the
     block median, the bridge, the line's median where the comb lies on the medians and
     the column holds more than one line's row (a lone stripe takes no line median) and,
-    for a line the column does not hold, some line it holds has a reference."""
+    for a line the column does not hold, every line it holds has a reference."""
     from atris_node.pipeline import identity_kernels
     from atris_node.pipeline.identity import CONTINUITY_BLOCK, MIN_BLOCK_SAMPLES, MIN_LINE_SAMPLES
     from atris_node.pipeline.rivals import CONTINUITY_REACH, MEDIAN_PX
@@ -140,7 +140,8 @@ def _reference_by_definition(rows: np.ndarray, anchored: np.ndarray) -> np.ndarr
     line = np.where((off.any(axis=0) | lone)[None, :], np.inf, line)
     wide = np.where(np.isfinite(block), block, np.where(sides == 2, bridge, line))
     ref = np.where(np.isfinite(local), local, wide)
-    tied = ((rows >= 0) & np.isfinite(ref)).any(axis=0)
+    held = rows >= 0
+    tied = (held & np.isfinite(ref)).any(axis=0) & ~(held & ~np.isfinite(ref)).any(axis=0)
     return np.where(far & (rows < 0) & ~tied[None, :], np.inf, ref)
 
 
@@ -903,10 +904,17 @@ def _line_holes_numpy(points: Any, seen: Any, noisy: Any, bright_snr: float
     flank = np.full((lines, width), np.nan)
     flank[points.line[points.obstacle], points.column[points.obstacle]] = (
         points.range_m[points.obstacle])
+    below = np.full((lines, width), np.nan)  # a low surface flanks opposite an obstacle
+    if points.low is not None:
+        low = points.low & ~points.obstacle
+        below[points.line[low], points.column[low]] = points.range_m[low]
     k, start, stop = _runs_numpy(~seen)
     keep = (start > 0) & (stop < width) & (stop - start >= GAP_RUN)
     k, start, stop = k[keep], start[keep], stop[keep]
     left, right = flank[k, start - 1], flank[k, stop]
+    left_low, right_low = below[k, start - 1], below[k, stop]
+    left, right = (np.where(np.isnan(left) & np.isfinite(right), left_low, left),
+                   np.where(np.isnan(right) & np.isfinite(left), right_low, right))
     flanked = np.isfinite(left) & np.isfinite(right)
     hidden = np.zeros(k.size, dtype=np.bool_)
     if noisy is not None and k.size:
@@ -929,9 +937,9 @@ def _line_holes_numpy(points: Any, seen: Any, noisy: Any, bright_snr: float
 
 def test_line_holes_are_the_numpy_form() -> None:
     """400 random maps of seen lines (holes of every width, at the edges too), noisy
-    bands or none, and points on them (obstacles or not, several in one line and column,
-    bright or not): the compiled LineHoles.of gives the numpy definition's holes, flanks,
-    noisy and bright flags, bitwise."""
+    bands or none, and points on them (obstacles or not, low surfaces' or not, several in
+    one line and column, bright or not): the compiled LineHoles.of gives the numpy
+    definition's holes, flanks, noisy and bright flags, bitwise."""
     from atris_node.pipeline.verdicts import LineHoles, ObstaclePoints
 
     rng = np.random.default_rng(9)
@@ -945,9 +953,10 @@ def test_line_holes_are_the_numpy_form() -> None:
             np.zeros(0, np.int64))
         line, column = k[pick].astype(np.int64), c[pick].astype(np.int64)
         m = line.size
+        low = None if rng.random() < 0.3 else rng.random(m) < rng.uniform(0.0, 1.0)
         points = ObstaclePoints(rng.uniform(0.3, 10.0, m), np.zeros(m, np.int64),
-                                rng.random(m) < rng.choice([0.8, 1.0]), line, column,
-                                np.full(m, 0.01), rng.uniform(6.0, 90.0, m))
+                                rng.random(m) < rng.choice([0.5, 0.8, 1.0]), line, column,
+                                np.full(m, 0.01), rng.uniform(6.0, 90.0, m), None, low)
         snr = float(rng.choice([0.0, 40.0, 60.0, np.inf]))
         got = LineHoles.of(points, seen, noisy, snr)
         expected = _line_holes_numpy(points, seen, noisy, snr)

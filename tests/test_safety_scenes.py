@@ -193,6 +193,10 @@ KNOWN_WRONG: dict[str, str] = {
                                   "clearly; the top edge (2.41-2.48 m) is read, within a row "
                                   "of range of the risen part, where a wall's foot stripe "
                                   "lies too (every map)",
+    "dark_crate_below_unit_comb_read_one_line_up_drawn": "far: a black crate 0.88 m ahead "
+                                                         "below the unit, the top sheet "
+                                                         "over it; its three stripes read "
+                                                         "one line up, 2.3 m (12 of 32)",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",

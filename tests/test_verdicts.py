@@ -546,6 +546,29 @@ def test_feature_a_hole_cut_by_a_sector_boundary_counts_whole() -> None:
         assert out.state is SectorState.VALID and out.distance_m == pytest.approx(4.0), hole
 
 
+def test_feature_a_hole_ending_at_a_low_surface_s_foot_counts() -> None:
+    """Random scene s27022 (stress scene sphere_hole_to_car_foot_drawn): a sphere
+    approaching at 5.3 m/s on the ground, its stripe of one line seen at 1.7 m in one
+    sector and missing over 10 columns, 3 of them in the next, where the line goes on on
+    a car's foot at 2.76 m, 3 cm up (below the clearance, off its ground row). With
+    obstacle points only the hole had one flank, and the line no strong points in the
+    car's sector: the car was read, 2.73 m for the sphere at 1.72 m. Here line 5 is on a
+    plate at 1.5 m in sector 1, missing over columns 29-33, and in sector 0 on a low
+    surface's foot at 4 m, below the clearance (``low``): sector 0 is INVALID; taken for
+    the ground's return (not ``low``), the hole has one flank and the wall's 4 m stands.
+    Checked to fail with the low flank taken out of verdicts_kernels.line_holes, and
+    again with the line's strength taken on obstacle points only (verdicts._returns
+    returning ``inside`` without the low points): VALID at 4 m both times."""
+    for low, state in ((True, SectorState.INVALID), (False, SectorState.VALID)):
+        points, evidence = _plate_past_a_boundary(range(29, 34))
+        foot = (points.line == 5) & (points.column < 29)
+        points = dataclasses.replace(points, obstacle=points.obstacle & ~foot, low=foot & low)
+        out = sector_verdicts(points, evidence, LAYOUT, SETTINGS)[0]
+        assert out.state is state, low
+        if not low:
+            assert out.distance_m == pytest.approx(4.0)
+
+
 def test_feature_lines_below_a_hole_seen_beyond_do_not_clear_it() -> None:
     """Random scene s22038 (stress scene hanging_ball_limb_before_car_drawn): a dark ball
     hanging 0.47-1.10 m up, 1.1 m ahead; the two upper lines on it in the next sector,

@@ -56,6 +56,9 @@ CLEAN_NOISE = 2.0
 #: up, met square on and far brighter, lies a row or more off for the shallow sheets that
 #: meet the ground far off: SectorJudge._returned)
 ON_GROUND_ROWS_PX = 0.5
+#: px; a valid sample below the clearance lying more than this above its sheet's ground
+#: row is a low surface's, not the ground's (twice ON_GROUND_ROWS_PX: peak noise)
+LOW_ROWS_PX = 2 * ON_GROUND_ROWS_PX
 #: m; a foot hidden under a gap to the sheet above taller than this (an obstacle that
 #: size stands there met only at its foot) lets no distance stand beyond where it starts
 #: (:meth:`SectorJudge._foot_reach`); shorter gaps only keep a sector from being free
@@ -152,8 +155,10 @@ class SectorJudge:
         line, column = pick(samples.line), pick(samples.col_px).astype(np.int64)
         obstacle = data.obstacle if sheet is None else self._credible_obstacle(
             data.obstacle, line, column, sheet)
+        low_surface = None if sheet is None else (
+            ~obstacle & pick(points.valid) & (sheet.rows_off > LOW_ROWS_PX))
         found = ObstaclePoints(range_m, sector, obstacle, line, column, sigma_m, data.snr,
-                               points.xyz_m[:, 2][clean])
+                               points.xyz_m[:, 2][clean], low_surface)
         doubt_m = self._doubt_ranges(extraction)
         reach_m = np.full(self.layout.count, np.inf)
         flagged = _NO_COLUMNS  # samples that keep their columns from being free

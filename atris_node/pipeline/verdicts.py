@@ -175,6 +175,10 @@ class ObstaclePoints:
     snr: FloatArray
     #: (n,) camera-frame depth z (m); None: not known, no test of the lines below a surface
     depth_m: FloatArray | None = None
+    #: (n,) below the clearance and off its sheet's ground row: a low surface's point, not
+    #: the ground's (a hole's flank opposite an obstacle point, :class:`LineHoles`); None:
+    #: not known, none is
+    low: BoolArray | None = None
 
     @property
     def size(self) -> int:
@@ -186,7 +190,8 @@ class ObstaclePoints:
         return ObstaclePoints(
             self.range_m[index], self.sector[index], self.obstacle[index], self.line[index],
             self.column[index], self.sigma_m[index], self.snr[index],
-            None if self.depth_m is None else self.depth_m[index])
+            None if self.depth_m is None else self.depth_m[index],
+            None if self.low is None else self.low[index])
 
 
 @dataclass(frozen=True)
@@ -397,12 +402,16 @@ class LineHoles:
         is too noisy to show it; None: nowhere), bright at ``bright_snr`` or where they
         hold a ``dimmed`` (K, W) sample (None: none); one compiled pass
         (:func:`atris_node.pipeline.verdicts_kernels.line_holes`). A flank is the
-        line's last obstacle point in the column."""
+        line's last obstacle point in the column, or opposite one its last ``low`` point
+        (a low surface's, below the clearance, not the ground's: a moving sphere's stripe
+        ended 10 columns before a car's foot 3 cm up, which took the line on; without
+        that flank there was no hole, and the car was read for the sphere)."""
         return cls(*verdicts_kernels.line_holes(
             seen, _NOWHERE if noisy is None else noisy,
             _NOWHERE if dimmed is None else dimmed,
             np.asarray(points.line, dtype=np.int64), np.asarray(points.column, dtype=np.int64),
             np.asarray(points.range_m, dtype=np.float64), points.obstacle,
+            np.zeros(points.size, dtype=np.bool_) if points.low is None else points.low,
             np.asarray(points.snr, dtype=np.float64), float(bright_snr), GAP_RUN))
 
 
@@ -533,19 +542,32 @@ def _unseen_whole(s: int, view: MapView, distance_m: float, settings: SectorSett
     open as in :func:`unseen_columns` (the gap between two boxes of a range ladder, 2 m
     and 3 m away, the lowest line seen on the floor beyond in it: taken with the sector's
     own points only, the gap's columns in the 2 m sector counted and the 3 m sector went
-    INVALID). -1 when an SNR holds NaN; 0 without line holes (no column evidence)."""
+    INVALID). A line is strong here on its obstacle points and its low surfaces' points
+    (``ObstaclePoints.low``) in the sector: a line that meets the foot of the surface
+    found, below the clearance, returns from it as brightly (a sphere approaching at 5.3
+    m/s, its stripe ended 10 columns before a car's foot 3 cm up; with obstacle points
+    only the line had none in the car's sector, and the car was read for the sphere,
+    2.73 m for 1.72 m). -1 when an SNR holds NaN; 0 without line holes (no column
+    evidence)."""
     holes, span = view.holes, view.spans[s]
     if holes is None or span is None:
         return 0
     margin = doubt_margin_m(distance_m)
-    hits = view.sectors[s].hits
+    returns = _returns(view.sectors[s].inside)
     around = [view.sectors[t] for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
     return int(verdicts_kernels.unseen_whole(
         holes.nearer_m, holes.noisy, holes.line, holes.start, holes.stop, span[0], span[1],
         distance_m - margin, distance_m + margin, GAP_SNR * settings.snr_min, view.columns[s],
-        _ints(hits.line), _floats(hits.snr),
+        _ints(returns.line), _floats(returns.snr),
         _ints(np.concatenate([a.inside.column for a in around])),
         _floats(np.concatenate([a.inside.range_m for a in around])), GAP_RUN))
+
+
+def _returns(inside: ObstaclePoints) -> ObstaclePoints:
+    """The obstacle points and the low surfaces' points (``low``) of ``inside``: where a
+    line returns from something standing, if lower than the clearance."""
+    keep = inside.obstacle if inside.low is None else inside.obstacle | inside.low
+    return inside.take(np.flatnonzero(keep))
 
 
 def _unseen_columns(s: int, view: MapView, distance_m: float, settings: SectorSettings
@@ -587,7 +609,7 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
     margin = doubt_margin_m(distance_m)
     near = (((holes.nearer_m < distance_m - margin) | holes.noisy)
             & (holes.start <= span[1]) & (holes.stop > span[0]))
-    hits = view.sectors[s].hits
+    returns = _returns(view.sectors[s].inside)
     around = [view.sectors[t] for t in (s - 1, s, s + 1) if 0 <= t < len(view.sectors)]
     far = np.concatenate([a.inside.column[a.inside.range_m > distance_m + margin]
                           for a in around])
@@ -596,7 +618,7 @@ def _unseen_whole_steps(s: int, view: MapView, distance_m: float, settings: Sect
     longest = 0
     for k, start, stop in zip(holes.line[near], holes.start[near], holes.stop[near],
                               strict=True):
-        snr = hits.snr[hits.line == k]
+        snr = returns.snr[returns.line == k]
         if not snr.size or not np.median(snr) >= GAP_SNR * settings.snr_min:
             continue
         hole = np.zeros(width, dtype=np.bool_)

@@ -637,22 +637,25 @@ def runs(mask: BoolArray) -> tuple[IntArray, IntArray, IntArray]:
 
 @kernel("Tuple((int64[:], int64[:], int64[:], float64[:], float64[:], boolean[:], "
         "boolean[:]))(boolean[:, :], boolean[:, :], boolean[:, :], int64[:], int64[:], "
-        "float64[:], boolean[:], float64[:], float64, int64)")
+        "float64[:], boolean[:], boolean[:], float64[:], float64, int64)")
 def line_holes(seen: BoolArray, noisy: BoolArray, dimmed: BoolArray, line: IntArray,
-               column: IntArray, range_m: FloatArray, obstacle: BoolArray, snr: FloatArray,
-               bright_snr: float, gap: int
+               column: IntArray, range_m: FloatArray, obstacle: BoolArray, low: BoolArray,
+               snr: FloatArray, bright_snr: float, gap: int
                ) -> tuple[IntArray, IntArray, IntArray, FloatArray, FloatArray, BoolArray,
                           BoolArray]:
     """:class:`atris_node.pipeline.verdicts.LineHoles` of ``seen`` (K, W) under ``noisy``
     ((K, W), or (0, 0) for nowhere) from the points (``line``, ``column``, ``range_m``,
-    ``obstacle``, ``snr``; (n,) each): per hole its line, start, stop, nearer and farther
-    flank (m), noisy, and bright (its line has an obstacle point of SNR ``bright_snr`` or
-    more in ``gap`` of the 2·``gap`` columns on either side: a single dropout beside the
-    hole leaves it bright; or ``dimmed`` ((K, W), or (0, 0) for nowhere) in a column of
-    the run: a bright line's dim, whose flanks a moving occluder dims too). A flank is the
-    last obstacle point of the line in the column, as a numpy assignment leaves it."""
+    ``obstacle``, ``low``, ``snr``; (n,) each): per hole its line, start, stop, nearer and
+    farther flank (m), noisy, and bright (its line has an obstacle point of SNR
+    ``bright_snr`` or more in ``gap`` of the 2·``gap`` columns on either side: a single
+    dropout beside the hole leaves it bright; or ``dimmed`` ((K, W), or (0, 0) for
+    nowhere) in a column of the run: a bright line's dim, whose flanks a moving occluder
+    dims too). A flank is the last obstacle point of the line in the column, as a numpy
+    assignment leaves it; opposite an obstacle flank, the last ``low`` point (a surface
+    below the clearance) flanks too."""
     lines, width = seen.shape
     flank = np.full((lines, width), np.nan)
+    below = np.full((lines, width), np.nan)  # the last low point
     bright_lines, bright_width = lines, width
     for i in range(line.size):
         if obstacle[i] and not (0 <= line[i] < lines and 0 <= column[i] < width):
@@ -661,6 +664,8 @@ def line_holes(seen: BoolArray, noisy: BoolArray, dimmed: BoolArray, line: IntAr
         bright_width = max(bright_width, column[i] + 1)
     bright = np.zeros((bright_lines, bright_width), dtype=np.bool_)
     for i in range(line.size):
+        if low[i] and not obstacle[i] and 0 <= line[i] < lines and 0 <= column[i] < width:
+            below[line[i], column[i]] = range_m[i]
         if obstacle[i]:
             flank[line[i], column[i]] = range_m[i]
             if snr[i] >= bright_snr:
@@ -676,6 +681,10 @@ def line_holes(seen: BoolArray, noisy: BoolArray, dimmed: BoolArray, line: IntAr
         if a == 0 or b >= width or b - a < gap:
             continue
         left, right = flank[k, a - 1], flank[k, b]
+        if np.isfinite(left) and not np.isfinite(right):
+            right = below[k, b]
+        elif np.isfinite(right) and not np.isfinite(left):
+            left = below[k, a - 1]
         flanked = np.isfinite(left) and np.isfinite(right)
         if noisy.shape[0]:
             inside = 0
@@ -913,6 +922,7 @@ def warm_up() -> None:
     line_holes(np.zeros((1, 8), dtype=np.bool_), np.zeros((0, 0), dtype=np.bool_),
                np.zeros((0, 0), dtype=np.bool_), np.zeros(1, dtype=np.int64),
                np.zeros(1, dtype=np.int64), np.ones(1), np.ones(1, dtype=np.bool_),
+               np.zeros(1, dtype=np.bool_),
                np.ones(1), 1.0, 3)
     one = np.zeros(1, dtype=np.int64)
     expected_on_surface(one, np.ones(1), one, one, np.ones(1), np.ones((1, 1)),
