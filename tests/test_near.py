@@ -79,6 +79,19 @@ def test_a_short_run_dim_stripe_or_noise_is_no_near_surface() -> None:
         assert _near(_map(40.0, range(0), 0.0, seed=seed))[0].size == 0
 
 
+@pytest.mark.parametrize("pedestal", [-2000, 2000])
+def test_feature_a_near_stripe_is_as_bright_as_it_stands_over_a_pedestal(
+        pedestal: int) -> None:
+    """The bright and the dim stripe above on a pedestal of either sign (light the code
+    does not cancel, tests/test_pedestal.py): the bright one is kept in every column,
+    the dim one nowhere; brightness is over the guard's local background. Checked by
+    removal: read over 0, the bright stripe on -2000 DN was dropped (a near surface
+    missed) and the dim one on +2000 DN kept in all 30 columns."""
+    _, col = _near(_map(40.0, range(60, 90), 1000.0) + pedestal)
+    assert sorted(set(col.tolist())) == list(range(60, 90))
+    assert _near(_map(40.0, range(60, 90), 30.0) + pedestal)[0].size == 0
+
+
 def test_a_blinded_or_huge_guard_gives_no_stripe_and_no_nan() -> None:
     """Extremes: a guard at full scale in every pixel (a sky that saturates every
     sub-frame) has no maximum; a stripe at the int32 map's largest value over 30 columns

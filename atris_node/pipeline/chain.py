@@ -431,7 +431,8 @@ class Pipeline:
             stricter = (self.config.tied_reflectance, tied[samples.line, col])
         return radiometry.too_faint(dmap.values, samples, points, dmap.code_length,
                                     self.calibration.laser, dmap.exposure_us or None,
-                                    self.config.min_reflectance, stricter)
+                                    self.config.min_reflectance, stricter,
+                                    extraction.noise_map)
 
     def _near_stripes(self, dmap: DistortionMap) -> tuple[IntArray, IntArray]:
         """(rows, columns) of the stripes above every band: a surface nearer than z_min

@@ -42,7 +42,7 @@ from atris_node.calibration import CameraModel, LaserCalibration
 from atris_node.pipeline import radiometry
 from atris_node.pipeline.bands import Band
 from atris_node.pipeline.geometry import triangulate_pixels
-from atris_node.pipeline.noise import noise_map
+from atris_node.pipeline.noise import NoiseMap, noise_map
 from atris_node.pipeline.peaks import (
     ExtractorSettings,
     one_sided,
@@ -110,28 +110,29 @@ def near_stripes(values: npt.NDArray[Any], saturated: BoolArray, bands: tuple[Ba
                                           settings))
     slot, col = np.nonzero(peaks >= 0)
     row = peaks[slot, col]
-    bright = _bright_enough(values, row, col, top.line, camera, laser,
+    bright = _bright_enough(values, local, row, col, top.line, camera, laser,
                             code_length, exposure_us, min_reflectance)
     row, col = row[bright], col[bright]
     keep = _in_long_runs(col, values.shape[1], NEAR_RUN)
     return row[keep].astype(np.int64), col[keep].astype(np.int64)
 
 
-def _bright_enough(values: npt.NDArray[Any], row: IntArray,
+def _bright_enough(values: npt.NDArray[Any], local: NoiseMap, row: IntArray,
                    col: IntArray, line: int, camera: CameraModel, laser: LaserCalibration,
                    code_length: int, exposure_us: float | None,
                    min_reflectance: float) -> BoolArray:
     """(n,) True for the peaks at (``row``, ``col``) that, as ``line`` (the topmost: the
     farthest range any line gives a row above its band), stand for an apparent
-    reflectance of ``min_reflectance`` or more (a saturated peak by its clipped value: a
-    lower bound); all True when brightness is not looked at, False where the line gives
-    no range."""
+    reflectance of ``min_reflectance`` or more (the peak over its ``local`` background; a
+    saturated peak by its clipped value: a lower bound); all True when brightness is not
+    looked at, False where the line gives no range."""
     points = triangulate_pixels(row.astype(np.float64), col.astype(np.float64),
                                 np.full(row.size, line, dtype=np.int64), camera, laser,
                                 z_max_m=np.inf)
     if min_reflectance <= 0.0 or not radiometry.calibrated(laser) or not row.size:
         return np.asarray(points.valid, dtype=np.bool_)
-    peak = radiometry.sample_peaks(values, row.astype(np.float64), col.astype(np.float64))
+    peak = radiometry.sample_peaks(values, row.astype(np.float64), col.astype(np.float64),
+                                   local)
     reflectance = radiometry.apparent_reflectance(
         peak, radiometry.source_range_m(points, laser), code_length, laser, exposure_us)
     return np.asarray(points.valid & (reflectance >= min_reflectance), dtype=np.bool_)

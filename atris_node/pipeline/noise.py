@@ -197,6 +197,16 @@ class NoiseMap:
         """(R + 1, C) float32 ``background + snr_min · σ`` per tile, DN."""
         return self.background_tiles + np.float32(snr_min) * self.sigma_tiles
 
+    def background_at(self, row_px: npt.NDArray[np.float64], col_px: npt.NDArray[np.float64]
+                      ) -> npt.NDArray[np.float64]:
+        """(n,) float64 local background (DN) of the pixels at (``row_px``, ``col_px``)
+        (n,), rows floored and columns rounded as the samples are read, both clipped to
+        the image (0 outside the rows read)."""
+        row = np.clip(np.floor(row_px).astype(np.int64), 0, self.tile_row.size - 1)
+        col = np.clip(np.rint(col_px).astype(np.int64), 0, self.width - 1)
+        return self.background_tiles[self.tile_row[row], col // NOISE_TILE_PX].astype(
+            np.float64)
+
     def _image(self, tiles: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         """(H, W) float32 image of per-tile values (one broadcast copy)."""
         t = NOISE_TILE_PX

@@ -8,7 +8,11 @@ are set aside, each line takes its peak in each column
 of five peak methods on its column profile (compiled, per sample,
 :mod:`atris_node.pipeline.peaks_kernels`).
 
-Peak methods (``PEAK_METHODS``), all on the column profile around the integer maximum:
+Peak methods (``PEAK_METHODS``), all on the column profile around the integer maximum,
+over the local background of its noise tile (light the code does not cancel leaves a
+pedestal of hundreds of DN of either sign: on it a centre of gravity is pulled to the
+integer row, and a Gaussian's logarithms have no positive stripe to fit,
+tests/test_pedestal.py):
 
 - ``cog``: centre of gravity of the values above 3 noise floors within ±2.5 σ_stripe;
 - ``parabolic``: vertex of the parabola through 3 points;
@@ -202,6 +206,9 @@ class Extraction:
     #: (K, W) True where line k's sample in column c was dropped as a dim of a bright line
     #: (atris_node.pipeline.dimming; set by the chain); None: none
     dimmed: BoolArray | None = None
+    #: the local background and σ the peaks were measured against (their brightness is
+    #: over it); None: not kept
+    noise_map: NoiseMap | None = None
 
 
 # --------------------------------------------------------------------------- rows read
@@ -431,7 +438,7 @@ def extract_lines(values: npt.NDArray[np.generic], saturated: BoolArray,
                       moving=int(np.minimum(moved, unassigned).sum()),
                       steps=int((np.minimum(moved + edges, unassigned)
                                  - np.minimum(moved, unassigned)).sum()),
-                      band_noise_dn=band_noise(local, bands),
+                      band_noise_dn=band_noise(local, bands), noise_map=local,
                       tile_noise_dn=median_of(local.sigma_tiles[:-1])
                       if local.sigma_tiles.shape[0] > 1 else noise,
                       blinded=blinded_bands(values, flat, local, bands, settings.snr_min),

@@ -605,8 +605,10 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
             if not snr >= snr_min:
                 continue
             strong += 1
-            for j in range(2 * r + 1):
-                window[j] = values[min(max(centre - r + j, 0), height - 1), c]
+            background = np.float64(background_tiles[tile])
+            for j in range(2 * r + 1):  # the stripe over its tile's background
+                window[j] = np.float64(values[min(max(centre - r + j, 0), height - 1), c]
+                                       ) - background
             flat = any_saturated and _flat_top(saturated, centre, c)
             if not (centre - r >= 0 and centre + r < height):
                 continue
@@ -622,8 +624,8 @@ def line_samples(values: npt.NDArray[np.generic], saturated: npt.NDArray[np.bool
                 if not (good and abs(offset) <= 1.0 and window[r] >= window[r - 1]
                         and window[r] >= window[r + 1]):
                     continue
-                if narrowest > 0.0 and _cut(window, r, np.float64(background_tiles[tile]),
-                                            np.float64(sigma_tiles[tile]), product):
+                if narrowest > 0.0 and _cut(window, r, 0.0, np.float64(sigma_tiles[tile]),
+                                            product):
                     continue
                 row, sigma_u = centre + offset, crlb / max(snr, 1.0)
             out_line[n], out_row[n], out_col[n] = k, row, c

@@ -26,9 +26,13 @@ of albedos, and passes.
 Left out: saturated samples (their peak is clipped; a clipped peak is bright), a map
 without a calibrated D (``return_dn_m2`` 0: nothing to compare with), and
 ``min_reflectance`` 0. The peak is the larger of the two map pixels around the
-sub-pixel row (a stripe centred between two rows spreads over both). Vignetting and
-haze, which the model leaves out, only make returns fainter: a sample near the edge of
-the image or in fog may be dropped that should not be (INVALID, not wrong).
+sub-pixel row (a stripe centred between two rows spreads over both), over the local
+background the peaks were found against: light the code does not cancel leaves a
+pedestal of either sign (flicker_100hz's second map lies 590 DN below 0), which would
+otherwise lend a faint return a near surface's brightness or take a bright one's away.
+Vignetting and haze, which the model leaves out, only make returns fainter: a sample
+near the edge of the image or in fog may be dropped that should not be (INVALID, not
+wrong).
 
 Units: DN for map values, m for ranges, µs for exposures; float64 throughout; no inf or
 NaN leaves (a point at the projector, r = 0, cannot occur: a valid point lies beyond
@@ -45,6 +49,7 @@ import numpy.typing as npt
 from atris_node.calibration import LaserCalibration
 from atris_node.pipeline import radiometry_kernels
 from atris_node.pipeline.geometry import Points
+from atris_node.pipeline.noise import NoiseMap
 from atris_node.pipeline.peaks import LineSamples
 
 FloatArray = npt.NDArray[np.float64]
@@ -63,16 +68,17 @@ def calibrated(laser: LaserCalibration) -> bool:
     return laser.return_dn_m2 > 0.0
 
 
-def sample_peaks(values: npt.NDArray[Any], row_px: FloatArray, col_px: FloatArray
-                 ) -> FloatArray:
+def sample_peaks(values: npt.NDArray[Any], row_px: FloatArray, col_px: FloatArray,
+                 local: NoiseMap | None = None) -> FloatArray:
     """(n,) float64 peak DN of each sample at (``row_px``, ``col_px``) (n,): the larger of
     the map pixels on the rows around its sub-pixel row, in its column (clipped to the
-    image)."""
+    image), over the ``local`` background there (None: over 0)."""
     height, width = values.shape
     row = np.clip(np.floor(row_px).astype(np.int64), 0, height - 1)
     col = np.clip(np.rint(col_px).astype(np.int64), 0, width - 1)
     below = np.minimum(row + 1, height - 1)
-    return np.maximum(values[row, col], values[below, col]).astype(np.float64)
+    peak = np.maximum(values[row, col], values[below, col]).astype(np.float64)
+    return peak if local is None else peak - local.background_at(row_px, col_px)
 
 
 def source_range_m(points: Points, laser: LaserCalibration) -> FloatArray:
@@ -102,13 +108,15 @@ def apparent_reflectance(peak_dn: FloatArray, range_m: FloatArray, code_length: 
 def too_faint(values: npt.NDArray[Any], samples: LineSamples, points: Points,
               code_length: int, laser: LaserCalibration, exposure_us: float | None,
               min_reflectance: float = MIN_REFLECTANCE,
-              stricter: tuple[float, BoolArray] | None = None) -> BoolArray:
+              stricter: tuple[float, BoolArray] | None = None,
+              local: NoiseMap | None = None) -> BoolArray:
     """(n,) True for the valid, unsaturated samples whose peak (:func:`sample_peaks`)
     stands for an apparent reflectance (:func:`apparent_reflectance` at
     :func:`source_range_m`) under ``min_reflectance`` at the range their line gives, or,
     for the samples ``stricter`` = (reflectance, which (n,)) names, under the larger of
     the two; all False when the check is left out (no calibration, both floors 0, no
-    sample). One compiled pass (:func:`radiometry_kernels.too_faint`); the numpy
+    sample). The peak is over the ``local`` background the peaks were found against
+    (None: over 0). One compiled pass (:func:`radiometry_kernels.too_faint`); the numpy
     functions above are its reference and the calibration's."""
     out = np.zeros(len(samples), dtype=np.bool_)
     floor = np.full(len(samples), max(float(min_reflectance), 0.0))
@@ -117,9 +125,11 @@ def too_faint(values: npt.NDArray[Any], samples: LineSamples, points: Points,
     test = points.valid & ~samples.saturated & (floor > 0.0)
     if not calibrated(laser) or not test.any():
         return out
+    row = np.ascontiguousarray(samples.row_px, dtype=np.float64)
+    col = np.ascontiguousarray(samples.col_px, dtype=np.float64)
+    background = np.zeros(row.size) if local is None else local.background_at(row, col)
     radiometry_kernels.too_faint(
-        values, np.ascontiguousarray(samples.row_px, dtype=np.float64),
-        np.ascontiguousarray(samples.col_px, dtype=np.float64), np.ascontiguousarray(test),
+        values, row, col, background, np.ascontiguousarray(test),
         np.ascontiguousarray(points.xyz_m.reshape(-1, 3), dtype=np.float64),
         float(laser.baseline_m), _per_map_dn_m2(code_length, laser, exposure_us), floor, out)
     return out
