@@ -197,6 +197,15 @@ KNOWN_WRONG: dict[str, str] = {
                                                          "below the unit, the top sheet "
                                                          "over it; its three stripes read "
                                                          "one line up, 2.3 m (12 of 32)",
+    "dark_crate_merged_pair_comb_read_one_line_up_drawn": "far: a dark crate taller than "
+                                                          "the unit, a merged pair on its "
+                                                          "face; its comb read one line "
+                                                          "up, 2.09 m for 1.57 m (4 of 32)",
+    "grazing_sheet_ground_stripe_read_as_low_obstacle_drawn": "near: one sheet on the "
+                                                              "ground at 8 m, its stripe "
+                                                              "1.6 rows off the truth's: "
+                                                              "an obstacle at 7.24 m where "
+                                                              "none stands (1 of 32)",
     "fast_sphere_smeared_box_behind": "far: a sphere approaching at 6.5 m/s smears over a "
                                       "64-chip map and is not found; the box behind it, "
                                       "8.1 m, is read with the sphere at 4.3-6.0 m (map 1)",
